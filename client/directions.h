@@ -1,0 +1,19 @@
+// Query directions: angle conversion and packing into an EvaluateRequest.
+#pragma once
+
+#include <array>
+
+#include "loomlight/v1/loomlight.pb.h"
+
+namespace loomlight::client {
+
+using Vec3 = std::array<double, 3>;
+
+// The unit direction at polar angle theta from the normal +z and azimuth phi from +x, both in degrees.
+// A negative theta is the direction on the opposite side (phi + 180), which suits in-plane sweeps.
+Vec3 direction_from_degrees(double theta_deg, double phi_deg);
+
+// Appends one (wi, wo) query; the API takes float xyz triples.
+void add_query(loomlight::v1::EvaluateRequest& request, const Vec3& wi, const Vec3& wo);
+
+}  // namespace loomlight::client

@@ -1,0 +1,59 @@
+#include "client/material.h"
+
+#include <sstream>
+
+namespace loomlight::client {
+namespace {
+
+namespace v1 = loomlight::v1;
+
+// "name=v1,v2,..." -> Param.
+v1::Param parse_param(const std::string& text) {
+  const auto eq = text.find('=');
+  if (eq == std::string::npos || eq == 0 || eq + 1 == text.size())
+    throw UsageError("--param needs NAME=V1[,V2...], got '" + text + "'");
+  v1::Param param;
+  param.set_name(text.substr(0, eq));
+  for (double v : parse_numbers(std::string_view(text).substr(eq + 1), "--param " + param.name()))
+    param.add_values(v);
+  return param;
+}
+
+std::string join_values(const v1::Param& param) {
+  std::ostringstream out;
+  for (int i = 0; i < param.values_size(); ++i) out << (i ? "," : "") << param.values(i);
+  return out.str();
+}
+
+}  // namespace
+
+const OptionList& material_options() {
+  static const OptionList options = {
+      {"preset", "NAME", "a preset material (see `loomlight models`)"},
+      {"model", "NAME", "a model; with --preset it must be the preset's model"},
+      {"param", "NAME=V1[,V2...]", "set a parameter (repeatable); overrides the preset's value"},
+      {"fp64", "", "evaluate with the double-precision reference kernels"},
+  };
+  return options;
+}
+
+v1::EvaluateRequest material_request(const ParsedOptions& options) {
+  v1::EvaluateRequest request;
+  v1::Material& material = *request.mutable_material();
+  if (auto preset = options.last("preset")) material.set_preset(*preset);
+  if (auto model = options.last("model")) material.set_model(*model);
+  if (material.preset().empty() && material.model().empty()) throw UsageError("give --preset NAME or --model NAME");
+  for (const auto& entry : options.matching({"param"})) *material.add_params() = parse_param(entry.value);
+  request.set_precision(options.has("fp64") ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
+  return request;
+}
+
+std::string material_label(const v1::Material& material) {
+  std::string label = material.preset().empty() ? material.model() : material.preset();
+  std::string overrides;
+  for (const v1::Param& p : material.params())
+    overrides += (overrides.empty() ? "" : " ") + p.name() + "=" + join_values(p);
+  return overrides.empty() ? label : label + " (" + overrides + ")";
+}
+
+}  // namespace loomlight::client

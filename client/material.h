@@ -1,0 +1,24 @@
+// The material options shared by every command that evaluates (eval, plot).
+#pragma once
+
+#include <string>
+
+#include "client/cli.h"
+#include "loomlight/v1/loomlight.pb.h"
+
+namespace loomlight::client {
+
+// The synopsis of the material options; a macro so that command synopses can embed it in their literals.
+#define LOOMLIGHT_MATERIAL_SYNOPSIS "(--preset NAME | --model NAME) [--param NAME=V1[,V2...]]... [--fp64]"
+
+// --preset, --model, --param (repeatable), --fp64.
+const OptionList& material_options();
+
+// An EvaluateRequest carrying the material and precision from the options, without directions yet.
+// The server checks names, counts and ranges; the client only checks the syntax.
+loomlight::v1::EvaluateRequest material_request(const ParsedOptions& options);
+
+// A short human name of the material, e.g. "silk_shot" or "microcylinder (eta=1.46)", for titles.
+std::string material_label(const loomlight::v1::Material& material);
+
+}  // namespace loomlight::client

@@ -1,0 +1,50 @@
+// The client's connection to a Loomlight server: channel setup, calls, and how failures are reported.
+#pragma once
+
+#include <chrono>
+#include <iosfwd>
+#include <memory>
+#include <stdexcept>
+#include <string>
+
+#include <grpcpp/grpcpp.h>
+
+#include "client/cli.h"
+#include "loomlight/v1/loomlight.grpc.pb.h"
+
+namespace loomlight::client {
+
+namespace v1 = loomlight::v1;
+
+// A failed call. what() is "<STATUS_CODE_NAME>: <message>", the one format every command prints.
+struct RpcError : std::runtime_error {
+  explicit RpcError(const grpc::Status& status);
+  grpc::StatusCode code;
+};
+
+// "INVALID_ARGUMENT" for grpc::StatusCode::INVALID_ARGUMENT, and so on.
+const char* status_code_name(grpc::StatusCode code);
+
+// --server and --timeout, accepted before the command and by every command.
+const OptionList& connection_options();
+
+class Client {
+ public:
+  // Target from --server, else $LOOMLIGHT_SERVER, else 127.0.0.1:50051.
+  explicit Client(const ParsedOptions& options);
+
+  v1::ListModelsResponse list_models();
+  // Checks that the response holds one RGB triple per query before returning it.
+  v1::EvaluateResponse evaluate(const v1::EvaluateRequest& request);
+
+ private:
+  void prepare(grpc::ClientContext& context) const;
+
+  std::unique_ptr<v1::Loomlight::Stub> stub_;
+  std::chrono::milliseconds timeout_;
+};
+
+// The server's timing and batching report of one Evaluate call, as one line (for --verbose).
+void print_timing(std::ostream& out, const v1::EvaluateResponse& response, int queries);
+
+}  // namespace loomlight::client

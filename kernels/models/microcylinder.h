@@ -1,0 +1,121 @@
+// Microcylinder cloth BRDF of Sadeghi et al. 2012, exactly as pinned in SPEC.md section 2.
+// Shared source: compiled as OpenCL C (microcylinder.cl) and as C++ (double reference, float baseline).
+// Include kernels/common/shim.h first.
+//
+// Packed material (array of real), for T tangent samples per thread:
+//   [0]              eta
+//   [1 + j*S ...]    thread j (j = 0: along x, j = 1: along y), S = MC_THREAD_HEADER + 2T values:
+//                    coverage a, albedo A (r, g, b), kd, gamma_s, gamma_v (radians),
+//                    then T pairs (cos alpha, sin alpha) of the sampled tangent offsets.
+
+#define MC_THREAD_HEADER 7
+#define MC_MAX_TANGENT_SAMPLES 256
+// 1 / (2 sigma_u^2) with sigma_u = 20 degrees (Sec. 5.2): the masking and reweighting blend width.
+#define MC_U_INV2S2 R(4.1035862571313326)
+
+LL_INLINE int mc_thread_stride(int T) { return MC_THREAD_HEADER + 2 * T; }
+LL_INLINE int mc_material_stride(int T) { return 1 + 2 * mc_thread_stride(T); }
+
+// Tangent offset (degrees) at arc length s on a piecewise-linear tangent curve: offsets[0..n-1] at the control
+// points, lengths[0..n-2] between them; a zero-length segment is a jump. Used by the host to pack materials.
+LL_INLINE real mc_curve_offset(const real* offsets, const real* lengths, int n, real s) {
+  real start = R(0.0);
+  for (int k = 0; k + 1 < n; ++k) {
+    const real end = start + lengths[k];
+    if (s < end && lengths[k] > R(0.0))
+      return offsets[k] + (offsets[k + 1] - offsets[k]) * ((s - start) / lengths[k]);
+    start = end;
+  }
+  return offsets[n - 1];
+}
+
+// Accumulates one thread's T tangent samples for a query.
+// (ia, ib, iz) are wi's components along the thread's own axis, the other cloth axis and the normal
+// (thread along x: (x, y, z); along y: (y, x, z)); likewise (oa, ob, oz) for wo. Adds sum P Q to
+// *surf (achromatic surface part) and *vol (volume part, to be multiplied by A) and sum P to *psum.
+LL_INLINE void mc_accumulate_thread(LL_GLOBAL const real* thread, int T, real eta,
+                                    real ia, real ib, real iz, real oa, real ob, real oz,
+                                    real* surf, real* vol, real* psum) {
+  const real kd = thread[4];
+  const real gamma_s = thread[5];
+  const real gamma_v = thread[6];
+  LL_GLOBAL const real* tangents = thread + MC_THREAD_HEADER;
+  real s_surf = R(0.0), s_vol = R(0.0), s_p = R(0.0);
+  for (int m = 0; m < T; ++m) {  // T is the same for every query of a launch
+    LL_UNIFORM_LOOP_BARRIER();
+    const real ca = tangents[2 * m], sa = tangents[2 * m + 1];
+    // t = (ca, 0, sa), nt = (-sa, 0, ca), b = the other cloth axis, in the thread's (a, b, z) frame.
+    const real si = ia * ca + iz * sa, ni = iz * ca - ia * sa, bi = ib;
+    const real sr = oa * ca + oz * sa, nr = oz * ca - oa * sa, br = ob;
+
+    // Reweighting (Sec. 5.3). P > 0 needs ni > 0 and nr > 0, hence |wi_p|, |wo_p| > 0 below.
+    const real pi_ = ni > R(0.0) ? ni / sqrt(si * si + ni * ni) : R(0.0);
+    const real pr_ = nr > R(0.0) ? nr / sqrt(sr * sr + nr * nr) : R(0.0);
+    const real ci0 = sqrt(ni * ni + bi * bi), cr0 = sqrt(nr * nr + br * br);  // cos theta = |w_p|
+    const int live = pi_ > R(0.0) && pr_ > R(0.0) && ci0 * cr0 > R(0.0);
+    const real ci = live ? ci0 : R(1.0), cr = live ? cr0 : R(1.0);  // keep dead lanes finite
+    // psi_i - psi_r as one atan2: no wrap-around, since both |psi| < 90 degrees where P > 0.
+    const real psi_d = ll_atan2(si * nr - ni * sr, ni * nr + si * sr);
+    const real u_psi = ll_unit_gaussian(MC_U_INV2S2, psi_d);
+    const real p = live ? (R(1.0) - u_psi) * pi_ * pr_ + u_psi * LL_FMIN(pi_, pr_) : R(0.0);
+
+    // Masking (Sec. 5.2): cos phi_w = (w.nt) / |w_p|, positive here.
+    const real mi = ni / ci, mr = nr / cr;
+    const real dot_p = ni * nr + bi * br;  // wi_p . wo_p
+    const real phi_d = ll_atan2(fabs(ni * br - bi * nr), dot_p);
+    const real u_phi = ll_unit_gaussian(MC_U_INV2S2, phi_d);
+    const real mask = (R(1.0) - u_phi) * mi * mr + u_phi * LL_FMIN(mi, mr);
+    const real cos_phi_d = LL_FMIN(LL_FMAX(dot_p / (ci * cr), R(-1.0)), R(1.0));  // Cauchy-Schwarz bound
+    const real cos_half_phi_d = sqrt(R(0.5) * (R(1.0) + cos_phi_d));
+
+    // theta_i + theta_r from one atan2 of the sum formulas (cos theta >= 0 keeps it in [-pi, pi]).
+    const real theta_h = R(0.5) * ll_atan2(si * cr + ci * sr, ci * cr - si * sr);
+    // 2 cos^2(theta_d) = 1 + cos(theta_i - theta_r) = 1 + si sr + ci cr; when si sr < 0 the 1 + si sr part
+    // is rewritten as ci^2/(1+|si|) + |si| cr^2/(1+|sr|), which has no cancellation as theta_d -> 90 degrees.
+    const real asi = fabs(si), asr = fabs(sr);
+    const real one_plus_sisr =
+        si * sr >= R(0.0) ? R(1.0) + si * sr : ci * ci / (R(1.0) + asi) + asi * cr * cr / (R(1.0) + asr);
+    const real cos2_d = R(0.5) * (one_plus_sisr + ci * cr);
+    const real cos_d = sqrt(cos2_d);
+
+    // Thread scattering (Sec. 4.3), divided by cos^2(theta_d) below.
+    const real f_rs = ll_fresnel_dielectric(eta, cos_d * cos_half_phi_d) * cos_half_phi_d *
+                      ll_gaussian(gamma_s, theta_h);
+    const real ft = (R(1.0) - ll_fresnel_dielectric(eta, ci)) * (R(1.0) - ll_fresnel_dielectric(eta, cr));
+    const real f_rv = ft * ((R(1.0) - kd) * ll_gaussian(gamma_v, theta_h) + kd) / (ci + cr);
+
+    // P Q = P f_s M cos(theta_i), with f_s = (f_rs + f_rv A) / cos^2(theta_d).
+    const real w = live ? p * mask * ci / cos2_d : R(0.0);
+    s_surf += w * f_rs;
+    s_vol += w * f_rv;
+    s_p += p;
+  }
+  *surf = s_surf;
+  *vol = s_vol;
+  *psum = s_p;
+}
+
+// f(wi, wo) for one query (RGB into f[0..2]). wi, wo are renormalised here: the API accepts directions
+// within its unit tolerance, and the model's projections assume exactly unit vectors.
+LL_INLINE void mc_eval(LL_GLOBAL const real* mat, int T, real wix, real wiy, real wiz, real wox, real woy,
+                       real woz, real* f) {
+  const real inv_li = R(1.0) / sqrt(wix * wix + wiy * wiy + wiz * wiz);
+  const real inv_lo = R(1.0) / sqrt(wox * wox + woy * woy + woz * woz);
+  wix *= inv_li; wiy *= inv_li; wiz *= inv_li;
+  wox *= inv_lo; woy *= inv_lo; woz *= inv_lo;
+  const real eta = mat[0];
+  LL_GLOBAL const real* t1 = mat + 1;
+  LL_GLOBAL const real* t2 = t1 + mc_thread_stride(T);
+  real surf1, vol1, p1, surf2, vol2, p2;
+  mc_accumulate_thread(t1, T, eta, wix, wiy, wiz, wox, woy, woz, &surf1, &vol1, &p1);
+  mc_accumulate_thread(t2, T, eta, wiy, wix, wiz, woy, wox, woz, &surf2, &vol2, &p2);
+  const real a1 = t1[0], a2 = t2[0];
+  const real denom = a1 * p1 + a2 * p2;
+  const int lit = wiz > LL_HORIZON_EPS && woz > LL_HORIZON_EPS && denom > R(0.0);
+  // X = (a1 + a2) sum_j a_j sum P Q / sum_j a_j sum P, and f = X / (n.wi); the weighted mean is taken
+  // first so that a tiny sum of P cannot overflow before it cancels.
+  const real inv_denom = lit ? R(1.0) / denom : R(0.0);
+  const real scale = lit ? (a1 + a2) / wiz : R(0.0);
+  for (int c = 0; c < 3; ++c)
+    f[c] = scale * ((a1 * (surf1 + vol1 * t1[1 + c]) + a2 * (surf2 + vol2 * t2[1 + c])) * inv_denom);
+}

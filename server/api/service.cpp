@@ -1,0 +1,155 @@
+#include "server/api/service.h"
+
+#include <cmath>
+
+#include "server/models/material.h"
+
+namespace loomlight::api {
+namespace {
+
+v1::ParamSchema::Type ToProto(models::ParamType t) {
+  switch (t) {
+    case models::ParamType::kReal: return v1::ParamSchema::TYPE_REAL;
+    case models::ParamType::kInt: return v1::ParamSchema::TYPE_INT;
+    case models::ParamType::kRgb: return v1::ParamSchema::TYPE_RGB;
+    case models::ParamType::kRealList: return v1::ParamSchema::TYPE_REAL_LIST;
+  }
+  return v1::ParamSchema::TYPE_UNSPECIFIED;
+}
+
+void AddParams(const models::ParamValues& values, google::protobuf::RepeatedPtrField<v1::Param>* out) {
+  for (const auto& [name, v] : values) {
+    v1::Param* p = out->Add();
+    p->set_name(name);
+    p->mutable_values()->Add(v.begin(), v.end());
+  }
+}
+
+grpc::Status ToStatus(const batching::JobResult& r) {
+  switch (r.status) {
+    case batching::JobStatus::kOk: return grpc::Status::OK;
+    case batching::JobStatus::kDeadlineExceeded: return {grpc::StatusCode::DEADLINE_EXCEEDED, r.message};
+    case batching::JobStatus::kCancelled: return {grpc::StatusCode::CANCELLED, r.message};
+    case batching::JobStatus::kUnavailable: return {grpc::StatusCode::UNAVAILABLE, r.message};
+    case batching::JobStatus::kInternal: return {grpc::StatusCode::INTERNAL, r.message};
+  }
+  return {grpc::StatusCode::INTERNAL, "unknown job status"};
+}
+
+grpc::ServerUnaryReactor* Finish(grpc::CallbackServerContext* context, grpc::Status status) {
+  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  reactor->Finish(std::move(status));
+  return reactor;
+}
+
+grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
+
+}  // namespace
+
+std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field) {
+  if (w.size() % 3 != 0)
+    return field + ": length " + std::to_string(w.size()) + " is not a multiple of 3 (packed xyz triples)";
+  for (int q = 0; q < w.size() / 3; ++q) {
+    const double x = w[3 * q], y = w[3 * q + 1], z = w[3 * q + 2];
+    const std::string at = field + "[" + std::to_string(q) + "]";
+    if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) return at + ": direction is not finite";
+    const double len = std::sqrt(x * x + y * y + z * z);
+    if (std::fabs(len - 1.0) > kUnitTolerance)
+      return at + ": direction has length " + std::to_string(len) + ", not unit (tolerance " +
+             std::to_string(kUnitTolerance) + ")";
+  }
+  return "";
+}
+
+grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerContext* context,
+                                                       const v1::ListModelsRequest*,
+                                                       v1::ListModelsResponse* response) {
+  for (const auto& model : registry_->models()) {
+    v1::ModelInfo* info = response->add_models();
+    info->set_name(model->name());
+    info->set_description(model->description());
+    for (const models::ParamSpec& p : model->params()) {
+      v1::ParamSchema* s = info->add_params();
+      s->set_name(p.name);
+      s->set_type(ToProto(p.type));
+      s->set_unit(p.unit);
+      s->set_min(p.min);
+      s->set_max(p.max);
+      s->mutable_default_values()->Add(p.defaults.begin(), p.defaults.end());
+      s->set_description(p.description);
+      s->set_min_count(p.min_count);
+      s->set_max_count(p.max_count);
+    }
+    for (const models::PresetSpec& preset : model->presets()) {
+      v1::Preset* out = info->add_presets();
+      out->set_name(preset.name);
+      out->set_description(preset.description);
+      AddParams(model->PresetValues(preset), out->mutable_params());
+    }
+  }
+  response->set_max_queries_per_call(kMaxQueriesPerCall);
+  response->set_unit_tolerance(kUnitTolerance);
+  return Finish(context, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext* context,
+                                                     const v1::EvaluateRequest* request,
+                                                     v1::EvaluateResponse* response) {
+  const auto received = batching::Clock::now();
+  models::ResolvedMaterial material;
+  std::string error = models::ResolveMaterial(request->material(), *registry_, &material);
+  if (!error.empty()) return Finish(context, Invalid(error));
+  if (!v1::Precision_IsValid(request->precision()))
+    return Finish(context, Invalid("precision: unknown value " + std::to_string(request->precision())));
+  const bool fp64 = request->precision() == v1::PRECISION_FP64;
+  if (fp64 && !has_fp64_)
+    return Finish(context, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+  if (request->wi_size() != request->wo_size())
+    return Finish(context, Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
+                                   std::to_string(request->wi_size())));
+  const size_t n = request->wi_size() / 3;
+  if (n > kMaxQueriesPerCall)
+    return Finish(context, Invalid("wi: " + std::to_string(n) + " queries exceed the limit of " +
+                                   std::to_string(kMaxQueriesPerCall) + " per call"));
+  for (const auto& [field, w] : {std::pair{"wi", &request->wi()}, std::pair{"wo", &request->wo()}}) {
+    error = ValidateDirections(*w, field);
+    if (!error.empty()) return Finish(context, Invalid(error));
+  }
+  if (request->uv_size() > 0)
+    return Finish(context, Invalid("uv: model '" + material.model->name() +
+                                   "' is not spatially varying; send no uv"));
+
+  auto job = std::make_shared<batching::Job>();
+  job->model = material.model;
+  job->fp64 = fp64;
+  job->material = material.model->Pack(material.values);
+  job->wi = request->wi().data();
+  job->wo = request->wo().data();
+  job->n = n;
+  const auto deadline = context->deadline();
+  if (deadline != std::chrono::system_clock::time_point::max())
+    job->deadline = received + (deadline - std::chrono::system_clock::now());
+  job->cancelled = [context] { return context->IsCancelled(); };
+  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  job->done = [reactor, response, received, model = material.model->name(), fp64](batching::JobResult r) {
+    if (r.status == batching::JobStatus::kOk) {
+      auto* f = response->mutable_f();
+      f->Resize(static_cast<int>(r.f.size()), 0.0f);
+      for (size_t i = 0; i < r.f.size(); ++i) f->Set(static_cast<int>(i), static_cast<float>(r.f[i]));
+      response->set_model(model);
+      response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
+      response->set_queue_seconds(r.queue_seconds);
+      response->set_kernel_seconds(r.kernel_seconds);
+      response->set_batch_queries(static_cast<uint32_t>(r.batch_queries));
+      response->set_batch_requests(static_cast<uint32_t>(r.batch_requests));
+      response->set_total_seconds(std::chrono::duration<double>(batching::Clock::now() - received).count());
+    }
+    reactor->Finish(ToStatus(r));
+  };
+  if (!batcher_->Submit(job)) {
+    reactor->Finish({grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"});
+  }
+  return reactor;
+}
+
+}  // namespace loomlight::api

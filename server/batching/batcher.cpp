@@ -1,0 +1,154 @@
+#include "server/batching/batcher.h"
+
+namespace loomlight::batching {
+namespace {
+
+bool SameKernel(const Job& a, const Job& b) {
+  return a.model == b.model && a.fp64 == b.fp64 && a.material.uniform == b.material.uniform;
+}
+
+double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+}  // namespace
+
+Batcher::Batcher(runtime::ClRuntime* runtime, BatcherOptions options)
+    : runtime_(runtime), options_(options), worker_([this] { Run(); }) {}
+
+Batcher::~Batcher() { Stop(); }
+
+bool Batcher::Submit(std::shared_ptr<Job> job) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (stopping_) return false;
+    // An empty queue always accepts, so one request up to the per-call limit can always run.
+    if (!queue_.empty() && queued_queries_ + job->n > options_.max_queued_queries) return false;
+    job->enqueued = Clock::now();
+    queued_queries_ += job->n;
+    queue_.push_back(std::move(job));
+  }
+  wake_.notify_one();
+  return true;
+}
+
+void Batcher::Stop() {
+  std::deque<std::shared_ptr<Job>> left;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (stopping_) return;
+    stopping_ = true;
+    left.swap(queue_);
+    queued_queries_ = 0;
+  }
+  wake_.notify_all();
+  if (worker_.joinable()) worker_.join();
+  for (auto& job : left) job->done({JobStatus::kUnavailable, "server is shutting down"});
+}
+
+std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
+  std::vector<std::shared_ptr<Job>> batch;
+  size_t queries = 0;
+  for (auto it = queue_.begin(); it != queue_.end();) {
+    const bool first = batch.empty();
+    if (!first && (!options_.coalesce || !SameKernel(*batch.front(), **it) ||
+                   queries + (*it)->n > options_.max_batch_queries)) {
+      ++it;
+      continue;
+    }
+    queries += (*it)->n;
+    queued_queries_ -= (*it)->n;
+    batch.push_back(std::move(*it));
+    it = queue_.erase(it);
+    if (!options_.coalesce) break;
+  }
+  return batch;
+}
+
+void Batcher::Run() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (true) {
+    wake_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+    if (stopping_) return;
+    if (options_.max_queue_delay.count() > 0) {
+      // Let more requests join until the oldest has waited max_queue_delay or a batch is full.
+      const Clock::time_point until = queue_.front()->enqueued + options_.max_queue_delay;
+      wake_.wait_until(lock, until, [this] { return stopping_ || queued_queries_ >= options_.max_batch_queries; });
+      if (stopping_) return;
+    }
+    std::vector<std::shared_ptr<Job>> batch = TakeBatch();
+    lock.unlock();
+    Launch(std::move(batch));
+    lock.lock();
+  }
+}
+
+void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
+  const Clock::time_point now = Clock::now();
+  // Requests whose deadline passed or whose client went away are dropped before launch.
+  std::vector<std::shared_ptr<Job>> live;
+  for (auto& job : batch) {
+    if (job->deadline <= now)
+      job->done({JobStatus::kDeadlineExceeded, "deadline passed while queued"});
+    else if (job->cancelled && job->cancelled())
+      job->done({JobStatus::kCancelled, "cancelled while queued"});
+    else
+      live.push_back(std::move(job));
+  }
+  if (live.empty()) return;
+
+  const models::Model* model = live.front()->model;
+  const int uniform = live.front()->material.uniform;
+  const size_t stride = model->MaterialStride(uniform);
+  size_t n = 0;
+  for (auto& job : live) n += job->n;
+
+  std::vector<double> materials;
+  materials.reserve(stride * live.size());
+  std::vector<int> index;
+  index.reserve(n);
+  std::vector<float> wi_all, wo_all;
+  const float* wi = live.front()->wi;
+  const float* wo = live.front()->wo;
+  if (live.size() > 1) {
+    wi_all.reserve(3 * n);
+    wo_all.reserve(3 * n);
+  }
+  for (size_t j = 0; j < live.size(); ++j) {
+    const Job& job = *live[j];
+    materials.insert(materials.end(), job.material.data.begin(), job.material.data.end());
+    index.insert(index.end(), job.n, static_cast<int>(j));
+    if (live.size() > 1) {
+      wi_all.insert(wi_all.end(), job.wi, job.wi + 3 * job.n);
+      wo_all.insert(wo_all.end(), job.wo, job.wo + 3 * job.n);
+    }
+  }
+  if (live.size() > 1) {
+    wi = wi_all.data();
+    wo = wo_all.data();
+  }
+
+  runtime::LaunchArgs args{model, live.front()->fp64, uniform, &materials, stride, &index, wi, wo, n};
+  std::vector<double> f;
+  std::string error;
+  const Clock::time_point start = Clock::now();
+  const bool ok = runtime_->Run(args, &f, &error);
+  const double kernel_seconds = Seconds(Clock::now() - start);
+
+  size_t offset = 0;
+  for (auto& job : live) {
+    JobResult r;
+    if (!ok) {
+      r.status = JobStatus::kInternal;
+      r.message = "kernel launch failed: " + error;
+    } else {
+      r.f.assign(f.begin() + 3 * offset, f.begin() + 3 * (offset + job->n));
+    }
+    r.queue_seconds = Seconds(start - job->enqueued);
+    r.kernel_seconds = kernel_seconds;
+    r.batch_queries = n;
+    r.batch_requests = live.size();
+    offset += job->n;
+    job->done(std::move(r));
+  }
+}
+
+}  // namespace loomlight::batching

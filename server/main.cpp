@@ -1,0 +1,77 @@
+// loomlight-server: serves the Loomlight API on PoCL's CPU device (or any OpenCL device).
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <thread>
+
+#include "server/api/server.h"
+
+namespace {
+
+void Usage() {
+  std::fprintf(stderr,
+               "usage: loomlight-server [options]\n"
+               "  --address HOST:PORT        listen address (default 127.0.0.1:50051)\n"
+               "  --platform NAME            OpenCL platform substring (env LOOMLIGHT_PLATFORM; default PoCL)\n"
+               "  --device NAME              OpenCL device substring (env LOOMLIGHT_DEVICE; default first CPU)\n"
+               "  --cache-dir DIR            PoCL kernel cache (POCL_CACHE_DIR; default ~/.cache/loomlight/pocl)\n"
+               "  --max-batch-queries N      queries per coalesced launch (default 1048576)\n"
+               "  --max-queue-delay-us N     wait this long for a batch to fill (default 0)\n"
+               "  --max-queued-queries N     queued queries before RESOURCE_EXHAUSTED (default 8388608)\n"
+               "  --no-batching              one request per launch\n");
+}
+
+volatile std::sig_atomic_t g_stop = 0;
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  loomlight::api::ServerOptions options;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "error: %s needs a value\n", arg.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    auto number = [&]() -> unsigned long long {
+      const std::string v = value();
+      char* end = nullptr;
+      const unsigned long long n = std::strtoull(v.c_str(), &end, 10);
+      if (v.empty() || *end) {
+        std::fprintf(stderr, "error: %s takes a whole number, got '%s'\n", arg.c_str(), v.c_str());
+        std::exit(2);
+      }
+      return n;
+    };
+    if (arg == "--address") options.address = value();
+    else if (arg == "--platform") options.runtime.platform = value();
+    else if (arg == "--device") options.runtime.device = value();
+    else if (arg == "--cache-dir") options.runtime.cache_dir = value();
+    else if (arg == "--max-batch-queries") options.batcher.max_batch_queries = number();
+    else if (arg == "--max-queue-delay-us") options.batcher.max_queue_delay = std::chrono::microseconds(number());
+    else if (arg == "--max-queued-queries") options.batcher.max_queued_queries = number();
+    else if (arg == "--no-batching") options.batcher.coalesce = false;
+    else if (arg == "--help" || arg == "-h") { Usage(); return 0; }
+    else { std::fprintf(stderr, "error: unknown option '%s'\n", arg.c_str()); Usage(); return 2; }
+  }
+  std::string error;
+  auto server = loomlight::api::LoomlightServer::Start(options, &error);
+  if (!server) {
+    std::fprintf(stderr, "loomlight-server: %s\n", error.c_str());
+    return 1;
+  }
+  std::fprintf(stderr, "loomlight-server: serving on port %d (OpenCL: %s / %s, fp64 %s)\n", server->port(),
+               server->runtime().platform_name().c_str(), server->runtime().device_name().c_str(),
+               server->runtime().has_fp64() ? "yes" : "no");
+  std::signal(SIGINT, [](int) { g_stop = 1; });
+  std::signal(SIGTERM, [](int) { g_stop = 1; });
+  while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  std::fprintf(stderr, "loomlight-server: shutting down\n");
+  server->Shutdown();
+  return 0;
+}

@@ -1,0 +1,19 @@
+// Host builds of the shared model source in kernels/models: the double reference (reference.cpp, strict
+// IEEE) and the float native baseline (native.cpp, -O3 -march=native, all cores).
+#pragma once
+
+#include <cstddef>
+
+namespace loomlight::reference {
+// Tangent offset (degrees) at arc length s of a piecewise-linear tangent curve (mc_curve_offset).
+double MicrocylinderCurveOffset(const double* offsets, const double* lengths, int n, double s);
+int MicrocylinderMaterialStride(int tangent_samples);
+void MicrocylinderEval(const double* material, int tangent_samples, const float* wi, const float* wo,
+                       size_t n, double* f);
+}  // namespace loomlight::reference
+
+namespace loomlight::native {
+// Splits the n queries over all hardware threads.
+void MicrocylinderEval(const float* material, int tangent_samples, const float* wi, const float* wo, size_t n,
+                       float* f);
+}  // namespace loomlight::native

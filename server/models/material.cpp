@@ -1,0 +1,79 @@
+#include "server/models/material.h"
+
+#include <cmath>
+#include <set>
+#include <sstream>
+
+namespace loomlight::models {
+namespace {
+
+std::string CheckValues(const ParamSpec& spec, const std::vector<double>& values, const std::string& field) {
+  std::ostringstream err;
+  if (values.size() < spec.min_count || values.size() > spec.max_count) {
+    err << field << ": parameter '" << spec.name << "' takes ";
+    if (spec.min_count == spec.max_count)
+      err << spec.min_count;
+    else
+      err << spec.min_count << " to " << spec.max_count;
+    err << " value(s), got " << values.size();
+    return err.str();
+  }
+  for (size_t i = 0; i < values.size(); ++i) {
+    const double v = values[i];
+    if (!std::isfinite(v) || v < spec.min || v > spec.max) {
+      err << field << "[" << i << "]: parameter '" << spec.name << "' value " << v << " is outside ["
+          << spec.min << ", " << spec.max << "]" << (spec.unit.empty() ? "" : " " + spec.unit);
+      return err.str();
+    }
+    if (spec.type == ParamType::kInt && v != std::floor(v)) {
+      err << field << "[" << i << "]: parameter '" << spec.name << "' must be an integer, got " << v;
+      return err.str();
+    }
+  }
+  return "";
+}
+
+}  // namespace
+
+std::string ResolveMaterial(const v1::Material& material, const Registry& registry, ResolvedMaterial* out,
+                            const std::string& field) {
+  const Model* model = nullptr;
+  if (!material.preset().empty()) {
+    const PresetSpec* preset = nullptr;
+    model = registry.FindPreset(material.preset(), &preset);
+    if (!model) return field + ".preset: unknown preset '" + material.preset() + "'";
+    if (!material.model().empty() && material.model() != model->name())
+      return field + ".model: preset '" + material.preset() + "' belongs to model '" + model->name() +
+             "', not '" + material.model() + "'";
+    out->values = model->PresetValues(*preset);
+    out->label = preset->name;
+  } else if (!material.model().empty()) {
+    model = registry.FindModel(material.model());
+    if (!model) return field + ".model: unknown model '" + material.model() + "'";
+    out->values = model->DefaultValues();
+    out->label = model->name();
+  } else {
+    return field + ": give a preset or a model";
+  }
+  out->model = model;
+
+  std::set<std::string> seen;
+  for (int i = 0; i < material.params_size(); ++i) {
+    const v1::Param& param = material.params(i);
+    const std::string pfield = field + ".params[" + std::to_string(i) + "]";
+    const ParamSpec* spec = model->FindParam(param.name());
+    if (!spec)
+      return pfield + ".name: model '" + model->name() + "' has no parameter '" + param.name() + "'";
+    if (!seen.insert(param.name()).second)
+      return pfield + ".name: parameter '" + param.name() + "' given twice";
+    const std::vector<double> values(param.values().begin(), param.values().end());
+    std::string err = CheckValues(*spec, values, pfield + ".values");
+    if (!err.empty()) return err;
+    out->values[param.name()] = values;
+  }
+  std::string err = model->Validate(out->values);
+  if (!err.empty()) return field + ".params: " + err;
+  return "";
+}
+
+}  // namespace loomlight::models

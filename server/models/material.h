@@ -1,0 +1,22 @@
+// Turns an API Material (preset, model, parameter overrides) into a validated, complete parameter set.
+#pragma once
+
+#include <string>
+
+#include "loomlight/v1/loomlight.pb.h"
+#include "server/models/registry.h"
+
+namespace loomlight::models {
+
+struct ResolvedMaterial {
+  const Model* model = nullptr;
+  ParamValues values;
+  std::string label;  // preset or model name, for logs and plots
+};
+
+// Fills *out or returns the error as "field: reason", field named as in the request
+// (e.g. "material.params[2].values"). Every value is checked against the schema's count and range.
+std::string ResolveMaterial(const v1::Material& material, const Registry& registry, ResolvedMaterial* out,
+                            const std::string& field = "material");
+
+}  // namespace loomlight::models

@@ -1,0 +1,26 @@
+// The double-precision reference: the shared model source compiled as C++ with real = double.
+#include <algorithm>
+#include <cmath>
+
+#include "server/models/host_models.h"
+
+namespace loomlight::reference {
+namespace device {
+typedef double real;
+#include "common/shim.h"
+#include "models/microcylinder.h"
+}  // namespace device
+
+double MicrocylinderCurveOffset(const double* offsets, const double* lengths, int n, double s) {
+  return device::mc_curve_offset(offsets, lengths, n, s);
+}
+
+int MicrocylinderMaterialStride(int tangent_samples) { return device::mc_material_stride(tangent_samples); }
+
+void MicrocylinderEval(const double* material, int tangent_samples, const float* wi, const float* wo,
+                       size_t n, double* f) {
+  for (size_t q = 0; q < n; ++q)
+    device::mc_eval(material, tangent_samples, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q],
+                    wo[3 * q + 1], wo[3 * q + 2], f + 3 * q);
+}
+}  // namespace loomlight::reference

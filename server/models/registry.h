@@ -1,0 +1,91 @@
+// Model registry: every model registers its name, parameter schema, presets, kernel and packing in one
+// place (as Mitsuba registers plugins). The API, the batcher, the client and the tests discover models here.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace loomlight::models {
+
+enum class ParamType { kReal, kInt, kRgb, kRealList };
+
+struct ParamSpec {
+  std::string name;
+  ParamType type;
+  std::string unit;
+  double min;
+  double max;
+  std::vector<double> defaults;
+  std::string description;
+  size_t min_count;  // values accepted; fixed by the type except for lists
+  size_t max_count;
+};
+
+// A fully resolved parameter set: every schema parameter has values.
+using ParamValues = std::map<std::string, std::vector<double>>;
+
+struct PresetSpec {
+  std::string name;
+  std::string description;
+  ParamValues values;  // overrides of the defaults; the registry completes them
+};
+
+// Device layout of one material, in double (converted to the kernel's precision at launch).
+struct PackedMaterial {
+  std::vector<double> data;
+  int uniform = 0;  // launch-uniform integer (e.g. tangent samples); only equal ones share a launch
+};
+
+// A model's kernel: the entry file under kernels/ and the kernel function, with the common signature
+// (materials, material_stride, uniform, material_index, wi, wo, f).
+struct KernelSpec {
+  std::string source;
+  std::string function;
+};
+
+class Model {
+ public:
+  virtual ~Model() = default;
+  virtual std::string name() const = 0;
+  virtual std::string description() const = 0;
+  virtual const std::vector<ParamSpec>& params() const = 0;
+  virtual const std::vector<PresetSpec>& presets() const = 0;
+  virtual KernelSpec kernel() const = 0;
+  // Cross-parameter checks beyond the schema's per-value ranges; returns "" or "field: reason".
+  virtual std::string Validate(const ParamValues& values) const = 0;
+  virtual PackedMaterial Pack(const ParamValues& values) const = 0;
+  // Floats in one packed material for a launch with this uniform value (all materials of a launch share it).
+  virtual size_t MaterialStride(int uniform) const = 0;
+  // Double-precision host reference: f for n queries (RGB), same source as the kernel.
+  virtual void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n,
+                             double* f) const = 0;
+  // Float native baseline (same source, -O3 -march=native, all cores).
+  virtual void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n,
+                          float* f) const = 0;
+
+  const ParamSpec* FindParam(const std::string& name) const;
+  // Defaults completed with the preset's values.
+  ParamValues PresetValues(const PresetSpec& preset) const;
+  ParamValues DefaultValues() const;
+};
+
+class Registry {
+ public:
+  static Registry& Global();
+  void Add(std::unique_ptr<Model> model);
+  const Model* FindModel(const std::string& name) const;
+  // The model of a preset, or nullptr; *preset receives the preset.
+  const Model* FindPreset(const std::string& name, const PresetSpec** preset) const;
+  const std::vector<std::unique_ptr<Model>>& models() const { return models_; }
+
+ private:
+  std::vector<std::unique_ptr<Model>> models_;
+};
+
+// The built-in models, added by Registry::Global() (an explicit list: static registrars in a static
+// library would be dropped by the linker).
+std::unique_ptr<Model> MakeMicrocylinderModel();
+
+}  // namespace loomlight::models

@@ -1,0 +1,266 @@
+#include "server/runtime/cl_runtime.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cstdlib>
+#include <filesystem>
+
+namespace loomlight::runtime {
+namespace {
+
+std::string Lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+bool Contains(const std::string& haystack, const std::string& needle) {
+  return Lower(haystack).find(Lower(needle)) != std::string::npos;
+}
+
+std::string PlatformInfo(cl_platform_id p, cl_platform_info what) {
+  size_t size = 0;
+  clGetPlatformInfo(p, what, 0, nullptr, &size);
+  std::string s(size, '\0');
+  clGetPlatformInfo(p, what, size, s.data(), nullptr);
+  while (!s.empty() && s.back() == '\0') s.pop_back();
+  return s;
+}
+
+std::string DeviceInfo(cl_device_id d, cl_device_info what) {
+  size_t size = 0;
+  clGetDeviceInfo(d, what, 0, nullptr, &size);
+  std::string s(size, '\0');
+  clGetDeviceInfo(d, what, size, s.data(), nullptr);
+  while (!s.empty() && s.back() == '\0') s.pop_back();
+  return s;
+}
+
+std::string ClError(const char* what, cl_int err) { return std::string(what) + " failed (OpenCL error " + std::to_string(err) + ")"; }
+
+// Releases OpenCL memory objects at scope exit.
+struct Buffers {
+  std::vector<cl_mem> mems;
+  ~Buffers() {
+    for (cl_mem m : mems)
+      if (m) clReleaseMemObject(m);
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std::string* error) {
+  // PoCL reads POCL_CACHE_DIR when the ICD loads it: set it before the first OpenCL call.
+  std::string cache = options.cache_dir;
+  if (cache.empty() && std::getenv("HOME")) cache = std::string(std::getenv("HOME")) + "/.cache/loomlight/pocl";
+  if (!cache.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(cache, ec);
+    setenv("POCL_CACHE_DIR", cache.c_str(), /*overwrite=*/options.cache_dir.empty() ? 0 : 1);
+  }
+  std::string want_platform = options.platform, want_device = options.device;
+  if (want_platform.empty() && std::getenv("LOOMLIGHT_PLATFORM")) want_platform = std::getenv("LOOMLIGHT_PLATFORM");
+  if (want_device.empty() && std::getenv("LOOMLIGHT_DEVICE")) want_device = std::getenv("LOOMLIGHT_DEVICE");
+
+  cl_uint np = 0;
+  if (clGetPlatformIDs(0, nullptr, &np) != CL_SUCCESS || np == 0) {
+    *error = "no OpenCL platform found (is pocl-opencl-icd installed?)";
+    return nullptr;
+  }
+  std::vector<cl_platform_id> platforms(np);
+  clGetPlatformIDs(np, platforms.data(), nullptr);
+
+  auto rt = std::unique_ptr<ClRuntime>(new ClRuntime);
+  rt->local_size_ = options.local_size;
+  std::string seen;
+  // Two passes: the requested platform, or PoCL first and then anything when nothing was requested.
+  for (int pass = 0; pass < 2 && !rt->device_; ++pass) {
+    for (cl_platform_id p : platforms) {
+      const std::string name = PlatformInfo(p, CL_PLATFORM_NAME), vendor = PlatformInfo(p, CL_PLATFORM_VENDOR);
+      if (pass == 0) seen += " '" + name + "'";
+      if (!want_platform.empty()) {
+        if (!Contains(name, want_platform) && !Contains(vendor, want_platform)) continue;
+      } else if (pass == 0 && !Contains(name, "portable computing language")) {
+        continue;
+      }
+      cl_uint nd = 0;
+      if (clGetDeviceIDs(p, CL_DEVICE_TYPE_ALL, 0, nullptr, &nd) != CL_SUCCESS || nd == 0) continue;
+      std::vector<cl_device_id> devices(nd);
+      clGetDeviceIDs(p, CL_DEVICE_TYPE_ALL, nd, devices.data(), nullptr);
+      for (cl_device_id d : devices) {
+        cl_device_type type = 0;
+        clGetDeviceInfo(d, CL_DEVICE_TYPE, sizeof(type), &type, nullptr);
+        const std::string dname = DeviceInfo(d, CL_DEVICE_NAME);
+        const bool match = want_device.empty() ? (type & CL_DEVICE_TYPE_CPU) || pass == 1 : Contains(dname, want_device);
+        if (!match) continue;
+        rt->platform_ = p;
+        rt->device_ = d;
+        rt->platform_name_ = name;
+        rt->device_name_ = dname;
+        break;
+      }
+      if (rt->device_) break;
+    }
+    if (!want_platform.empty()) break;
+  }
+  if (!rt->device_) {
+    *error = "no OpenCL device matches platform '" + want_platform + "' device '" + want_device +
+             "'; platforms:" + seen;
+    return nullptr;
+  }
+  rt->has_fp64_ = DeviceInfo(rt->device_, CL_DEVICE_EXTENSIONS).find("cl_khr_fp64") != std::string::npos;
+  cl_int err = CL_SUCCESS;
+  rt->context_ = clCreateContext(nullptr, 1, &rt->device_, nullptr, nullptr, &err);
+  if (err != CL_SUCCESS) {
+    *error = ClError("clCreateContext", err);
+    return nullptr;
+  }
+  rt->queue_ = clCreateCommandQueue(rt->context_, rt->device_, 0, &err);
+  if (err != CL_SUCCESS) {
+    *error = ClError("clCreateCommandQueue", err);
+    return nullptr;
+  }
+  return rt;
+}
+
+ClRuntime::~ClRuntime() {
+  for (auto& [key, p] : programs_) {
+    if (p.kernel) clReleaseKernel(p.kernel);
+    if (p.program) clReleaseProgram(p.program);
+  }
+  if (queue_) clReleaseCommandQueue(queue_);
+  if (context_) clReleaseContext(context_);
+}
+
+bool ClRuntime::Build(const std::string& source, const std::string& function, bool fp64, Program* out,
+                      std::string* error) {
+  const auto& sources = EmbeddedKernelSources();
+  auto it = sources.find(source);
+  if (it == sources.end()) {
+    *error = "kernel source '" + source + "' is not embedded (add it to KERNEL_ENTRIES in CMakeLists.txt)";
+    return false;
+  }
+  const char* text = it->second.c_str();
+  cl_int err = CL_SUCCESS;
+  out->program = clCreateProgramWithSource(context_, 1, &text, nullptr, &err);
+  if (err != CL_SUCCESS) {
+    *error = ClError("clCreateProgramWithSource", err);
+    return false;
+  }
+  const std::string options =
+      "-cl-std=CL1.2 -DLL_LOCAL_SIZE=" + std::to_string(local_size_) + (fp64 ? " -DLL_FP64" : "");
+  err = clBuildProgram(out->program, 1, &device_, options.c_str(), nullptr, nullptr);
+  if (err != CL_SUCCESS) {
+    size_t size = 0;
+    clGetProgramBuildInfo(out->program, device_, CL_PROGRAM_BUILD_LOG, 0, nullptr, &size);
+    std::string log(size, '\0');
+    clGetProgramBuildInfo(out->program, device_, CL_PROGRAM_BUILD_LOG, size, log.data(), nullptr);
+    *error = "building " + source + (fp64 ? " (fp64)" : " (fp32)") + " failed (OpenCL error " +
+             std::to_string(err) + "):\n" + log;
+    return false;
+  }
+  out->kernel = clCreateKernel(out->program, function.c_str(), &err);
+  if (err != CL_SUCCESS) {
+    *error = ClError(("clCreateKernel " + function).c_str(), err);
+    return false;
+  }
+  return true;
+}
+
+bool ClRuntime::BuildPrograms(const models::Registry& registry, std::string* error) {
+  for (const auto& model : registry.models()) {
+    for (bool fp64 : {false, true}) {
+      if (fp64 && !has_fp64_) continue;
+      Program p;
+      const models::KernelSpec spec = model->kernel();
+      if (!Build(spec.source, spec.function, fp64, &p, error)) return false;
+      programs_[{model->name(), fp64}] = p;
+    }
+  }
+  return true;
+}
+
+bool ClRuntime::Warm(const models::Registry& registry, std::string* error) {
+  for (const auto& model : registry.models()) {
+    const models::PackedMaterial m = model->Pack(model->DefaultValues());
+    const std::vector<int> index(1, 0);
+    const float up[3] = {0, 0, 1};
+    for (bool fp64 : {false, true}) {
+      if (fp64 && !has_fp64_) continue;
+      std::vector<double> f;
+      LaunchArgs args{model.get(), fp64, m.uniform, &m.data, m.data.size(), &index, up, up, 1};
+      if (!Run(args, &f, error)) return false;
+    }
+  }
+  return true;
+}
+
+bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* error) {
+  auto it = programs_.find({a.model->name(), a.fp64});
+  if (it == programs_.end()) {
+    *error = "no " + std::string(a.fp64 ? "fp64" : "fp32") + " kernel for model '" + a.model->name() + "'";
+    return false;
+  }
+  f->assign(3 * a.n, 0.0);
+  if (a.n == 0) return true;
+  // Pad to the fixed local size; padded queries point straight up so every lane computes finite values.
+  const size_t padded = (a.n + local_size_ - 1) / local_size_ * local_size_;
+  const size_t real_size = a.fp64 ? sizeof(double) : sizeof(float);
+  std::vector<float> materials_f;
+  const void* materials_ptr = a.materials->data();
+  if (!a.fp64) {
+    materials_f.assign(a.materials->begin(), a.materials->end());
+    materials_ptr = materials_f.data();
+  }
+  std::vector<float> wi(3 * padded), wo(3 * padded);
+  std::copy(a.wi, a.wi + 3 * a.n, wi.begin());
+  std::copy(a.wo, a.wo + 3 * a.n, wo.begin());
+  for (size_t q = a.n; q < padded; ++q) wi[3 * q + 2] = wo[3 * q + 2] = 1.0f;
+  std::vector<int> index(padded, 0);
+  std::copy(a.material_index->begin(), a.material_index->begin() + a.n, index.begin());
+
+  std::lock_guard<std::mutex> lock(launch_mutex_);
+  cl_int err = CL_SUCCESS;
+  Buffers b;
+  auto make = [&](size_t bytes, const void* host, cl_mem_flags flags) {
+    cl_mem m = clCreateBuffer(context_, flags | (host ? CL_MEM_COPY_HOST_PTR : 0), bytes, const_cast<void*>(host), &err);
+    b.mems.push_back(m);
+    return m;
+  };
+  cl_mem mat = make(std::max<size_t>(1, a.materials->size()) * real_size, materials_ptr, CL_MEM_READ_ONLY);
+  cl_mem idx = make(padded * sizeof(int), index.data(), CL_MEM_READ_ONLY);
+  cl_mem bwi = make(3 * padded * sizeof(float), wi.data(), CL_MEM_READ_ONLY);
+  cl_mem bwo = make(3 * padded * sizeof(float), wo.data(), CL_MEM_READ_ONLY);
+  cl_mem out = make(3 * padded * real_size, nullptr, CL_MEM_WRITE_ONLY);
+  if (err != CL_SUCCESS) {
+    *error = ClError("clCreateBuffer", err);
+    return false;
+  }
+  cl_kernel k = it->second.kernel;
+  const cl_int stride = static_cast<cl_int>(a.stride), uniform = a.uniform;
+  clSetKernelArg(k, 0, sizeof(cl_mem), &mat);
+  clSetKernelArg(k, 1, sizeof(cl_int), &stride);
+  clSetKernelArg(k, 2, sizeof(cl_int), &uniform);
+  clSetKernelArg(k, 3, sizeof(cl_mem), &idx);
+  clSetKernelArg(k, 4, sizeof(cl_mem), &bwi);
+  clSetKernelArg(k, 5, sizeof(cl_mem), &bwo);
+  clSetKernelArg(k, 6, sizeof(cl_mem), &out);
+  err = clEnqueueNDRangeKernel(queue_, k, 1, nullptr, &padded, &local_size_, 0, nullptr, nullptr);
+  if (err != CL_SUCCESS) {
+    *error = ClError("clEnqueueNDRangeKernel", err);
+    return false;
+  }
+  if (a.fp64) {
+    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * a.n * sizeof(double), f->data(), 0, nullptr, nullptr);
+  } else {
+    std::vector<float> tmp(3 * a.n);
+    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * a.n * sizeof(float), tmp.data(), 0, nullptr, nullptr);
+    std::copy(tmp.begin(), tmp.end(), f->begin());
+  }
+  if (err != CL_SUCCESS) {
+    *error = ClError("clEnqueueReadBuffer", err);
+    return false;
+  }
+  return true;
+}
+
+}  // namespace loomlight::runtime

@@ -1,0 +1,80 @@
+// OpenCL runtime: platform and device choice, one program build per model and precision at start-up
+// (PoCL's on-disk cache in POCL_CACHE_DIR keeps restarts fast), and launches with a fixed local size.
+#pragma once
+
+#include <CL/cl.h>
+
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "server/models/registry.h"
+
+namespace loomlight::runtime {
+
+// Kernel sources embedded at build time (cmake/EmbedKernels.cmake), keyed by path under kernels/.
+const std::map<std::string, std::string>& EmbeddedKernelSources();
+
+struct RuntimeOptions {
+  std::string platform;   // substring of the platform name or vendor; "" = PoCL if present, else the first
+  std::string device;     // substring of the device name; "" = the platform's first CPU device, else any
+  std::string cache_dir;  // POCL_CACHE_DIR if not already set; "" = $HOME/.cache/loomlight/pocl
+  size_t local_size = 64;
+};
+
+// One launch: n queries; materials concatenated, `stride` values each; material_index picks one per query.
+struct LaunchArgs {
+  const models::Model* model = nullptr;
+  bool fp64 = false;
+  int uniform = 0;
+  const std::vector<double>* materials = nullptr;
+  size_t stride = 0;
+  const std::vector<int>* material_index = nullptr;
+  const float* wi = nullptr;
+  const float* wo = nullptr;
+  size_t n = 0;
+};
+
+class ClRuntime {
+ public:
+  // Picks the device (options, then LOOMLIGHT_PLATFORM / LOOMLIGHT_DEVICE from the environment).
+  static std::unique_ptr<ClRuntime> Create(const RuntimeOptions& options, std::string* error);
+  ~ClRuntime();
+
+  // Builds every model's kernel in float and, where the device has cl_khr_fp64, double. On failure the
+  // error carries the build log.
+  bool BuildPrograms(const models::Registry& registry, std::string* error);
+  // Launches every kernel once so the first request does not pay for PoCL's work-group compilation.
+  bool Warm(const models::Registry& registry, std::string* error);
+
+  // Runs one launch and returns f (3 per query) in double. Thread-safe: launches are serialised.
+  bool Run(const LaunchArgs& args, std::vector<double>* f, std::string* error);
+
+  bool has_fp64() const { return has_fp64_; }
+  const std::string& device_name() const { return device_name_; }
+  const std::string& platform_name() const { return platform_name_; }
+  size_t local_size() const { return local_size_; }
+
+ private:
+  ClRuntime() = default;
+  struct Program {
+    cl_program program = nullptr;
+    cl_kernel kernel = nullptr;
+  };
+  bool Build(const std::string& source, const std::string& function, bool fp64, Program* out,
+             std::string* error);
+
+  cl_platform_id platform_ = nullptr;
+  cl_device_id device_ = nullptr;
+  cl_context context_ = nullptr;
+  cl_command_queue queue_ = nullptr;
+  bool has_fp64_ = false;
+  size_t local_size_ = 64;
+  std::string device_name_, platform_name_;
+  std::map<std::pair<std::string, bool>, Program> programs_;  // (model, fp64)
+  std::mutex launch_mutex_;
+};
+
+}  // namespace loomlight::runtime

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <charconv>
+#include <cmath>
 #include <iomanip>
 #include <ostream>
 
@@ -93,6 +94,14 @@ double parse_number(std::string_view text, std::string_view what) {
   if (digits.empty() || ec != std::errc() || end != digits.data() + digits.size())
     throw UsageError("bad number '" + std::string(text) + "' in " + std::string(what));
   return value;
+}
+
+int parse_int(std::string_view text, std::string_view what, int lo, int hi) {
+  const double v = parse_number(text, what);
+  if (v != std::floor(v) || v < lo || v > hi)
+    throw UsageError(std::string(what) + " must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                     "], got '" + std::string(text) + "'");
+  return static_cast<int>(v);
 }
 
 std::vector<double> parse_numbers(std::string_view text, std::string_view what, std::size_t count) {

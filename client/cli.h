@@ -47,6 +47,8 @@ ParsedOptions parse_options(std::span<const std::string> args, const OptionList&
 
 // Numbers are parsed locale-independently; `what` names the option or field in error messages.
 double parse_number(std::string_view text, std::string_view what);
+// An integer in [lo, hi].
+int parse_int(std::string_view text, std::string_view what, int lo, int hi);
 // A comma-separated list "v1,v2,..."; with `count` > 0 exactly that many values are required.
 std::vector<double> parse_numbers(std::string_view text, std::string_view what, std::size_t count = 0);
 

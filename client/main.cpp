@@ -1,7 +1,8 @@
 // `loomlight`: command-line client of the Loomlight service.
-// Exit status: 0 success, 1 failure (server error, I/O), 2 usage error.
+// Exit status: 0 success, 1 failure (server error, I/O), 2 usage error (bad options or malformed input).
 #include <array>
 #include <exception>
+#include <iomanip>
 #include <iostream>
 #include <span>
 #include <string>
@@ -44,7 +45,7 @@ OptionList accepted_options(const Command& command) {
 
 void print_usage(std::ostream& out) {
   out << "usage: loomlight [--server HOST:PORT] [--timeout SECONDS] COMMAND [options]\n\ncommands:\n";
-  for (const Command* c : commands()) out << "  " << c->name << std::string(8 - c->name.size(), ' ') << c->summary << '\n';
+  for (const Command* c : commands()) out << "  " << std::left << std::setw(8) << c->name << c->summary << '\n';
   out << "  help    show the help of a command: loomlight help COMMAND\n\noptions:\n";
   print_option_help(out, global_options());
   out << "\nRun 'loomlight COMMAND --help' for the options of a command.\n";

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <iomanip>
 #include <iostream>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -14,8 +15,9 @@ namespace {
 
 using Row = std::vector<std::string>;
 
-// Long lists (tangent curves) are cut so the table stays one line per parameter.
+// Long defaults (tangent curves) are cut so the table stays one line per parameter; presets list everything.
 constexpr int kMaxListedValues = 6;
+constexpr int kAllValues = std::numeric_limits<int>::max();
 
 // Pads every column but the last to its widest cell.
 void print_table(std::ostream& out, const std::vector<Row>& rows, std::string_view indent) {
@@ -84,10 +86,11 @@ void print_presets(std::ostream& out, const v1::ModelInfo& model, bool values) {
   for (const v1::Preset& preset : model.presets()) width = std::max(width, preset.name().size());
   out << "  presets:\n";
   for (const v1::Preset& preset : model.presets()) {
-    out << "    " << std::left << std::setw(static_cast<int>(width) + 2) << preset.name() << preset.description() << '\n';
+    out << "    " << std::left << std::setw(static_cast<int>(width) + 2) << preset.name() << preset.description()
+        << '\n';
     if (!values) continue;
     std::vector<Row> rows;
-    for (const v1::Param& p : preset.params()) rows.push_back({p.name(), format_values(p.values(), 1 << 30)});
+    for (const v1::Param& p : preset.params()) rows.push_back({p.name(), format_values(p.values(), kAllValues)});
     print_table(out, rows, "        ");
   }
 }

@@ -29,14 +29,6 @@ struct PlotSettings {
   std::string out;
 };
 
-int parse_int(const std::string& text, const char* what, int lo, int hi) {
-  const double v = parse_number(text, what);
-  if (v != std::floor(v) || v < lo || v > hi)
-    throw UsageError(std::string(what) + " must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                     "], got '" + text + "'");
-  return static_cast<int>(v);
-}
-
 PlotSettings read_settings(const ParsedOptions& options) {
   PlotSettings s;
   const auto out = options.last("out");
@@ -63,7 +55,8 @@ double theta_o_deg(const PlotSettings& s, int k) { return -kMaxThetaO + 2.0 * kM
 void add_plane_queries(const PlotSettings& s, v1::EvaluateRequest& request) {
   for (double ti : s.incidence_deg) {
     const Vec3 wi = direction_from_degrees(-ti, s.plane_phi_deg);
-    for (int k = 0; k < s.samples; ++k) add_query(request, wi, direction_from_degrees(theta_o_deg(s, k), s.plane_phi_deg));
+    for (int k = 0; k < s.samples; ++k)
+      add_query(request, wi, direction_from_degrees(theta_o_deg(s, k), s.plane_phi_deg));
   }
 }
 
@@ -106,34 +99,38 @@ PolarCurve make_curve(const PlotSettings& s, const v1::EvaluateResponse& respons
   return curve;
 }
 
+// Labels are ASCII: OpenImageIO 2.4's render_text drops the high bits of non-ASCII characters.
 std::string degrees(double v) {
   char buf[32];
-  std::snprintf(buf, sizeof buf, "%g\u00b0", v);
+  std::snprintf(buf, sizeof buf, "%g deg", v);
   return buf;
 }
 
-std::string subtitle(const PlotSettings& s, const v1::EvaluateResponse& response) {
-  std::string quantity = s.cosine ? "f\u00b7cos \u03b8o" : "f";
-  quantity = (s.rgb ? "R, G, B of " : "luminance of ") + quantity;
-  return response.model() + ": " + quantity + " (1/sr) in the plane \u03c6 = " + degrees(s.plane_phi_deg) +
-         (response.precision() == v1::PRECISION_FP64 ? ", fp64" : ", fp32");
+std::vector<std::string> notes(const PlotSettings& s, const v1::EvaluateResponse& response) {
+  const std::string quantity =
+      std::string(s.rgb ? "R, G, B of " : "luminance of ") + (s.cosine ? "f cos(theta_o)" : "f");
+  return {response.model() + ", " + precision_name(response.precision()) + ": " + quantity + " (1/sr)",
+          "plane of incidence phi = " + degrees(s.plane_phi_deg)};
 }
 
 PolarPlot make_plot(const PlotSettings& s, const v1::EvaluateRequest& request, const v1::EvaluateResponse& response) {
   PolarPlot plot;
   plot.title = material_label(request.material());
-  plot.subtitle = subtitle(s, response);
+  plot.notes = notes(s, response);
   plot.size = s.size;
   const std::size_t n = s.incidence_deg.size();
   for (std::size_t i = 0; i < n; ++i) {
     const Color marker = s.rgb ? lighten(kMarkerGray, i, n) : incidence_color(i);
     if (s.rgb)
-      for (int c = 0; c < 3; ++c) plot.curves.push_back(make_curve(s, response, i, c, lighten(kChannelColors[c], i, n)));
+      for (int c = 0; c < 3; ++c)
+        plot.curves.push_back(make_curve(s, response, i, c, lighten(kChannelColors[c], i, n)));
     else
       plot.curves.push_back(make_curve(s, response, i, -1, marker));
     plot.markers.push_back({-s.incidence_deg[i], marker});
-    plot.legend.push_back({marker, "\u03b8i = " + degrees(s.incidence_deg[i])});
+    plot.legend.push_back({marker, "theta_i = " + degrees(s.incidence_deg[i])});
   }
+  if (s.rgb)
+    for (int c = 0; c < 3; ++c) plot.legend.push_back({kChannelColors[c], std::string(1, "RGB"[c])});
   return plot;
 }
 

@@ -1,5 +1,6 @@
 #include "client/polar_plot.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -104,8 +105,6 @@ class Canvas {
     if (!algo::render_text(image_, px(p.x), px(p.y), text, size, *font, color, align_x, align_y)) image_.geterror();
   }
 
-  double unit() const { return layout_.unit; }
-
   // Filters the supersampled canvas down to the output size and writes it as 8-bit.
   void write(const std::string& path) const {
     const OIIO::ROI out(0, layout_.width / kSupersample, 0, layout_.height / kSupersample, 0, 1, 0, 3);
@@ -145,7 +144,7 @@ void draw_grid(Canvas& canvas, const Layout& l, double scale) {
   canvas.line(l.at(-90, l.radius), l.at(90, l.radius), kRim, kGridWidth);
 
   for (int deg = -90; deg <= 90; deg += 30)
-    canvas.text(l.at(deg, l.radius + 22 * l.unit), std::to_string(deg) + "\u00b0", kLabelFont, kFaintText);
+    canvas.text(l.at(deg, l.radius + 22 * l.unit), std::to_string(deg), kLabelFont, kFaintText);
   for (int quarter = 1; quarter <= 4; ++quarter)
     canvas.text({l.cx + l.radius * quarter / 4.0, l.cy + 16 * l.unit}, format_value("%.3g", scale * quarter / 4.0),
                 kLabelFont, kFaintText);
@@ -165,14 +164,21 @@ void draw_curve(Canvas& canvas, const Layout& l, const PolarCurve& curve, double
   }
 }
 
+// Title and notes in the top-left corner, the legend in the top-right one: the half disc leaves both free.
+void draw_header(Canvas& canvas, const Layout& l, const PolarPlot& plot) {
+  const double x = 16 * l.unit;
+  canvas.text({x, 28 * l.unit}, plot.title, kTitleFont, kText, algo::TextAlignX::Left);
+  for (std::size_t i = 0; i < plot.notes.size(); ++i)
+    canvas.text({x, (52 + 18 * i) * l.unit}, plot.notes[i], kLabelFont, kFaintText, algo::TextAlignX::Left);
+}
+
 void draw_legend(Canvas& canvas, const Layout& l, const std::vector<LegendEntry>& legend) {
   if (!text_font()) return;  // swatches without their text would say nothing
-  const double x = 16 * l.unit, row = 20 * l.unit;
-  double y = 20 * l.unit;
-  for (const LegendEntry& entry : legend) {
-    canvas.line({x, y}, {x + 24 * l.unit, y}, entry.color, kCurveWidth);
-    canvas.text({x + 32 * l.unit, y}, entry.text, kLabelFont, kText, algo::TextAlignX::Left);
-    y += row;
+  const double x = l.width - 180 * l.unit;
+  for (std::size_t i = 0; i < legend.size(); ++i) {
+    const double y = (20 + 20 * i) * l.unit;
+    canvas.line({x, y}, {x + 24 * l.unit, y}, legend[i].color, kCurveWidth);
+    canvas.text({x + 32 * l.unit, y}, legend[i].text, kLabelFont, kText, algo::TextAlignX::Left);
   }
 }
 
@@ -186,8 +192,7 @@ void write_polar_plot(const PolarPlot& plot, const std::string& path) {
   for (const PolarMarker& m : plot.markers)
     canvas.dashed_line(layout.at(0, 0), layout.at(m.theta_deg, layout.radius), m.color, kMarkerWidth);
   for (const PolarCurve& curve : plot.curves) draw_curve(canvas, layout, curve, plot.scale);
-  canvas.text({layout.cx, 28 * layout.unit}, plot.title, kTitleFont, kText);
-  canvas.text({layout.cx, 54 * layout.unit}, plot.subtitle, kLabelFont, kFaintText);
+  draw_header(canvas, layout, plot);
   draw_legend(canvas, layout, plot.legend);
   canvas.write(path);
 }

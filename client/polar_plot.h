@@ -29,7 +29,7 @@ struct LegendEntry {
 
 struct PolarPlot {
   std::string title;
-  std::string subtitle;
+  std::vector<std::string> notes;  // smaller lines under the title
   std::vector<PolarCurve> curves;
   std::vector<PolarMarker> markers;
   std::vector<LegendEntry> legend;

@@ -36,11 +36,11 @@ void check(const grpc::Status& status) {
   if (!status.ok()) throw RpcError(status);
 }
 
+}  // namespace
+
 const char* precision_name(v1::Precision precision) {
   return precision == v1::PRECISION_FP64 ? "fp64" : "fp32";
 }
-
-}  // namespace
 
 RpcError::RpcError(const grpc::Status& status)
     : std::runtime_error(std::string(status_code_name(status.error_code())) + ": " + status.error_message()),

@@ -25,6 +25,9 @@ struct RpcError : std::runtime_error {
 // "INVALID_ARGUMENT" for grpc::StatusCode::INVALID_ARGUMENT, and so on.
 const char* status_code_name(grpc::StatusCode code);
 
+// "fp32" or "fp64".
+const char* precision_name(v1::Precision precision);
+
 // --server and --timeout, accepted before the command and by every command.
 const OptionList& connection_options();
 

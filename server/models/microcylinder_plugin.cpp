@@ -86,8 +86,10 @@ std::vector<PresetSpec> Presets() {
              Thread("thread2", 0.1, {1, 0.37, 0.3}, 0.2, 0.7, 30, 60, {0, 0}, {1})),
       Preset("polyester_satin_charmeuse_back",
              "Polyester satin charmeuse, back face: Table 2 satin threads with the Table 3d curves", 1.539,
+             // Table 3d lists six lengths for eight control points: its two curve pieces (the +-30 and the
+             // +-5 degree floats of Figure 19d) are joined here by a jump, a zero-length segment.
              Thread("thread1", 0.67, {1, 0.37, 0.3}, 0.035, 0.1, 2.5, 5, {-30, -30, 30, 30, -5, -5, 5, 5},
-                    {1.33, 1.33, 1.33, 0.67, 0.67, 0.67}),
+                    {1.33, 1.33, 1.33, 0, 0.67, 0.67, 0.67}),
              Thread("thread2", 0.33, {1, 0.37, 0.3}, 0.2, 0.7, 30, 60, {0, 0}, {3})),
       Preset("silk_shot", "Silk shot fabric: green-tinted threads along x, red along y (Tables 2, 3e)", 1.345,
              Thread("thread1", 0.86, {0.1, 1, 0.4}, 0.2, 0.1, 4, 8, {-25, -25, 25, 25}, {1.33, 2.67, 1.33}),

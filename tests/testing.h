@@ -1,0 +1,49 @@
+// Test helpers shared by the Loomlight tests: random directions, error statistics, the OpenCL runtime and
+// a real server process on a loopback port.
+#pragma once
+
+#include <sys/types.h>
+
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "server/models/registry.h"
+#include "server/runtime/cl_runtime.h"
+
+namespace loomlight::testing {
+
+// Uniform direction on the upper hemisphere, as float.
+void RandomHemisphere(std::mt19937& rng, float* w);
+
+struct ErrorStats {
+  double median = 0, p99 = 0, max = 0;
+  size_t count = 0;
+  std::string ToString() const;
+};
+// Relative error |got - ref| / ref over the entries with ref > floor.
+ErrorStats RelativeErrors(const std::vector<double>& got, const std::vector<double>& ref, double floor);
+
+// One runtime (device chosen, programs built, warmed) per test process.
+runtime::ClRuntime& SharedRuntime();
+
+// Runs a packed material through a kernel in one launch.
+std::vector<double> RunKernel(const models::Model& model, const models::PackedMaterial& m, bool fp64,
+                              const std::vector<float>& wi, const std::vector<float>& wo);
+
+// The loomlight-server binary started on 127.0.0.1 with a free port; killed on destruction.
+class ServerProcess {
+ public:
+  explicit ServerProcess(std::vector<std::string> extra_args = {});
+  ~ServerProcess();
+  int port() const { return port_; }
+  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
+  bool running() const;
+
+ private:
+  pid_t pid_ = -1;
+  int port_ = 0;
+};
+
+}  // namespace loomlight::testing

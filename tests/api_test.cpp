@@ -1,1 +1,300 @@
+// The gRPC API in process: ListModels, Evaluate against the reference, every bad-input case, and the
+// batcher's behaviour (coalescing, full queue, deadlines) through real calls on a loopback port.
+#include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <functional>
+#include <thread>
+
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/server.h"
+#include "server/models/material.h"
+#include "tests/testing.h"
+
+namespace loomlight {
+namespace {
+
+using v1::EvaluateRequest;
+using v1::EvaluateResponse;
+
+std::unique_ptr<api::LoomlightServer> StartServer(batching::BatcherOptions batcher = {}) {
+  api::ServerOptions options;
+  options.address = "127.0.0.1:0";
+  options.batcher = batcher;
+  std::string error;
+  auto server = api::LoomlightServer::Start(options, &error);
+  EXPECT_NE(server, nullptr) << error;
+  return server;
+}
+
+std::unique_ptr<v1::Loomlight::Stub> Connect(int port) {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
+  args.SetMaxSendMessageSize(api::kMaxMessageBytes);
+  return v1::Loomlight::NewStub(grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port),
+                                                          grpc::InsecureChannelCredentials(), args));
+}
+
+EvaluateRequest Request(const std::string& preset, size_t n, unsigned seed) {
+  EvaluateRequest r;
+  r.mutable_material()->set_preset(preset);
+  std::mt19937 rng(seed);
+  for (size_t q = 0; q < n; ++q) {
+    float a[3], b[3];
+    testing::RandomHemisphere(rng, a);
+    testing::RandomHemisphere(rng, b);
+    r.mutable_wi()->Add(a, a + 3);
+    r.mutable_wo()->Add(b, b + 3);
+  }
+  return r;
+}
+
+grpc::Status Call(v1::Loomlight::Stub& stub, const EvaluateRequest& req, EvaluateResponse* resp,
+                  double timeout_s = 60) {
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::microseconds(int64_t(timeout_s * 1e6)));
+  return stub.Evaluate(&ctx, req, resp);
+}
+
+class ApiTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { server_ = StartServer().release(); }
+  static void TearDownTestSuite() { delete server_; }
+  static api::LoomlightServer* server_;
+};
+api::LoomlightServer* ApiTest::server_ = nullptr;
+
+TEST_F(ApiTest, HealthIsServing) {
+  auto health = grpc::health::v1::Health::NewStub(
+      grpc::CreateChannel("127.0.0.1:" + std::to_string(server_->port()), grpc::InsecureChannelCredentials()));
+  for (const char* service : {"", "loomlight.v1.Loomlight"}) {
+    grpc::ClientContext ctx;
+    grpc::health::v1::HealthCheckRequest req;
+    req.set_service(service);
+    grpc::health::v1::HealthCheckResponse resp;
+    ASSERT_TRUE(health->Check(&ctx, req, &resp).ok());
+    EXPECT_EQ(resp.status(), grpc::health::v1::HealthCheckResponse::SERVING);
+  }
+}
+
+TEST_F(ApiTest, ListModelsDescribesSchemaAndPresets) {
+  auto stub = Connect(server_->port());
+  grpc::ClientContext ctx;
+  v1::ListModelsResponse resp;
+  ASSERT_TRUE(stub->ListModels(&ctx, {}, &resp).ok());
+  ASSERT_EQ(resp.models_size(), 1);
+  const v1::ModelInfo& m = resp.models(0);
+  EXPECT_EQ(m.name(), "microcylinder");
+  EXPECT_EQ(m.presets_size(), 6);
+  EXPECT_EQ(m.params_size(), 16);
+  for (const auto& p : m.params()) {
+    EXPECT_FALSE(p.description().empty()) << p.name();
+    EXPECT_LE(p.min(), p.max()) << p.name();
+    EXPECT_GE(p.default_values_size(), int(p.min_count())) << p.name();
+  }
+  for (const auto& preset : m.presets()) EXPECT_EQ(preset.params_size(), 16) << preset.name();
+  EXPECT_EQ(resp.max_queries_per_call(), api::kMaxQueriesPerCall);
+}
+
+TEST_F(ApiTest, EvaluateMatchesReferenceInBothPrecisions) {
+  auto stub = Connect(server_->port());
+  EvaluateRequest req = Request("silk_shot", 5000, 3);
+  auto* p = req.mutable_material()->add_params();
+  p->set_name("thread2.albedo");
+  p->add_values(0.1);
+  p->add_values(0.5);
+  p->add_values(0.9);
+  const models::Model& model = *models::Registry::Global().FindModel("microcylinder");
+  models::ResolvedMaterial resolved;
+  ASSERT_EQ(models::ResolveMaterial(req.material(), models::Registry::Global(), &resolved), "");
+  std::vector<double> ref(3 * 5000);
+  model.ReferenceEval(model.Pack(resolved.values), req.wi().data(), req.wo().data(), 5000, ref.data());
+  for (auto precision : {v1::PRECISION_FP32, v1::PRECISION_FP64}) {
+    req.set_precision(precision);
+    EvaluateResponse resp;
+    ASSERT_TRUE(Call(*stub, req, &resp).ok());
+    ASSERT_EQ(resp.f_size(), 3 * 5000);
+    EXPECT_EQ(resp.model(), "microcylinder");
+    EXPECT_EQ(resp.precision(), precision);
+    EXPECT_GT(resp.kernel_seconds(), 0);
+    std::vector<double> got(resp.f().begin(), resp.f().end());
+    // FP64 answers are the double result rounded to float once.
+    const auto e = testing::RelativeErrors(got, ref, 1e-4);
+    EXPECT_LE(e.p99, precision == v1::PRECISION_FP64 ? 6e-8 : 1e-4) << e.ToString();
+  }
+}
+
+// Every bad-input case: the status is INVALID_ARGUMENT and the message names the field.
+struct BadCase {
+  const char* name;
+  std::function<void(EvaluateRequest&)> mutate;
+  const char* field;
+};
+
+void AddParam(EvaluateRequest& r, const std::string& name, std::vector<double> values) {
+  auto* p = r.mutable_material()->add_params();
+  p->set_name(name);
+  for (double v : values) p->add_values(v);
+}
+
+TEST_F(ApiTest, BadInputIsRejectedNamingTheField) {
+  const float nan = std::nanf("");
+  const std::vector<BadCase> cases = {
+      {"no material", [](EvaluateRequest& r) { r.clear_material(); }, "material"},
+      {"unknown preset", [](EvaluateRequest& r) { r.mutable_material()->set_preset("burlap"); }, "material.preset"},
+      {"unknown model", [](EvaluateRequest& r) { r.mutable_material()->set_preset(""); r.mutable_material()->set_model("tweed"); }, "material.model"},
+      {"preset of another model", [](EvaluateRequest& r) { r.mutable_material()->set_model("fiber"); }, "material.model"},
+      {"unknown parameter", [](EvaluateRequest& r) { AddParam(r, "thread3.kd", {0.1}); }, "material.params[0].name"},
+      {"parameter twice", [](EvaluateRequest& r) { AddParam(r, "eta", {1.3}); AddParam(r, "eta", {1.4}); }, "material.params[1].name"},
+      {"wrong value count", [](EvaluateRequest& r) { AddParam(r, "thread1.albedo", {0.1, 0.2}); }, "material.params[0].values"},
+      {"value out of range", [](EvaluateRequest& r) { AddParam(r, "eta", {0.5}); }, "material.params[0].values[0]"},
+      {"non-finite value", [](EvaluateRequest& r) { AddParam(r, "thread1.kd", {std::nan("")}); }, "material.params[0].values[0]"},
+      {"non-integer samples", [](EvaluateRequest& r) { AddParam(r, "tangent_samples", {12.5}); }, "material.params[0].values[0]"},
+      {"too many samples", [](EvaluateRequest& r) { AddParam(r, "tangent_samples", {257}); }, "material.params[0].values[0]"},
+      {"lengths do not fit offsets", [](EvaluateRequest& r) { AddParam(r, "thread1.tangent_offsets", {0, 10, 20}); }, "material.params: thread1.tangent_lengths"},
+      {"zero total length", [](EvaluateRequest& r) { AddParam(r, "thread2.tangent_lengths", {0}); }, "material.params: thread2.tangent_lengths"},
+      {"wi and wo lengths differ", [](EvaluateRequest& r) { r.mutable_wo()->RemoveLast(); r.mutable_wo()->RemoveLast(); r.mutable_wo()->RemoveLast(); }, "wo"},
+      {"not a multiple of 3", [](EvaluateRequest& r) { r.mutable_wi()->RemoveLast(); r.mutable_wo()->RemoveLast(); }, "wi"},
+      {"non-finite direction", [nan](EvaluateRequest& r) { r.mutable_wo()->Set(4, nan); }, "wo[1]"},
+      {"infinite direction", [](EvaluateRequest& r) { r.mutable_wi()->Set(7, INFINITY); }, "wi[2]"},
+      {"non-unit direction", [](EvaluateRequest& r) { r.mutable_wi()->Set(3, 0.5f); }, "wi[1]"},
+      {"zero direction", [](EvaluateRequest& r) { for (int i = 0; i < 3; ++i) r.mutable_wo()->Set(i, 0.0f); }, "wo[0]"},
+      {"uv on a uniform model", [](EvaluateRequest& r) { r.add_uv(0.5f); r.add_uv(0.5f); }, "uv"},
+      {"unknown precision", [](EvaluateRequest& r) { r.set_precision(static_cast<v1::Precision>(7)); }, "precision"},
+  };
+  auto stub = Connect(server_->port());
+  for (const BadCase& c : cases) {
+    EvaluateRequest req = Request("linen_plain", 4, 1);
+    c.mutate(req);
+    EvaluateResponse resp;
+    const grpc::Status s = Call(*stub, req, &resp);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.name << ": " << s.error_message();
+    // The message starts with the request field (cross-parameter checks add the parameter's name).
+    const std::string field = c.field;
+    const std::string root = field.substr(0, field.find_first_of(".["));
+    EXPECT_EQ(s.error_message().rfind(root, 0), 0u) << c.name << ": " << s.error_message();
+    EXPECT_NE(s.error_message().find(field), std::string::npos) << c.name << ": '" << s.error_message()
+                                                                 << "' should name '" << field << "'";
+  }
+}
+
+TEST_F(ApiTest, MoreQueriesThanTheLimitAreRejected) {
+  EvaluateRequest req;
+  req.mutable_material()->set_preset("velvet");
+  const size_t n = api::kMaxQueriesPerCall + 1;
+  req.mutable_wi()->Resize(int(3 * n), 0.0f);
+  req.mutable_wo()->Resize(int(3 * n), 0.0f);
+  auto stub = Connect(server_->port());
+  EvaluateResponse resp;
+  const grpc::Status s = Call(*stub, req, &resp);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("limit"), std::string::npos) << s.error_message();
+}
+
+TEST_F(ApiTest, BadRequestsNeverDisturbOtherClients) {
+  std::atomic<int> good_ok{0}, bad_rejected{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 8; ++t)
+    threads.emplace_back([&, t] {
+      auto stub = Connect(server_->port());
+      for (int k = 0; k < 10; ++k) {
+        EvaluateRequest req = Request(t % 2 ? "velvet" : "silk_shot", 2000, t * 100 + k);
+        if (t % 2 == 0) req.mutable_wi()->Set(5 * 3, 3.0f);  // one non-unit direction
+        EvaluateResponse resp;
+        const grpc::Status s = Call(*stub, req, &resp);
+        if (t % 2 == 0 && s.error_code() == grpc::StatusCode::INVALID_ARGUMENT) ++bad_rejected;
+        if (t % 2 == 1 && s.ok() && resp.f_size() == 6000) ++good_ok;
+      }
+    });
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(good_ok, 40);
+  EXPECT_EQ(bad_rejected, 40);
+}
+
+TEST(Batching, ConcurrentRequestsAreCoalescedIntoOneLaunch) {
+  auto server = StartServer();
+  std::vector<std::thread> threads;
+  std::atomic<int> max_requests{0}, ok{0};
+  const char* presets[] = {"linen_plain", "velvet", "silk_shot", "silk_crepe_de_chine"};
+  for (int t = 0; t < 16; ++t)
+    threads.emplace_back([&, t] {
+      auto stub = Connect(server->port());
+      for (int k = 0; k < 4; ++k) {
+        EvaluateResponse resp;
+        if (Call(*stub, Request(presets[t % 4], 3000, t * 10 + k), &resp).ok()) {
+          ++ok;
+          int seen = max_requests.load();
+          while (int(resp.batch_requests()) > seen && !max_requests.compare_exchange_weak(seen, resp.batch_requests())) {}
+        }
+      }
+    });
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(ok, 64);
+  EXPECT_GT(max_requests, 1) << "different materials should share launches";
+}
+
+TEST(Batching, NoCoalescingRunsOneRequestPerLaunch) {
+  batching::BatcherOptions options;
+  options.coalesce = false;
+  auto server = StartServer(options);
+  std::vector<std::thread> threads;
+  std::atomic<int> max_requests{0};
+  for (int t = 0; t < 8; ++t)
+    threads.emplace_back([&, t] {
+      auto stub = Connect(server->port());
+      EvaluateResponse resp;
+      ASSERT_TRUE(Call(*stub, Request("velvet", 3000, t), &resp).ok());
+      if (int(resp.batch_requests()) > max_requests) max_requests = resp.batch_requests();
+    });
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(max_requests, 1);
+}
+
+TEST(Batching, FullQueueAnswersResourceExhausted) {
+  batching::BatcherOptions options;
+  options.max_queued_queries = 1000;
+  auto server = StartServer(options);
+  auto stub = Connect(server->port());
+  // A long request occupies the device; while it runs, the first small one queues and the rest overflow.
+  std::thread big([&] {
+    EvaluateResponse resp;
+    EXPECT_TRUE(Call(*stub, Request("velvet", 300000, 1), &resp).ok());
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  std::atomic<int> exhausted{0}, ok{0};
+  std::vector<std::thread> small;
+  for (int t = 0; t < 6; ++t)
+    small.emplace_back([&, t] {
+      EvaluateResponse resp;
+      const grpc::Status s = Call(*stub, Request("velvet", 800, 10 + t), &resp);
+      if (s.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED) ++exhausted;
+      if (s.ok()) ++ok;
+    });
+  for (auto& t : small) t.join();
+  big.join();
+  EXPECT_GE(exhausted, 1);
+  EXPECT_GE(ok, 1);
+  EXPECT_EQ(exhausted + ok, 6);
+}
+
+TEST(Batching, ExpiredRequestsAreDroppedBeforeLaunch) {
+  auto server = StartServer();
+  auto stub = Connect(server->port());
+  std::thread big([&] {
+    EvaluateResponse resp;
+    EXPECT_TRUE(Call(*stub, Request("velvet", 300000, 1), &resp).ok());
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EvaluateResponse resp;
+  const grpc::Status s = Call(*stub, Request("velvet", 100, 2), &resp, 0.05);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  big.join();
+  // The server is still healthy afterwards.
+  EXPECT_TRUE(Call(*stub, Request("velvet", 100, 3), &resp).ok());
+}
+
+}  // namespace
+}  // namespace loomlight

@@ -19,9 +19,7 @@ typedef float real;
 #define LL_INLINE static inline __attribute__((always_inline))
 #define LL_FMIN fmin
 #define LL_FMAX fmax
-// A work-group barrier at the top of a uniform loop makes PoCL put its work-item loop inside each
-// iteration, the only place its loop vectorizer can widen it (it vectorizes innermost loops only).
-#define LL_UNIFORM_LOOP_BARRIER() barrier(CLK_LOCAL_MEM_FENCE)
+#define LL_AS_FLOAT as_float
 #else
 #ifndef LL_SHIM_CXX_ONCE
 #define LL_SHIM_CXX_ONCE
@@ -30,7 +28,7 @@ typedef float real;
 #define LL_INLINE inline
 #define LL_FMIN std::fmin
 #define LL_FMAX std::fmax
-#define LL_UNIFORM_LOOP_BARRIER()
+#define LL_AS_FLOAT(i) __builtin_bit_cast(float, i)
 #endif
 using std::atan2;
 using std::exp;
@@ -45,15 +43,15 @@ using std::sqrt;
 // (a unit float vector carries ~6e-8 absolute error), so reflection models treat them as n.w = 0.
 #define LL_HORIZON_EPS R(1e-7)
 
-// atan2 with no library call and no branch, so PoCL vectorizes it (its builtin atan2 is a call the
-// work-item vectorizer cannot widen). Octant reduction to a in [0, 1], then atan(a) = pi/4 + atan((a-1)/(a+1))
-// above tan(pi/8), leaving |z| <= 0.4142 for Cephes' atanf polynomial (about 1 ulp in float).
+// atan2 with no library call and no branch (PoCL's builtin atan2 is an out-of-line call). Octant reduction
+// to a = min/max in [0, 1], then atan(a) = pi/4 + atan((a-1)/(a+1)) above tan(pi/8), leaving |z| <= 0.4142 for
+// Cephes' atanf polynomial (about 1 ulp in float). z is one division, (mn - mx)/(mn + mx) or mn/mx.
 LL_INLINE float ll_atan2_poly(float y, float x) {
   const float ax = fabs(x), ay = fabs(y);
   const float mx = LL_FMAX(ax, ay), mn = LL_FMIN(ax, ay);
-  const float a = mx > 0.0f ? mn / mx : 0.0f;
-  const int big = a > 0.41421356f;
-  const float z = big ? (a - 1.0f) / (a + 1.0f) : a;
+  const int big = mn > 0.41421356f * mx;
+  const float q = (big ? mn - mx : mn) / (big ? mn + mx : mx);  // NaN for x = y = 0, selected out below
+  const float z = mx > 0.0f ? q : 0.0f;
   const float s = z * z;
   const float p = ((8.05374449538e-2f * s - 1.38776856032e-1f) * s + 1.99777106478e-1f) * s - 3.33329491539e-1f;
   float r = z + z * s * p + (big ? 0.78539816f : 0.0f);
@@ -61,33 +59,56 @@ LL_INLINE float ll_atan2_poly(float y, float x) {
   r = x < 0.0f ? 3.14159265f - r : r;
   return y < 0.0f ? -r : r;
 }
+
+// exp with no table and no branch: PoCL's builtin expf reads a table of float2 pairs, whose extractelement
+// stops its work-item loop vectorizer ("instruction return type cannot be vectorized") and costs a gather.
+// Cody-Waite reduction x = n ln2 + r (|r| <= ln2/2, n rounded with the 1.5 * 2^23 trick) and Cephes'
+// expf polynomial (about 1 ulp); 2^n is built in the exponent bits. Flushes to 0 below -87 (no denormals).
+LL_INLINE float ll_exp_poly(float x) {
+  const float xc = LL_FMAX(x, -87.0f);
+  const float n = (xc * 1.44269504089f + 12582912.0f) - 12582912.0f;
+  const float r = (xc - n * 0.693359375f) + n * 2.12194440e-4f;
+  const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r + 4.1665795894e-2f) * r +
+                   1.6666665459e-1f) * r + 5.0000001201e-1f;
+  const float e = (p * r * r + r) + 1.0f;
+  const float scale = LL_AS_FLOAT(((int)n + 127) << 23);
+  return x < -87.0f ? 0.0f : e * scale;
+}
+
 #if defined(__OPENCL_C_VERSION__)
 #ifdef LL_FP64
 #define ll_atan2 atan2
+#define ll_exp exp
 #else
 #define ll_atan2 ll_atan2_poly
+#define ll_exp ll_exp_poly
 #endif
 #else
 inline float ll_atan2(float y, float x) { return ll_atan2_poly(y, x); }
 inline double ll_atan2(double y, double x) { return std::atan2(y, x); }
+inline float ll_exp(float x) { return ll_exp_poly(x); }
+inline double ll_exp(double x) { return std::exp(x); }
 #endif
 
-// Unit-area Gaussian g(w, x) = exp(-x^2 / (2 w^2)) / (w sqrt(2 pi)); t = x / w first (SPEC.md section 1).
-LL_INLINE real ll_gaussian(real w, real x) {
-  const real t = x / w;
-  return exp(R(-0.5) * t * t) * (LL_INV_SQRT_2PI / w);
+// Unit-area Gaussian g(w, x) = exp(-x^2 / (2 w^2)) / (w sqrt(2 pi)), given inv_w = 1 / w; t = x / w first
+// (SPEC.md section 1), as a product so that loops over x pay no division.
+LL_INLINE real ll_gaussian(real inv_w, real x) {
+  const real t = x * inv_w;
+  return ll_exp(R(-0.5) * t * t) * (LL_INV_SQRT_2PI * inv_w);
 }
 
 // Unit-height Gaussian u(x) = exp(-x^2 / (2 sigma^2)), given inv2s2 = 1 / (2 sigma^2).
-LL_INLINE real ll_unit_gaussian(real inv2s2, real x) { return exp(-x * x * inv2s2); }
+LL_INLINE real ll_unit_gaussian(real inv2s2, real x) { return ll_exp(-x * x * inv2s2); }
 
 // Unpolarised dielectric Fresnel reflectance from outside into relative index eta, incidence cosine c in [0,1].
-// Returns 1 on total internal reflection. Written with sqrt only: no trigonometry in the kernels.
+// Returns 1 on total internal reflection. Written with g = eta cos(theta_t) = sqrt(eta^2 - 1 + c^2): one sqrt
+// and no trigonometry, rs = (c - g) / (c + g), rp = (eta^2 c - g) / (eta^2 c + g).
 LL_INLINE real ll_fresnel_dielectric(real eta, real c) {
-  const real sin2_t = (R(1.0) - c * c) / (eta * eta);
-  const real cos_t = sqrt(LL_FMAX(R(1.0) - sin2_t, R(0.0)));
-  const real rs = (c - eta * cos_t) / (c + eta * cos_t);
-  const real rp = (eta * c - cos_t) / (eta * c + cos_t);
+  const real eta2 = eta * eta;
+  const real g2 = eta2 - R(1.0) + c * c;
+  const real g = sqrt(LL_FMAX(g2, R(0.0)));
+  const real rs = (c - g) / (c + g);
+  const real rp = (eta2 * c - g) / (eta2 * c + g);
   const real fr = R(0.5) * (rs * rs + rp * rp);
-  return sin2_t >= R(1.0) ? R(1.0) : fr;
+  return g2 <= R(0.0) ? R(1.0) : fr;
 }

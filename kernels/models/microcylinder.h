@@ -33,61 +33,69 @@ LL_INLINE real mc_curve_offset(const real* offsets, const real* lengths, int n, 
 // (ia, ib, iz) are wi's components along the thread's own axis, the other cloth axis and the normal
 // (thread along x: (x, y, z); along y: (y, x, z)); likewise (oa, ob, oz) for wo. Adds sum P Q to
 // *surf (achromatic surface part) and *vol (volume part, to be multiplied by A) and sum P to *psum.
+// The loop body is branch-free (selects only, no library calls): no divergent paths per work-item.
 LL_INLINE void mc_accumulate_thread(LL_GLOBAL const real* thread, int T, real eta,
                                     real ia, real ib, real iz, real oa, real ob, real oz,
                                     real* surf, real* vol, real* psum) {
   const real kd = thread[4];
-  const real gamma_s = thread[5];
-  const real gamma_v = thread[6];
+  const real inv_gamma_s = R(1.0) / thread[5];
+  const real inv_gamma_v = R(1.0) / thread[6];
   LL_GLOBAL const real* tangents = thread + MC_THREAD_HEADER;
+
+  // (w.t, w.nt) is (wa, wz) rotated by the tangent offset, so its length and psi_i - psi_r do not depend
+  // on the tangent: computed once here. P > 0 needs wi.nt > 0 and wo.nt > 0, hence |psi| < 90 degrees and
+  // psi_i - psi_r as one atan2 of the cross and dot products has no wrap-around where it is used.
+  const real li = sqrt(ia * ia + iz * iz), lr = sqrt(oa * oa + oz * oz);
+  const real inv_li = li > R(0.0) ? R(1.0) / li : R(0.0), inv_lr = lr > R(0.0) ? R(1.0) / lr : R(0.0);
+  const real psi_d = ll_atan2(ia * oz - iz * oa, iz * oz + ia * oa);
+  const real u_psi = ll_unit_gaussian(MC_U_INV2S2, psi_d);
+
   real s_surf = R(0.0), s_vol = R(0.0), s_p = R(0.0);
   for (int m = 0; m < T; ++m) {  // T is the same for every query of a launch
-    LL_UNIFORM_LOOP_BARRIER();
     const real ca = tangents[2 * m], sa = tangents[2 * m + 1];
     // t = (ca, 0, sa), nt = (-sa, 0, ca), b = the other cloth axis, in the thread's (a, b, z) frame.
     const real si = ia * ca + iz * sa, ni = iz * ca - ia * sa, bi = ib;
     const real sr = oa * ca + oz * sa, nr = oz * ca - oa * sa, br = ob;
 
-    // Reweighting (Sec. 5.3). P > 0 needs ni > 0 and nr > 0, hence |wi_p|, |wo_p| > 0 below.
-    const real pi_ = ni > R(0.0) ? ni / sqrt(si * si + ni * ni) : R(0.0);
-    const real pr_ = nr > R(0.0) ? nr / sqrt(sr * sr + nr * nr) : R(0.0);
-    const real ci0 = sqrt(ni * ni + bi * bi), cr0 = sqrt(nr * nr + br * br);  // cos theta = |w_p|
-    const int live = pi_ > R(0.0) && pr_ > R(0.0) && ci0 * cr0 > R(0.0);
-    const real ci = live ? ci0 : R(1.0), cr = live ? cr0 : R(1.0);  // keep dead lanes finite
-    // psi_i - psi_r as one atan2: no wrap-around, since both |psi| < 90 degrees where P > 0.
-    const real psi_d = ll_atan2(si * nr - ni * sr, ni * nr + si * sr);
-    const real u_psi = ll_unit_gaussian(MC_U_INV2S2, psi_d);
+    // Reweighting (Sec. 5.3).
+    const real pi_ = LL_FMAX(ni, R(0.0)) * inv_li, pr_ = LL_FMAX(nr, R(0.0)) * inv_lr;
+    const real ci = sqrt(ni * ni + bi * bi), cr = sqrt(nr * nr + br * br);  // cos theta = |w_p|
+    const real cc = ci * cr;
+    const int live = pi_ > R(0.0) && pr_ > R(0.0) && cc > R(0.0);  // then every division below is finite
     const real p = live ? (R(1.0) - u_psi) * pi_ * pr_ + u_psi * LL_FMIN(pi_, pr_) : R(0.0);
 
     // Masking (Sec. 5.2): cos phi_w = (w.nt) / |w_p|, positive here.
     const real mi = ni / ci, mr = nr / cr;
-    const real dot_p = ni * nr + bi * br;  // wi_p . wo_p
-    const real phi_d = ll_atan2(fabs(ni * br - bi * nr), dot_p);
+    const real dot_p = ni * nr + bi * br, cross_p = ni * br - bi * nr;  // of wi_p and wo_p
+    const real phi_d = ll_atan2(fabs(cross_p), dot_p);
     const real u_phi = ll_unit_gaussian(MC_U_INV2S2, phi_d);
     const real mask = (R(1.0) - u_phi) * mi * mr + u_phi * LL_FMIN(mi, mr);
-    const real cos_phi_d = LL_FMIN(LL_FMAX(dot_p / (ci * cr), R(-1.0)), R(1.0));  // Cauchy-Schwarz bound
-    const real cos_half_phi_d = sqrt(R(0.5) * (R(1.0) + cos_phi_d));
+    // 2 cos^2(phi_d/2) = 1 + cos phi_d = (cc + dot_p) / cc; for dot_p < 0 the numerator is rewritten as
+    // cross_p^2 / (cc - dot_p) (Lagrange: cc^2 = dot_p^2 + cross_p^2), which has no cancellation as phi_d -> pi.
+    const real one_plus_cos_phi = (dot_p >= R(0.0) ? cc + dot_p : cross_p * cross_p / (cc - dot_p)) / cc;
+    const real cos_half_phi_d = sqrt(R(0.5) * one_plus_cos_phi);
 
     // theta_i + theta_r from one atan2 of the sum formulas (cos theta >= 0 keeps it in [-pi, pi]).
-    const real theta_h = R(0.5) * ll_atan2(si * cr + ci * sr, ci * cr - si * sr);
+    const real theta_h = R(0.5) * ll_atan2(si * cr + ci * sr, cc - si * sr);
     // 2 cos^2(theta_d) = 1 + cos(theta_i - theta_r) = 1 + si sr + ci cr; when si sr < 0 the 1 + si sr part
     // is rewritten as ci^2/(1+|si|) + |si| cr^2/(1+|sr|), which has no cancellation as theta_d -> 90 degrees.
     const real asi = fabs(si), asr = fabs(sr);
     const real one_plus_sisr =
         si * sr >= R(0.0) ? R(1.0) + si * sr : ci * ci / (R(1.0) + asi) + asi * cr * cr / (R(1.0) + asr);
-    const real cos2_d = R(0.5) * (one_plus_sisr + ci * cr);
+    const real cos2_d = R(0.5) * (one_plus_sisr + cc);
     const real cos_d = sqrt(cos2_d);
 
     // Thread scattering (Sec. 4.3), divided by cos^2(theta_d) below.
     const real f_rs = ll_fresnel_dielectric(eta, cos_d * cos_half_phi_d) * cos_half_phi_d *
-                      ll_gaussian(gamma_s, theta_h);
+                      ll_gaussian(inv_gamma_s, theta_h);
     const real ft = (R(1.0) - ll_fresnel_dielectric(eta, ci)) * (R(1.0) - ll_fresnel_dielectric(eta, cr));
-    const real f_rv = ft * ((R(1.0) - kd) * ll_gaussian(gamma_v, theta_h) + kd) / (ci + cr);
+    const real f_rv = ft * ((R(1.0) - kd) * ll_gaussian(inv_gamma_v, theta_h) + kd) / (ci + cr);
 
-    // P Q = P f_s M cos(theta_i), with f_s = (f_rs + f_rv A) / cos^2(theta_d).
-    const real w = live ? p * mask * ci / cos2_d : R(0.0);
-    s_surf += w * f_rs;
-    s_vol += w * f_rv;
+    // P Q = P f_s M cos(theta_i), with f_s = (f_rs + f_rv A) / cos^2(theta_d). Dead lanes may hold NaN
+    // (0/0 above), so they are selected out rather than multiplied by 0.
+    const real w = p * mask * ci / cos2_d;
+    s_surf += live ? w * f_rs : R(0.0);
+    s_vol += live ? w * f_rv : R(0.0);
     s_p += p;
   }
   *surf = s_surf;

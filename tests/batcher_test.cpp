@@ -1,0 +1,128 @@
+// The dynamic batcher against the real OpenCL runtime: coalescing by kernel, drops before launch,
+// queue bounds.
+#include <gtest/gtest.h>
+
+#include <future>
+
+#include "server/batching/batcher.h"
+#include "tests/testing.h"
+
+namespace loomlight {
+namespace {
+
+using batching::Job;
+using batching::JobResult;
+using batching::JobStatus;
+
+struct Submitted {
+  std::shared_ptr<Job> job;
+  std::future<JobResult> result;
+  std::vector<float> wi, wo;
+};
+
+// A job of n random queries of a preset with T tangent samples; its result arrives through the future.
+std::unique_ptr<Submitted> MakeJob(const std::string& preset, size_t n, int T = 32) {
+  auto s = std::make_unique<Submitted>();
+  const models::PresetSpec* spec = nullptr;
+  const models::Model* model = models::Registry::Global().FindPreset(preset, &spec);
+  models::ParamValues v = model->PresetValues(*spec);
+  v["tangent_samples"] = {double(T)};
+  std::mt19937 rng(n);
+  s->wi.resize(3 * n);
+  s->wo.resize(3 * n);
+  for (size_t q = 0; q < n; ++q) {
+    testing::RandomHemisphere(rng, &s->wi[3 * q]);
+    testing::RandomHemisphere(rng, &s->wo[3 * q]);
+  }
+  s->job = std::make_shared<Job>();
+  s->job->model = model;
+  s->job->material = model->Pack(v);
+  s->job->wi = s->wi.data();
+  s->job->wo = s->wo.data();
+  s->job->n = n;
+  auto promise = std::make_shared<std::promise<JobResult>>();
+  s->result = promise->get_future();
+  s->job->done = [promise](JobResult r) { promise->set_value(std::move(r)); };
+  return s;
+}
+
+TEST(Batcher, CoalescesSameKernelAndKeepsOtherKernelsApart) {
+  batching::Batcher batcher(&testing::SharedRuntime(), {});
+  auto blocker = MakeJob("velvet", 200000);  // occupies the device while the rest queue
+  ASSERT_TRUE(batcher.Submit(blocker->job));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  auto a = MakeJob("linen_plain", 100), b = MakeJob("silk_shot", 200), c = MakeJob("velvet", 300);
+  auto other = MakeJob("velvet", 50, 16);  // different tangent sample count: its own launch
+  for (auto* s : {a.get(), b.get(), other.get(), c.get()}) ASSERT_TRUE(batcher.Submit(s->job));
+  EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
+  for (auto* s : {a.get(), b.get(), c.get()}) {
+    const JobResult r = s->result.get();
+    ASSERT_EQ(r.status, JobStatus::kOk);
+    EXPECT_EQ(r.batch_requests, 3u);
+    EXPECT_EQ(r.batch_queries, 600u);
+    // Each job's slice of the launch is its own material's answer.
+    const auto direct = testing::RunKernel(*s->job->model, s->job->material, false, s->wi, s->wo);
+    EXPECT_EQ(r.f, direct);
+  }
+  const JobResult r = other->result.get();
+  EXPECT_EQ(r.batch_requests, 1u);
+  EXPECT_EQ(r.f.size(), 150u);
+}
+
+TEST(Batcher, DropsExpiredAndCancelledJobsBeforeLaunch) {
+  batching::Batcher batcher(&testing::SharedRuntime(), {});
+  auto expired = MakeJob("velvet", 1000);
+  expired->job->deadline = batching::Clock::now() - std::chrono::milliseconds(1);
+  auto cancelled = MakeJob("velvet", 1000);
+  cancelled->job->cancelled = [] { return true; };
+  auto fine = MakeJob("velvet", 1000);
+  for (auto* s : {expired.get(), cancelled.get(), fine.get()}) ASSERT_TRUE(batcher.Submit(s->job));
+  const JobResult re = expired->result.get(), rc = cancelled->result.get(), rf = fine->result.get();
+  EXPECT_EQ(re.status, JobStatus::kDeadlineExceeded);
+  EXPECT_TRUE(re.f.empty());
+  EXPECT_EQ(rc.status, JobStatus::kCancelled);
+  EXPECT_EQ(rf.status, JobStatus::kOk);
+  EXPECT_EQ(rf.batch_requests, 1u);  // the dropped jobs never rode in the launch
+}
+
+TEST(Batcher, RefusesBeyondTheQueueBoundButAlwaysTakesOneRequest) {
+  batching::BatcherOptions options;
+  options.max_queued_queries = 500;
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  auto blocker = MakeJob("velvet", 200000);
+  ASSERT_TRUE(batcher.Submit(blocker->job));  // larger than the bound, but the queue was empty
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  auto first = MakeJob("velvet", 400), second = MakeJob("velvet", 400);
+  EXPECT_TRUE(batcher.Submit(first->job));
+  EXPECT_FALSE(batcher.Submit(second->job));  // 800 queued would exceed 500
+  EXPECT_EQ(first->result.get().status, JobStatus::kOk);
+  EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
+}
+
+TEST(Batcher, QueueDelayLetsABatchFill) {
+  batching::BatcherOptions options;
+  options.max_queue_delay = std::chrono::milliseconds(200);
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  auto a = MakeJob("velvet", 100);
+  ASSERT_TRUE(batcher.Submit(a->job));
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  auto b = MakeJob("linen_plain", 100);
+  ASSERT_TRUE(batcher.Submit(b->job));
+  EXPECT_EQ(a->result.get().batch_requests, 2u);
+  EXPECT_EQ(b->result.get().batch_requests, 2u);
+}
+
+TEST(Batcher, StopFailsQueuedJobsAsUnavailable) {
+  auto batcher = std::make_unique<batching::Batcher>(&testing::SharedRuntime(), batching::BatcherOptions{});
+  auto blocker = MakeJob("velvet", 100000);
+  ASSERT_TRUE(batcher->Submit(blocker->job));
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  auto queued = MakeJob("velvet", 100);
+  ASSERT_TRUE(batcher->Submit(queued->job));
+  batcher->Stop();
+  EXPECT_EQ(queued->result.get().status, JobStatus::kUnavailable);
+  EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
+}
+
+}  // namespace
+}  // namespace loomlight

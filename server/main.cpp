@@ -17,6 +17,7 @@ void Usage() {
                "  --platform NAME            OpenCL platform substring (env LOOMLIGHT_PLATFORM; default PoCL)\n"
                "  --device NAME              OpenCL device substring (env LOOMLIGHT_DEVICE; default first CPU)\n"
                "  --cache-dir DIR            PoCL kernel cache (POCL_CACHE_DIR; default ~/.cache/loomlight/pocl)\n"
+               "  --vector-width N           queries per work-item in float kernels: 1, 2, 4, 8, 16 (default: device)\n"
                "  --max-batch-queries N      queries per coalesced launch (default 1048576)\n"
                "  --max-queue-delay-us N     wait this long for a batch to fill (default 0)\n"
                "  --max-queued-queries N     queued queries before RESOURCE_EXHAUSTED (default 8388608)\n"
@@ -52,6 +53,7 @@ int main(int argc, char** argv) {
     else if (arg == "--platform") options.runtime.platform = value();
     else if (arg == "--device") options.runtime.device = value();
     else if (arg == "--cache-dir") options.runtime.cache_dir = value();
+    else if (arg == "--vector-width") options.runtime.vector_width = static_cast<int>(number());
     else if (arg == "--max-batch-queries") options.batcher.max_batch_queries = number();
     else if (arg == "--max-queue-delay-us") options.batcher.max_queue_delay = std::chrono::microseconds(number());
     else if (arg == "--max-queued-queries") options.batcher.max_queued_queries = number();
@@ -65,9 +67,9 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "loomlight-server: %s\n", error.c_str());
     return 1;
   }
-  std::fprintf(stderr, "loomlight-server: serving on port %d (OpenCL: %s / %s, fp64 %s)\n", server->port(),
-               server->runtime().platform_name().c_str(), server->runtime().device_name().c_str(),
-               server->runtime().has_fp64() ? "yes" : "no");
+  std::fprintf(stderr, "loomlight-server: serving on port %d (OpenCL: %s / %s, float vector width %d, fp64 %s)\n",
+               server->port(), server->runtime().platform_name().c_str(), server->runtime().device_name().c_str(),
+               server->runtime().vector_width(), server->runtime().has_fp64() ? "yes" : "no");
   std::signal(SIGINT, [](int) { g_stop = 1; });
   std::signal(SIGTERM, [](int) { g_stop = 1; });
   while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));

@@ -59,6 +59,16 @@ grpc::Status Call(v1::Loomlight::Stub& stub, const EvaluateRequest& req, Evaluat
   return stub.Evaluate(&ctx, req, resp);
 }
 
+// A call that keeps the device busy for about a second (the most queries per call, the most tangent
+// samples), so that calls made meanwhile queue.
+EvaluateRequest BlockingRequest() {
+  EvaluateRequest r = Request("velvet", api::kMaxQueriesPerCall, 1);
+  auto* p = r.mutable_material()->add_params();
+  p->set_name("tangent_samples");
+  p->add_values(256);
+  return r;
+}
+
 class ApiTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() { server_ = StartServer().release(); }
@@ -261,7 +271,7 @@ TEST(Batching, FullQueueAnswersResourceExhausted) {
   // A long request occupies the device; while it runs, the first small one queues and the rest overflow.
   std::thread big([&] {
     EvaluateResponse resp;
-    EXPECT_TRUE(Call(*stub, Request("velvet", 300000, 1), &resp).ok());
+    EXPECT_TRUE(Call(*stub, BlockingRequest(), &resp).ok());
   });
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   std::atomic<int> exhausted{0}, ok{0};
@@ -285,7 +295,7 @@ TEST(Batching, ExpiredRequestsAreDroppedBeforeLaunch) {
   auto stub = Connect(server->port());
   std::thread big([&] {
     EvaluateResponse resp;
-    EXPECT_TRUE(Call(*stub, Request("velvet", 300000, 1), &resp).ok());
+    EXPECT_TRUE(Call(*stub, BlockingRequest(), &resp).ok());
   });
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   EvaluateResponse resp;

@@ -46,9 +46,13 @@ std::unique_ptr<Submitted> MakeJob(const std::string& preset, size_t n, int T = 
   return s;
 }
 
+// A job that keeps the device busy for about a second (the most queries per call, the most tangent
+// samples), so that jobs submitted after it must queue.
+std::unique_ptr<Submitted> Blocker() { return MakeJob("velvet", size_t{1} << 20, 256); }
+
 TEST(Batcher, CoalescesSameKernelAndKeepsOtherKernelsApart) {
   batching::Batcher batcher(&testing::SharedRuntime(), {});
-  auto blocker = MakeJob("velvet", 200000);  // occupies the device while the rest queue
+  auto blocker = Blocker();  // occupies the device while the rest queue
   ASSERT_TRUE(batcher.Submit(blocker->job));
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
   auto a = MakeJob("linen_plain", 100), b = MakeJob("silk_shot", 200), c = MakeJob("velvet", 300);
@@ -89,7 +93,7 @@ TEST(Batcher, RefusesBeyondTheQueueBoundButAlwaysTakesOneRequest) {
   batching::BatcherOptions options;
   options.max_queued_queries = 500;
   batching::Batcher batcher(&testing::SharedRuntime(), options);
-  auto blocker = MakeJob("velvet", 200000);
+  auto blocker = Blocker();
   ASSERT_TRUE(batcher.Submit(blocker->job));  // larger than the bound, but the queue was empty
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
   auto first = MakeJob("velvet", 400), second = MakeJob("velvet", 400);
@@ -114,7 +118,7 @@ TEST(Batcher, QueueDelayLetsABatchFill) {
 
 TEST(Batcher, StopFailsQueuedJobsAsUnavailable) {
   auto batcher = std::make_unique<batching::Batcher>(&testing::SharedRuntime(), batching::BatcherOptions{});
-  auto blocker = MakeJob("velvet", 100000);
+  auto blocker = Blocker();
   ASSERT_TRUE(batcher->Submit(blocker->job));
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
   auto queued = MakeJob("velvet", 100);

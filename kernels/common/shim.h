@@ -1,25 +1,51 @@
-// Portable shim: lets the model files compile as OpenCL C (float, or double with LL_FP64) and as C++.
+// Portable shim: lets the model files compile as OpenCL C and as C++ from one source.
 //
-// OpenCL: the .cl entry file includes this first; `real` is float, or double when LL_FP64 is defined.
-// C++: include <cmath> and <algorithm>, open a namespace, `typedef double real;` (or float) and include this
-// file and the model headers inside it, so one source gives the double reference and the float baseline.
+// OpenCL: the .cl entry file includes this first. `real` is the arithmetic type of one work-item: float,
+// or floatN when LL_WIDTH = N > 1 (each work-item evaluates N queries as explicit vectors: PoCL 3.1's own
+// work-item-loop vectorizer gives up on this model, see README), or double with LL_FP64 (LL_WIDTH 1).
+// `scalar` is the element type of material data, `mask` the type of a comparison of reals.
+// C++: include <cmath>, open a namespace, `typedef double real;` (or float) and include this file and the
+// model headers inside it, so one source gives the double reference and the float native baseline.
 // No include guards on purpose: a C++ translation unit may include the set once per namespace.
+//
+// Model code may therefore use on reals only: arithmetic, comparisons combined with && and ||, `?:` with
+// a mask condition and real operands (literals through R()), and the functions below.
 
 #ifdef __OPENCL_C_VERSION__
+#ifndef LL_WIDTH
+#define LL_WIDTH 1
+#endif
+#define LL_CAT_(a, b) a##b
+#define LL_CAT(a, b) LL_CAT_(a, b)
 #ifdef LL_FP64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
-typedef double real;
-#define R(x) x
+typedef double scalar;
+#define LL_LITERAL(x) x
 #else
-typedef float real;
-#define R(x) x##f  // keeps float kernels free of double constants
+typedef float scalar;
+#define LL_LITERAL(x) x##f  // keeps float kernels free of double constants
 #endif
+#if LL_WIDTH == 1
+typedef scalar real;
+typedef int mask;
+#define LL_LOAD(i, p) ((real)(p)[i])
+#define LL_STORE(v, i, p) ((p)[i] = (v))
+#define LL_TO_INT(x) ((int)(x))
+#define LL_AS_FLOAT(x) as_float(x)
+#else
+typedef LL_CAT(float, LL_WIDTH) real;
+typedef LL_CAT(int, LL_WIDTH) mask;
+#define LL_LOAD(i, p) LL_CAT(vload, LL_WIDTH)(i, p)
+#define LL_STORE(v, i, p) LL_CAT(vstore, LL_WIDTH)(v, i, p)
+#define LL_TO_INT(x) LL_CAT(convert_int, LL_WIDTH)(x)
+#define LL_AS_FLOAT(x) LL_CAT(as_float, LL_WIDTH)(x)
+#endif
+#define R(x) ((real)(LL_LITERAL(x)))
 #define LL_GLOBAL __global
-// Everything inlined into the kernel: a call left in the body stops PoCL's work-item loop vectorizer.
+// Everything inlined into the kernel: no calls left in the body.
 #define LL_INLINE static inline __attribute__((always_inline))
 #define LL_FMIN fmin
 #define LL_FMAX fmax
-#define LL_AS_FLOAT as_float
 #else
 #ifndef LL_SHIM_CXX_ONCE
 #define LL_SHIM_CXX_ONCE
@@ -28,8 +54,11 @@ typedef float real;
 #define LL_INLINE inline
 #define LL_FMIN std::fmin
 #define LL_FMAX std::fmax
+#define LL_TO_INT(x) static_cast<int>(x)
 #define LL_AS_FLOAT(i) __builtin_bit_cast(float, i)
 #endif
+typedef real scalar;
+typedef bool mask;
 using std::atan2;
 using std::exp;
 using std::fabs;
@@ -46,33 +75,33 @@ using std::sqrt;
 // atan2 with no library call and no branch (PoCL's builtin atan2 is an out-of-line call). Octant reduction
 // to a = min/max in [0, 1], then atan(a) = pi/4 + atan((a-1)/(a+1)) above tan(pi/8), leaving |z| <= 0.4142 for
 // Cephes' atanf polynomial (about 1 ulp in float). z is one division, (mn - mx)/(mn + mx) or mn/mx.
-LL_INLINE float ll_atan2_poly(float y, float x) {
-  const float ax = fabs(x), ay = fabs(y);
-  const float mx = LL_FMAX(ax, ay), mn = LL_FMIN(ax, ay);
-  const int big = mn > 0.41421356f * mx;
-  const float q = (big ? mn - mx : mn) / (big ? mn + mx : mx);  // NaN for x = y = 0, selected out below
-  const float z = mx > 0.0f ? q : 0.0f;
-  const float s = z * z;
-  const float p = ((8.05374449538e-2f * s - 1.38776856032e-1f) * s + 1.99777106478e-1f) * s - 3.33329491539e-1f;
-  float r = z + z * s * p + (big ? 0.78539816f : 0.0f);
-  r = ay > ax ? 1.57079633f - r : r;
-  r = x < 0.0f ? 3.14159265f - r : r;
-  return y < 0.0f ? -r : r;
+LL_INLINE real ll_atan2_poly(real y, real x) {
+  const real ax = fabs(x), ay = fabs(y);
+  const real mx = LL_FMAX(ax, ay), mn = LL_FMIN(ax, ay);
+  const mask big = mn > R(0.41421356) * mx;
+  const real q = (big ? mn - mx : mn) / (big ? mn + mx : mx);  // NaN for x = y = 0, selected out below
+  const real z = mx > R(0.0) ? q : R(0.0);
+  const real s = z * z;
+  const real p = ((R(8.05374449538e-2) * s - R(1.38776856032e-1)) * s + R(1.99777106478e-1)) * s - R(3.33329491539e-1);
+  real r = z + z * s * p + (big ? R(0.78539816) : R(0.0));
+  r = ay > ax ? R(1.57079633) - r : r;
+  r = x < R(0.0) ? R(3.14159265) - r : r;
+  return y < R(0.0) ? -r : r;
 }
 
 // exp with no table and no branch: PoCL's builtin expf reads a table of float2 pairs, whose extractelement
 // stops its work-item loop vectorizer ("instruction return type cannot be vectorized") and costs a gather.
 // Cody-Waite reduction x = n ln2 + r (|r| <= ln2/2, n rounded with the 1.5 * 2^23 trick) and Cephes'
 // expf polynomial (about 1 ulp); 2^n is built in the exponent bits. Flushes to 0 below -87 (no denormals).
-LL_INLINE float ll_exp_poly(float x) {
-  const float xc = LL_FMAX(x, -87.0f);
-  const float n = (xc * 1.44269504089f + 12582912.0f) - 12582912.0f;
-  const float r = (xc - n * 0.693359375f) + n * 2.12194440e-4f;
-  const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r + 4.1665795894e-2f) * r +
-                   1.6666665459e-1f) * r + 5.0000001201e-1f;
-  const float e = (p * r * r + r) + 1.0f;
-  const float scale = LL_AS_FLOAT(((int)n + 127) << 23);
-  return x < -87.0f ? 0.0f : e * scale;
+LL_INLINE real ll_exp_poly(real x) {
+  const real xc = LL_FMAX(x, R(-87.0));
+  const real n = (xc * R(1.44269504089) + R(12582912.0)) - R(12582912.0);
+  const real r = (xc - n * R(0.693359375)) + n * R(2.12194440e-4);
+  const real p = ((((R(1.9875691500e-4) * r + R(1.3981999507e-3)) * r + R(8.3334519073e-3)) * r + R(4.1665795894e-2)) * r +
+                  R(1.6666665459e-1)) * r + R(5.0000001201e-1);
+  const real e = (p * r * r + r) + R(1.0);
+  const real scale = LL_AS_FLOAT((LL_TO_INT(n) + 127) << 23);
+  return x < R(-87.0) ? R(0.0) : e * scale;
 }
 
 #if defined(__OPENCL_C_VERSION__)
@@ -84,7 +113,7 @@ LL_INLINE float ll_exp_poly(float x) {
 #define ll_exp ll_exp_poly
 #endif
 #else
-inline float ll_atan2(float y, float x) { return ll_atan2_poly(y, x); }
+inline float ll_atan2(float y, float x) { return ll_atan2_poly(y, x); }  // real is float here
 inline double ll_atan2(double y, double x) { return std::atan2(y, x); }
 inline float ll_exp(float x) { return ll_exp_poly(x); }
 inline double ll_exp(double x) { return std::exp(x); }
@@ -103,7 +132,7 @@ LL_INLINE real ll_unit_gaussian(real inv2s2, real x) { return ll_exp(-x * x * in
 // Unpolarised dielectric Fresnel reflectance from outside into relative index eta, incidence cosine c in [0,1].
 // Returns 1 on total internal reflection. Written with g = eta cos(theta_t) = sqrt(eta^2 - 1 + c^2): one sqrt
 // and no trigonometry, rs = (c - g) / (c + g), rp = (eta^2 c - g) / (eta^2 c + g).
-LL_INLINE real ll_fresnel_dielectric(real eta, real c) {
+LL_INLINE real ll_fresnel_dielectric(scalar eta, real c) {
   const real eta2 = eta * eta;
   const real g2 = eta2 - R(1.0) + c * c;
   const real g = sqrt(LL_FMAX(g2, R(0.0)));

@@ -16,6 +16,7 @@
 LL_INLINE int mc_thread_stride(int T) { return MC_THREAD_HEADER + 2 * T; }
 LL_INLINE int mc_material_stride(int T) { return 1 + 2 * mc_thread_stride(T); }
 
+#ifndef __OPENCL_C_VERSION__
 // Tangent offset (degrees) at arc length s on a piecewise-linear tangent curve: offsets[0..n-1] at the control
 // points, lengths[0..n-2] between them; a zero-length segment is a jump. Used by the host to pack materials.
 LL_INLINE real mc_curve_offset(const real* offsets, const real* lengths, int n, real s) {
@@ -28,19 +29,20 @@ LL_INLINE real mc_curve_offset(const real* offsets, const real* lengths, int n, 
   }
   return offsets[n - 1];
 }
+#endif
 
 // Accumulates one thread's T tangent samples for a query.
 // (ia, ib, iz) are wi's components along the thread's own axis, the other cloth axis and the normal
 // (thread along x: (x, y, z); along y: (y, x, z)); likewise (oa, ob, oz) for wo. Adds sum P Q to
 // *surf (achromatic surface part) and *vol (volume part, to be multiplied by A) and sum P to *psum.
 // The loop body is branch-free (selects only, no library calls): no divergent paths per work-item.
-LL_INLINE void mc_accumulate_thread(LL_GLOBAL const real* thread, int T, real eta,
+LL_INLINE void mc_accumulate_thread(LL_GLOBAL const scalar* thread, int T, scalar eta,
                                     real ia, real ib, real iz, real oa, real ob, real oz,
                                     real* surf, real* vol, real* psum) {
-  const real kd = thread[4];
+  const scalar kd = thread[4];
   const real inv_gamma_s = R(1.0) / thread[5];
   const real inv_gamma_v = R(1.0) / thread[6];
-  LL_GLOBAL const real* tangents = thread + MC_THREAD_HEADER;
+  LL_GLOBAL const scalar* tangents = thread + MC_THREAD_HEADER;
 
   // (w.t, w.nt) is (wa, wz) rotated by the tangent offset, so its length and psi_i - psi_r do not depend
   // on the tangent: computed once here. P > 0 needs wi.nt > 0 and wo.nt > 0, hence |psi| < 90 degrees and
@@ -52,7 +54,7 @@ LL_INLINE void mc_accumulate_thread(LL_GLOBAL const real* thread, int T, real et
 
   real s_surf = R(0.0), s_vol = R(0.0), s_p = R(0.0);
   for (int m = 0; m < T; ++m) {  // T is the same for every query of a launch
-    const real ca = tangents[2 * m], sa = tangents[2 * m + 1];
+    const scalar ca = tangents[2 * m], sa = tangents[2 * m + 1];
     // t = (ca, 0, sa), nt = (-sa, 0, ca), b = the other cloth axis, in the thread's (a, b, z) frame.
     const real si = ia * ca + iz * sa, ni = iz * ca - ia * sa, bi = ib;
     const real sr = oa * ca + oz * sa, nr = oz * ca - oa * sa, br = ob;
@@ -61,7 +63,7 @@ LL_INLINE void mc_accumulate_thread(LL_GLOBAL const real* thread, int T, real et
     const real pi_ = LL_FMAX(ni, R(0.0)) * inv_li, pr_ = LL_FMAX(nr, R(0.0)) * inv_lr;
     const real ci = sqrt(ni * ni + bi * bi), cr = sqrt(nr * nr + br * br);  // cos theta = |w_p|
     const real cc = ci * cr;
-    const int live = pi_ > R(0.0) && pr_ > R(0.0) && cc > R(0.0);  // then every division below is finite
+    const mask live = pi_ > R(0.0) && pr_ > R(0.0) && cc > R(0.0);  // then every division below is finite
     const real p = live ? (R(1.0) - u_psi) * pi_ * pr_ + u_psi * LL_FMIN(pi_, pr_) : R(0.0);
 
     // Masking (Sec. 5.2): cos phi_w = (w.nt) / |w_p|, positive here.
@@ -105,21 +107,21 @@ LL_INLINE void mc_accumulate_thread(LL_GLOBAL const real* thread, int T, real et
 
 // f(wi, wo) for one query (RGB into f[0..2]). wi, wo are renormalised here: the API accepts directions
 // within its unit tolerance, and the model's projections assume exactly unit vectors.
-LL_INLINE void mc_eval(LL_GLOBAL const real* mat, int T, real wix, real wiy, real wiz, real wox, real woy,
+LL_INLINE void mc_eval(LL_GLOBAL const scalar* mat, int T, real wix, real wiy, real wiz, real wox, real woy,
                        real woz, real* f) {
   const real inv_li = R(1.0) / sqrt(wix * wix + wiy * wiy + wiz * wiz);
   const real inv_lo = R(1.0) / sqrt(wox * wox + woy * woy + woz * woz);
   wix *= inv_li; wiy *= inv_li; wiz *= inv_li;
   wox *= inv_lo; woy *= inv_lo; woz *= inv_lo;
-  const real eta = mat[0];
-  LL_GLOBAL const real* t1 = mat + 1;
-  LL_GLOBAL const real* t2 = t1 + mc_thread_stride(T);
+  const scalar eta = mat[0];
+  LL_GLOBAL const scalar* t1 = mat + 1;
+  LL_GLOBAL const scalar* t2 = t1 + mc_thread_stride(T);
   real surf1, vol1, p1, surf2, vol2, p2;
   mc_accumulate_thread(t1, T, eta, wix, wiy, wiz, wox, woy, woz, &surf1, &vol1, &p1);
   mc_accumulate_thread(t2, T, eta, wiy, wix, wiz, woy, wox, woz, &surf2, &vol2, &p2);
-  const real a1 = t1[0], a2 = t2[0];
+  const scalar a1 = t1[0], a2 = t2[0];
   const real denom = a1 * p1 + a2 * p2;
-  const int lit = wiz > LL_HORIZON_EPS && woz > LL_HORIZON_EPS && denom > R(0.0);
+  const mask lit = wiz > LL_HORIZON_EPS && woz > LL_HORIZON_EPS && denom > R(0.0);
   // X = (a1 + a2) sum_j a_j sum P Q / sum_j a_j sum P, and f = X / (n.wi); the weighted mean is taken
   // first so that a tiny sum of P cannot overflow before it cancels.
   const real inv_denom = lit ? R(1.0) / denom : R(0.0);

@@ -108,6 +108,18 @@ std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std:
     return nullptr;
   }
   rt->has_fp64_ = DeviceInfo(rt->device_, CL_DEVICE_EXTENSIONS).find("cl_khr_fp64") != std::string::npos;
+  rt->vector_width_ = options.vector_width;
+  if (rt->vector_width_ == 0) {
+    cl_uint native = 1;
+    clGetDeviceInfo(rt->device_, CL_DEVICE_NATIVE_VECTOR_WIDTH_FLOAT, sizeof(native), &native, nullptr);
+    rt->vector_width_ = 1;
+    while (rt->vector_width_ * 2 <= static_cast<int>(native) && rt->vector_width_ < 16) rt->vector_width_ *= 2;
+  }
+  if (rt->vector_width_ != 1 && rt->vector_width_ != 2 && rt->vector_width_ != 4 && rt->vector_width_ != 8 &&
+      rt->vector_width_ != 16) {
+    *error = "vector width must be 1, 2, 4, 8 or 16";
+    return nullptr;
+  }
   cl_int err = CL_SUCCESS;
   rt->context_ = clCreateContext(nullptr, 1, &rt->device_, nullptr, nullptr, &err);
   if (err != CL_SUCCESS) {
@@ -146,8 +158,10 @@ bool ClRuntime::Build(const std::string& source, const std::string& function, bo
     *error = ClError("clCreateProgramWithSource", err);
     return false;
   }
-  const std::string options =
-      "-cl-std=CL1.2 -DLL_LOCAL_SIZE=" + std::to_string(local_size_) + (fp64 ? " -DLL_FP64" : "");
+  out->width = fp64 ? 1 : vector_width_;
+  const size_t items = std::max<size_t>(1, local_size_ / out->width);
+  const std::string options = "-cl-std=CL1.2 -DLL_LOCAL_SIZE=" + std::to_string(items) +
+                              " -DLL_WIDTH=" + std::to_string(out->width) + (fp64 ? " -DLL_FP64" : "");
   err = clBuildProgram(out->program, 1, &device_, options.c_str(), nullptr, nullptr);
   if (err != CL_SUCCESS) {
     size_t size = 0;
@@ -202,8 +216,33 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
   }
   f->assign(3 * a.n, 0.0);
   if (a.n == 0) return true;
-  // Pad to the fixed local size; padded queries point straight up so every lane computes finite values.
-  const size_t padded = (a.n + local_size_ - 1) / local_size_ * local_size_;
+  const Program& program = it->second;
+  const size_t width = program.width;
+  const size_t items_per_group = std::max<size_t>(1, local_size_ / width);
+
+  // Lanes: each work-item evaluates `width` consecutive lanes of one material, so a run of queries of one
+  // material starts at a multiple of the width; the lane count is padded to whole work-groups. Padding
+  // lanes look straight up, so every lane computes finite values.
+  std::vector<size_t> lane_of(a.n);
+  std::vector<int> group_material;
+  size_t lanes = 0;
+  for (size_t q = 0; q < a.n; ++q) {
+    const int m = (*a.material_index)[q];
+    if (lanes % width != 0 && m != group_material.back()) lanes += width - lanes % width;
+    if (lanes % width == 0) group_material.push_back(m);
+    lane_of[q] = lanes++;
+  }
+  const size_t lanes_per_group = width * items_per_group;
+  lanes = (lanes + lanes_per_group - 1) / lanes_per_group * lanes_per_group;
+  group_material.resize(lanes / width, 0);
+  std::vector<float> wi(3 * lanes, 0.0f), wo(3 * lanes, 0.0f);  // planar: x, y, z blocks
+  std::fill(wi.begin() + 2 * lanes, wi.end(), 1.0f);
+  std::fill(wo.begin() + 2 * lanes, wo.end(), 1.0f);
+  for (size_t q = 0; q < a.n; ++q)
+    for (size_t c = 0; c < 3; ++c) {
+      wi[c * lanes + lane_of[q]] = a.wi[3 * q + c];
+      wo[c * lanes + lane_of[q]] = a.wo[3 * q + c];
+    }
   const size_t real_size = a.fp64 ? sizeof(double) : sizeof(float);
   std::vector<float> materials_f;
   const void* materials_ptr = a.materials->data();
@@ -211,12 +250,6 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     materials_f.assign(a.materials->begin(), a.materials->end());
     materials_ptr = materials_f.data();
   }
-  std::vector<float> wi(3 * padded), wo(3 * padded);
-  std::copy(a.wi, a.wi + 3 * a.n, wi.begin());
-  std::copy(a.wo, a.wo + 3 * a.n, wo.begin());
-  for (size_t q = a.n; q < padded; ++q) wi[3 * q + 2] = wo[3 * q + 2] = 1.0f;
-  std::vector<int> index(padded, 0);
-  std::copy(a.material_index->begin(), a.material_index->begin() + a.n, index.begin());
 
   std::lock_guard<std::mutex> lock(launch_mutex_);
   cl_int err = CL_SUCCESS;
@@ -227,16 +260,16 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     return m;
   };
   cl_mem mat = make(std::max<size_t>(1, a.materials->size()) * real_size, materials_ptr, CL_MEM_READ_ONLY);
-  cl_mem idx = make(padded * sizeof(int), index.data(), CL_MEM_READ_ONLY);
-  cl_mem bwi = make(3 * padded * sizeof(float), wi.data(), CL_MEM_READ_ONLY);
-  cl_mem bwo = make(3 * padded * sizeof(float), wo.data(), CL_MEM_READ_ONLY);
-  cl_mem out = make(3 * padded * real_size, nullptr, CL_MEM_WRITE_ONLY);
+  cl_mem idx = make(group_material.size() * sizeof(int), group_material.data(), CL_MEM_READ_ONLY);
+  cl_mem bwi = make(wi.size() * sizeof(float), wi.data(), CL_MEM_READ_ONLY);
+  cl_mem bwo = make(wo.size() * sizeof(float), wo.data(), CL_MEM_READ_ONLY);
+  cl_mem out = make(3 * lanes * real_size, nullptr, CL_MEM_WRITE_ONLY);
   if (err != CL_SUCCESS) {
     *error = ClError("clCreateBuffer", err);
     return false;
   }
-  cl_kernel k = it->second.kernel;
-  const cl_int stride = static_cast<cl_int>(a.stride), uniform = a.uniform;
+  cl_kernel k = program.kernel;
+  const cl_int stride = static_cast<cl_int>(a.stride), uniform = a.uniform, nlanes = static_cast<cl_int>(lanes);
   clSetKernelArg(k, 0, sizeof(cl_mem), &mat);
   clSetKernelArg(k, 1, sizeof(cl_int), &stride);
   clSetKernelArg(k, 2, sizeof(cl_int), &uniform);
@@ -244,17 +277,25 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
   clSetKernelArg(k, 4, sizeof(cl_mem), &bwi);
   clSetKernelArg(k, 5, sizeof(cl_mem), &bwo);
   clSetKernelArg(k, 6, sizeof(cl_mem), &out);
-  err = clEnqueueNDRangeKernel(queue_, k, 1, nullptr, &padded, &local_size_, 0, nullptr, nullptr);
+  clSetKernelArg(k, 7, sizeof(cl_int), &nlanes);
+  const size_t global = lanes / width;
+  err = clEnqueueNDRangeKernel(queue_, k, 1, nullptr, &global, &items_per_group, 0, nullptr, nullptr);
   if (err != CL_SUCCESS) {
     *error = ClError("clEnqueueNDRangeKernel", err);
     return false;
   }
+  auto gather = [&](const auto* planar) {
+    for (size_t q = 0; q < a.n; ++q)
+      for (size_t c = 0; c < 3; ++c) (*f)[3 * q + c] = planar[c * lanes + lane_of[q]];
+  };
   if (a.fp64) {
-    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * a.n * sizeof(double), f->data(), 0, nullptr, nullptr);
+    std::vector<double> tmp(3 * lanes);
+    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, tmp.size() * sizeof(double), tmp.data(), 0, nullptr, nullptr);
+    gather(tmp.data());
   } else {
-    std::vector<float> tmp(3 * a.n);
-    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * a.n * sizeof(float), tmp.data(), 0, nullptr, nullptr);
-    std::copy(tmp.begin(), tmp.end(), f->begin());
+    std::vector<float> tmp(3 * lanes);
+    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, tmp.size() * sizeof(float), tmp.data(), 0, nullptr, nullptr);
+    gather(tmp.data());
   }
   if (err != CL_SUCCESS) {
     *error = ClError("clEnqueueReadBuffer", err);

@@ -21,7 +21,8 @@ struct RuntimeOptions {
   std::string platform;   // substring of the platform name or vendor; "" = PoCL if present, else the first
   std::string device;     // substring of the device name; "" = the platform's first CPU device, else any
   std::string cache_dir;  // POCL_CACHE_DIR if not already set; "" = $HOME/.cache/loomlight/pocl
-  size_t local_size = 64;
+  size_t local_size = 64;  // queries per work-group
+  int vector_width = 8;    // queries per work-item in float kernels (explicit vectors); fp64 kernels use 1
 };
 
 // One launch: n queries; materials concatenated, `stride` values each; material_index picks one per query.
@@ -56,12 +57,14 @@ class ClRuntime {
   const std::string& device_name() const { return device_name_; }
   const std::string& platform_name() const { return platform_name_; }
   size_t local_size() const { return local_size_; }
+  int vector_width() const { return vector_width_; }
 
  private:
   ClRuntime() = default;
   struct Program {
     cl_program program = nullptr;
     cl_kernel kernel = nullptr;
+    int width = 1;  // queries per work-item
   };
   bool Build(const std::string& source, const std::string& function, bool fp64, Program* out,
              std::string* error);
@@ -72,6 +75,7 @@ class ClRuntime {
   cl_command_queue queue_ = nullptr;
   bool has_fp64_ = false;
   size_t local_size_ = 64;
+  int vector_width_ = 8;
   std::string device_name_, platform_name_;
   std::map<std::pair<std::string, bool>, Program> programs_;  // (model, fp64)
   std::mutex launch_mutex_;

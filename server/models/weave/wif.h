@@ -1,0 +1,50 @@
+// Import of WIF (Weaving Information File, version 1.x) drafts, the INI-like format weaving programs use
+// to exchange patterns: the drawdown of threading, tie-up and treadling (or liftplan) becomes a
+// WeavePattern.
+#pragma once
+
+#include <cstddef>
+#include <string>
+
+#include "server/models/weave/pattern.h"
+
+namespace loomlight::models::weave {
+
+// Largest WIF text accepted, in bytes. A 256 x 256 draft with every optional section is well under it.
+inline constexpr size_t kMaxWifBytes = size_t(1) << 20;
+
+// Parses a WIF draft into *out (left untouched on error). Returns "" or "line N: reason", N being the
+// 1-based line that failed; a missing section is reported at line 0, a missing key at the line of its
+// section header, and a section that [CONTENTS] lists but the file lacks at that [CONTENTS] line.
+//
+// Syntax (INI): "[Section]" headers and "key=value" lines; section and key names are case-insensitive and
+// trimmed; ';' starts a comment that runs to the end of the line; blank lines are allowed; lines end in
+// "\n", "\r\n" or "\r"; a UTF-8 byte-order mark is skipped. Only the sections read below are checked
+// line by line (each non-blank line must contain '=', keys must not repeat, the section must not
+// repeat); any other section (TEXT, NOTES, colours, private sections...) is skipped unread, so free text
+// written loosely by some program cannot make a draft unreadable. Only blank lines and comments may
+// precede the first header.
+//
+// Sections read:
+// - [WIF] Version= (required, major version 1).
+// - [CONTENTS] (required) name=bool for each section; every section it lists as present (true/yes/on/1;
+//   false/no/off/0 otherwise) must exist.
+// - [WEAVING] (required): Shafts= (required, 1..256), Treadles= (0..256; required when [TIEUP] or
+//   [TREADLING] is present), Rising Shed= (bool, default true).
+// - [WARP] Threads=, [WEFT] Threads= (optional, 1..256): the pattern's warps and picks. Without them the
+//   largest thread index in [THREADING], and the largest pick index in [LIFTPLAN] (or [TREADLING]) are used.
+// - [THREADING] (required) thread=shaft[,shaft...]; [TIEUP] treadle=shaft[,...]; [TREADLING]
+//   pick=treadle[,...]; [LIFTPLAN] pick=shaft[,...]. Every index is a decimal integer from 1 to its
+//   bound: the declared count (Shafts=, Treadles=, WARP/WEFT Threads=) or, for undeclared thread and
+//   pick counts, 256. An index given twice in a section is an error. A thread, pick or treadle with no
+//   entry, or an empty value, has no shafts (never lifted).
+//
+// Drawdown: the shafts lifted at pick p are those of the [LIFTPLAN] line for p when the file has a
+// liftplan (it is what the loom does, so it wins over any treadling also present), otherwise the union
+// of the tie-ups of the treadles pressed at p. Warp thread w is on top at p (cell 1) when any of its
+// shafts is lifted. With Rising Shed=false the marked shafts sink instead and every cell is inverted:
+// a warp end is under when any of its shafts sinks, so an end on no shaft stays on top. WIF thread i and
+// pick j become warp i-1 and pick j-1, without mirroring. The result always passes ValidatePattern.
+std::string ParseWif(const std::string& text, WeavePattern* out);
+
+}  // namespace loomlight::models::weave

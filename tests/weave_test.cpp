@@ -1,0 +1,583 @@
+// Weave patterns and WIF import: hand-written drafts against drawdowns worked out by hand, malformed
+// drafts against the line that is wrong, float extraction and the standard-weave builders.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <ostream>
+#include <string>
+#include <vector>
+
+#include "server/models/weave/pattern.h"
+#include "server/models/weave/wif.h"
+
+namespace loomlight::models::weave {
+
+// Readable failures (found by argument-dependent lookup, hence outside the anonymous namespace).
+void PrintTo(const WeavePattern& p, std::ostream* os) { *os << "\n" << ToString(p); }
+void PrintTo(const Float& f, std::ostream* os) { *os << "{" << ToString(f) << "}"; }
+
+namespace {
+
+// Parses a draft that must be valid.
+WeavePattern Wif(const std::string& text) {
+  WeavePattern p;
+  const std::string err = ParseWif(text, &p);
+  EXPECT_EQ(err, "") << text;
+  return p;
+}
+
+WeavePattern Twill(int up, int down, TwillDirection direction) {
+  WeavePattern p;
+  EXPECT_EQ(MakeTwill(up, down, direction, &p), "");
+  return p;
+}
+
+WeavePattern Satin(int ends, int move, SatinFace face) {
+  WeavePattern p;
+  EXPECT_EQ(MakeSatin(ends, move, face, &p), "");
+  return p;
+}
+
+// Compares with the expected matrix, printing both in canonical form on failure.
+void ExpectPattern(const WeavePattern& got, int warps, int picks, const std::vector<uint8_t>& cells) {
+  const WeavePattern want{warps, picks, cells};
+  EXPECT_EQ(got, want) << "got\n" << ToString(got) << "want\n" << ToString(want);
+}
+
+// Replaces the one occurrence of `from` (it must occur exactly once, so an edit cannot hit the wrong
+// section).
+std::string Edit(std::string text, const std::string& from, const std::string& to) {
+  const size_t at = text.find(from);
+  EXPECT_NE(at, std::string::npos) << "'" << from << "' not in the draft";
+  EXPECT_EQ(text.find(from, at + 1), std::string::npos) << "'" << from << "' occurs twice";
+  if (at != std::string::npos) text.replace(at, from.size(), to);
+  return text;
+}
+
+// 1-based number of the line holding `marker`, counted the plain way (newlines before it).
+int LineOf(const std::string& text, const std::string& marker) {
+  const size_t at = text.find(marker);
+  EXPECT_NE(at, std::string::npos) << "no marker";
+  return 1 + int(std::count(text.begin(), text.begin() + std::min(at, text.size()), '\n'));
+}
+
+// Standard header sections; `contents` lists the sections the rest of the draft holds.
+std::string Header(const std::string& contents) {
+  return "[WIF]\nVersion=1.1\nDate=April 20, 1997\nDevelopers=loomlight\nSource Program=hand\n"
+         "[CONTENTS]\n" + contents;
+}
+
+// ---- WIF drafts that import ----
+
+// Plain weave, 2 shafts and 2 treadles: pick 1 presses treadle 1, which lifts shaft 1 carrying thread 1;
+// pick 2 lifts shaft 2 carrying thread 2.
+const std::string kPlainWif = Header("WEAVING=yes\nWARP=yes\nWEFT=yes\nTHREADING=yes\nTIEUP=yes\nTREADLING=yes\n") + R"(
+[WEAVING]
+Shafts=2
+Treadles=2
+Rising Shed=true
+[WARP]
+Threads=2
+[WEFT]
+Threads=2
+[THREADING]
+1=1
+2=2
+[TIEUP]
+1=1
+2=2
+[TREADLING]
+1=1
+2=2
+)";
+
+TEST(WifTest, PlainWeave) {
+  const WeavePattern p = Wif(kPlainWif);
+  ExpectPattern(p, 2, 2,
+                {1, 0,
+                 0, 1});
+  EXPECT_EQ(p, PlainWeave());
+}
+
+// 2/2 twill on 4 shafts, straight draw (thread i on shaft i), treadles 1..4 tied to shafts {1,2},
+// {2,3}, {3,4}, {4,1} and pressed in order: at pick p threads p and p+1 are up.
+const std::string kTwillWif =
+    Header("WEAVING=true\nWARP=true\nWEFT=true\nTHREADING=true\nTIEUP=true\nTREADLING=true\n") + R"(
+[WEAVING]
+Shafts=4
+Treadles=4
+Rising Shed=true
+[WARP]
+Threads=4
+[WEFT]
+Threads=4
+[THREADING]
+1=1
+2=2
+3=3
+4=4
+[TIEUP]
+1=1,2
+2=2,3
+3=3,4
+4=4,1
+[TREADLING]
+1=1
+2=2
+3=3
+4=4
+)";
+
+TEST(WifTest, TwillStraightDraw) {
+  const WeavePattern p = Wif(kTwillWif);
+  ExpectPattern(p, 4, 4,
+                {1, 1, 0, 0,
+                 0, 1, 1, 0,
+                 0, 0, 1, 1,
+                 1, 0, 0, 1});
+  EXPECT_EQ(p, Twill(2, 2, TwillDirection::kRightward));
+}
+
+// Warp-faced 5-end satin, move 2: 5 shafts in straight draw; treadle t lifts every shaft but one, and
+// the one left down steps by 2: treadle 1 leaves shaft 1, then 3, 5, 2, 4.
+TEST(WifTest, FiveEndSatin) {
+  const WeavePattern p = Wif(Header("WEAVING=1\nTHREADING=1\nTIEUP=1\nTREADLING=1\n") + R"(
+[WEAVING]
+Shafts=5
+Treadles=5
+[THREADING]
+1=1
+2=2
+3=3
+4=4
+5=5
+[TIEUP]
+1=2,3,4,5
+2=1,2,4,5
+3=1,2,3,4
+4=1,3,4,5
+5=1,2,3,5
+[TREADLING]
+1=1
+2=2
+3=3
+4=4
+5=5
+)");
+  ExpectPattern(p, 5, 5,
+                {0, 1, 1, 1, 1,
+                 1, 1, 0, 1, 1,
+                 1, 1, 1, 1, 0,
+                 1, 0, 1, 1, 1,
+                 1, 1, 1, 0, 1});
+  EXPECT_EQ(p, Satin(5, 2, SatinFace::kWarpFaced));
+}
+
+// 2/1 twill from a liftplan (no treadles): 3 shafts in straight draw, picks lift {1,2}, {2,3}, {3,1}.
+TEST(WifTest, Liftplan) {
+  const WeavePattern p = Wif(Header("WEAVING=on\nTHREADING=on\nLIFTPLAN=on\n") + R"(
+[WEAVING]
+Shafts=3
+[THREADING]
+1=1
+2=2
+3=3
+[LIFTPLAN]
+1=1,2
+2=2,3
+3=3,1
+)");
+  ExpectPattern(p, 3, 3,
+                {1, 1, 0,
+                 0, 1, 1,
+                 1, 0, 1});
+  EXPECT_EQ(p, Twill(2, 1, TwillDirection::kRightward));
+}
+
+// When a draft has both, the liftplan (what the loom does) decides; here the treadling would give the
+// 2/2 twill, the liftplan lifts shaft 1 only at pick 1, nothing at the other picks.
+TEST(WifTest, LiftplanWinsOverTreadling) {
+  const std::string text =
+      Edit(kTwillWif, "TREADLING=true\n", "TREADLING=true\nLIFTPLAN=true\n") + "[LIFTPLAN]\n1=1\n";
+  ExpectPattern(Wif(text), 4, 4,
+                {1, 0, 0, 0,
+                 0, 0, 0, 0,
+                 0, 0, 0, 0,
+                 0, 0, 0, 0});
+}
+
+// Sinking shed: the tie-up marks the shaft that goes down. Pick p presses treadle p, which sinks one
+// shaft: 4, 1, 2, 3. The thread on that shaft goes under, the other three stay on top: a 3/1 twill.
+const std::string kSinkingWif = Header("WEAVING=yes\nTHREADING=yes\nTIEUP=yes\nTREADLING=yes\n") + R"(
+[WEAVING]
+Shafts=4
+Treadles=4
+Rising Shed=no
+[THREADING]
+1=1
+2=2
+3=3
+4=4
+[TIEUP]
+1=4
+2=1
+3=2
+4=3
+[TREADLING]
+1=1
+2=2
+3=3
+4=4
+)";
+
+TEST(WifTest, SinkingShed) {
+  const WeavePattern p = Wif(kSinkingWif);
+  ExpectPattern(p, 4, 4,
+                {1, 1, 1, 0,
+                 0, 1, 1, 1,
+                 1, 0, 1, 1,
+                 1, 1, 0, 1});
+  EXPECT_EQ(p, Twill(3, 1, TwillDirection::kRightward));
+  // The same draft woven with a rising shed is the exact inverse (a 1/3 twill).
+  ExpectPattern(Wif(Edit(kSinkingWif, "Rising Shed=no", "Rising Shed=yes")), 4, 4,
+                {0, 0, 0, 1,
+                 1, 0, 0, 0,
+                 0, 1, 0, 0,
+                 0, 0, 1, 0});
+}
+
+// A thread on two shafts rises with either; a thread and a pick with no entry (within the declared
+// counts) never lift; an entry with an empty value is the same as none.
+TEST(WifTest, MultiShaftThreadsAndEmptyEntries) {
+  const WeavePattern p = Wif(Header("WEAVING=yes\nWARP=yes\nWEFT=yes\nTHREADING=yes\nLIFTPLAN=yes\n") + R"(
+[WEAVING]
+Shafts=2
+[WARP]
+Threads=4
+[WEFT]
+Threads=3
+[THREADING]
+1=1
+2=2
+3=1,2
+4=
+[LIFTPLAN]
+1=1
+2=2
+)");
+  ExpectPattern(p, 4, 3,
+                {1, 0, 1, 0,
+                 0, 1, 1, 0,
+                 0, 0, 0, 0});
+}
+
+// Without WARP/WEFT Threads= the counts are the largest thread and pick indices used.
+TEST(WifTest, CountsFromLargestIndexWhenUndeclared) {
+  std::string text = kTwillWif;
+  text = Edit(text, "WARP=true\nWEFT=true\n", "");
+  text = Edit(text, "[WARP]\nThreads=4\n[WEFT]\nThreads=4\n", "");
+  text = Edit(text, "[TREADLING]\n1=1\n", "[TREADLING]\n6=1\n1=1\n");  // pick 5 has no entry
+  ExpectPattern(Wif(text), 4, 6,
+                {1, 1, 0, 0,
+                 0, 1, 1, 0,
+                 0, 0, 1, 1,
+                 1, 0, 0, 1,
+                 0, 0, 0, 0,
+                 1, 1, 0, 0});
+}
+
+// The limits themselves are accepted: 256 threads declared, 256 shafts.
+TEST(WifTest, CountsAtTheLimit) {
+  std::string text = Edit(kPlainWif, "[WARP]\nThreads=2", "[WARP]\nThreads=256");
+  text = Edit(text, "Shafts=2", "Shafts=256");
+  const WeavePattern p = Wif(text);
+  EXPECT_EQ(p.warps, 256);
+  EXPECT_EQ(p.picks, 2);
+  EXPECT_EQ(ValidatePattern(p), "");
+}
+
+// Case-insensitive names, comments, blank lines, spaces, CRLF line ends, a byte-order mark, sections
+// that are not read (with free text, even lines without '='), and two treadles pressed at one pick.
+TEST(WifTest, ForgivingSyntax) {
+  std::string text = "\xEF\xBB\xBF; drafted by hand\n" +
+                     Header("Weaving = True\nthreading=YES\ntieup=yes\nTreadling=yes\nText=yes\nNotes=yes\n") + R"(
+
+[Text]
+Title=Two treadles ; with a comment
+[notes]
+this line has no equals sign and is free text
+[ weaving ]
+  shafts = 2   ; two shafts
+TREADLES=2
+rising shed=On
+[Threading]
+1 = 1
+2= 2
+[TieUp]
+1=1
+2=2
+[TREADLING]
+1 = 1 , 2
+2=2
+)";
+  std::string crlf;
+  for (char c : text) crlf += c == '\n' ? std::string("\r\n") : std::string(1, c);
+  const std::vector<uint8_t> want = {1, 1,
+                                     0, 1};
+  ExpectPattern(Wif(text), 2, 2, want);
+  ExpectPattern(Wif(crlf), 2, 2, want);
+}
+
+// ---- Malformed drafts: each case edits the twill draft; the line that must be reported carries the
+// comment "; <-- bad" (the parser ignores it as a comment), or the error is at line 0. ----
+
+struct BadDraft {
+  const char* name;
+  std::vector<std::pair<std::string, std::string>> edits;  // applied in order
+  bool at_marker;                                          // else line 0
+  const char* reason;                                      // substring of the error
+};
+
+TEST(WifTest, MalformedDraftsReportTheLine) {
+  const std::vector<BadDraft> cases = {
+      {"unknown shaft in threading", {{"[THREADING]\n1=1\n", "[THREADING]\n1=5 ; <-- bad\n"}}, true,
+       "shaft 5 out of range 1..4"},
+      {"treadle beyond Treadles= in treadling", {{"[TREADLING]\n1=1\n", "[TREADLING]\n1=5 ; <-- bad\n"}}, true,
+       "treadle 5 out of range 1..4"},
+      {"treadle beyond Treadles= in tie-up", {{"4=4,1\n", "4=4,1\n5=1 ; <-- bad\n"}}, true,
+       "treadle 5 out of range 1..4"},
+      {"thread beyond WARP Threads=", {{"4=4\n[TIEUP]", "4=4\n5=1 ; <-- bad\n[TIEUP]"}}, true,
+       "thread 5 out of range 1..4 (WARP Threads=4)"},
+      {"pick beyond WEFT Threads=", {{"[TREADLING]\n", "[TREADLING]\n9=1 ; <-- bad\n"}}, true,
+       "pick 9 out of range 1..4 (WEFT Threads=4)"},
+      {"shaft 0", {{"[THREADING]\n1=1\n", "[THREADING]\n1=0 ; <-- bad\n"}}, true, "shaft 0 out of range"},
+      {"non-numeric value", {{"[THREADING]\n1=1\n2=2\n", "[THREADING]\n1=1\n2=two ; <-- bad\n"}}, true,
+       "'two' is not a number"},
+      {"non-numeric item in a list", {{"2=2,3\n", "2=2,x3 ; <-- bad\n"}}, true, "'x3' is not a number"},
+      {"empty item in a list", {{"1=1,2\n", "1=1,,2 ; <-- bad\n"}}, true, "'' is not a number"},
+      {"negative index", {{"[THREADING]\n1=1\n", "[THREADING]\n-1=1 ; <-- bad\n"}}, true,
+       "'-1' is not a number"},
+      {"line without '='", {{"[THREADING]\n1=1\n", "[THREADING]\n1 1 ; <-- bad\n"}}, true, "no '='"},
+      {"index given twice", {{"[THREADING]\n1=1\n", "[THREADING]\n1=1\n1=2 ; <-- bad\n"}}, true,
+       "thread 1 repeated"},
+      {"[THREADING] listed but missing",
+       {{"THREADING=true\n", "THREADING=true ; <-- bad\n"}, {"[THREADING]\n1=1\n2=2\n3=3\n4=4\n", ""}}, true,
+       "no [THREADING] section"},
+      {"[THREADING] missing, not listed",
+       {{"THREADING=true\n", ""}, {"[THREADING]\n1=1\n2=2\n3=3\n4=4\n", ""}}, false,
+       "missing section [THREADING]"},
+      {"[TIEUP] missing, not listed", {{"TIEUP=true\n", ""}, {"[TIEUP]\n1=1,2\n2=2,3\n3=3,4\n4=4,1\n", ""}},
+       false, "missing section [TIEUP]"},
+      {"[WIF] missing", {{"[WIF]\nVersion=1.1\nDate=April 20, 1997\nDevelopers=loomlight\nSource Program=hand\n", ""}},
+       false, "missing section [WIF]"},
+      {"Shafts= missing", {{"[WEAVING]\n", "[WEAVING] ; <-- bad\n"}, {"Shafts=4\n", ""}}, true, "no Shafts= key"},
+      {"Treadles= missing with a tie-up", {{"[WEAVING]\n", "[WEAVING] ; <-- bad\n"}, {"Treadles=4\n", ""}}, true,
+       "no Treadles= key"},
+      {"Shafts= over the limit", {{"Shafts=4", "Shafts=300 ; <-- bad"}}, true, "Shafts=300 is not a number in 1..256"},
+      {"Treadles= over the limit", {{"Treadles=4", "Treadles=257 ; <-- bad"}}, true, "Treadles=257"},
+      {"WARP Threads= over the limit", {{"[WARP]\nThreads=4", "[WARP]\nThreads=257 ; <-- bad"}}, true,
+       "Threads=257 is not a number in 1..256"},
+      {"undeclared thread count over the limit",
+       {{"WARP=true\n", ""}, {"[WARP]\nThreads=4\n", ""}, {"4=4\n[TIEUP]", "4=4\n300=1 ; <-- bad\n[TIEUP]"}}, true,
+       "thread 300 out of range 1..256"},
+      {"Rising Shed= not a boolean", {{"Rising Shed=true", "Rising Shed=maybe ; <-- bad"}}, true,
+       "not a boolean"},
+      {"[CONTENTS] value not a boolean", {{"WEFT=true", "WEFT=perhaps ; <-- bad"}}, true, "not a boolean"},
+      {"unsupported version", {{"Version=1.1", "Version=2.0 ; <-- bad"}}, true, "version 2.0"},
+      {"section repeated", {{"[TIEUP]\n", "[THREADING] ; <-- bad\n1=1\n[TIEUP]\n"}}, true, "repeated"},
+      {"entry before any section", {{"[WIF]\n", "Shafts=4 ; <-- bad\n[WIF]\n"}}, true, "before the first"},
+      {"header without ']'", {{"[WEAVING]", "[WEAVING ; <-- bad"}}, true, "must end with ']'"},
+  };
+  for (const BadDraft& c : cases) {
+    SCOPED_TRACE(c.name);
+    std::string text = kTwillWif;
+    for (const auto& [from, to] : c.edits) text = Edit(text, from, to);
+    const int line = c.at_marker ? LineOf(text, "<-- bad") : 0;
+    WeavePattern p{1, 1, {1}};
+    const std::string err = ParseWif(text, &p);
+    EXPECT_EQ(err.rfind("line " + std::to_string(line) + ": ", 0), 0u) << err;
+    EXPECT_NE(err.find(c.reason), std::string::npos) << err;
+    EXPECT_EQ(p, (WeavePattern{1, 1, {1}})) << "output touched on error";
+  }
+}
+
+TEST(WifTest, TextOverOneMebibyteIsRejected) {
+  std::string text = kTwillWif;
+  text += ";" + std::string(kMaxWifBytes - text.size() - 2, 'x') + "\n";  // exactly at the limit: fine
+  ASSERT_EQ(text.size(), kMaxWifBytes);
+  Wif(text);
+  WeavePattern p;
+  const std::string err = ParseWif(text + " ", &p);
+  EXPECT_EQ(err.rfind("line 0: ", 0), 0u) << err;
+}
+
+// ---- Patterns and floats ----
+
+TEST(PatternTest, Validation) {
+  EXPECT_EQ(ValidatePattern(PlainWeave()), "");
+  EXPECT_EQ(ValidatePattern({1, 1, {1}}), "");                      // never interlaces: allowed
+  EXPECT_EQ(ValidatePattern({2, 3, {1, 0, 1, 0, 1, 0}}), "");        // likewise, both threads
+  EXPECT_EQ(ValidatePattern({256, 256, std::vector<uint8_t>(65536)}), "");
+  EXPECT_NE(ValidatePattern({}), "");
+  EXPECT_NE(ValidatePattern({0, 2, {}}), "");
+  EXPECT_NE(ValidatePattern({257, 1, std::vector<uint8_t>(257)}), "");
+  EXPECT_NE(ValidatePattern({1, 257, std::vector<uint8_t>(257)}), "");
+  EXPECT_NE(ValidatePattern({2, 2, {1, 0, 0}}), "");
+  EXPECT_NE(ValidatePattern({2, 2, {1, 0, 2, 1}}).find("cell (warp 0, pick 1) is 2"), std::string::npos);
+}
+
+TEST(PatternTest, CanonicalString) {
+  EXPECT_EQ(ToString(Twill(3, 1, TwillDirection::kRightward)), "warps=4 picks=4\n1110\n0111\n1011\n1101\n");
+  EXPECT_EQ(ToString(Float{true, 0, 2, 3}), "warp float at warp 0, pick 2, length 3");
+  EXPECT_EQ(ToString(Float{false, 3, 1, 1}), "weft float at warp 3, pick 1, length 1");
+}
+
+TEST(FloatTest, PlainWeaveHasFourUnitFloats) {
+  const std::vector<Float> want = {
+      {true, 0, 0, 1}, {true, 1, 1, 1},    // warp 0 up at pick 0, warp 1 at pick 1
+      {false, 1, 0, 1}, {false, 0, 1, 1},  // weft 0 over warp 1, weft 1 over warp 0
+  };
+  EXPECT_EQ(ExtractFloats(PlainWeave()), want);
+}
+
+TEST(FloatTest, Twill31) {
+  // Rows 1110 / 0111 / 1011 / 1101 (see CanonicalString): warp 0 is 1,0,1,1 down its column, so its float
+  // starts at pick 2 and wraps over the edge to pick 0.
+  const std::vector<Float> want = {
+      {true, 0, 2, 3},  {true, 1, 3, 3},  {true, 2, 0, 3},  {true, 3, 1, 3},
+      {false, 3, 0, 1}, {false, 0, 1, 1}, {false, 1, 2, 1}, {false, 2, 3, 1},
+  };
+  EXPECT_EQ(ExtractFloats(Twill(3, 1, TwillDirection::kRightward)), want);
+}
+
+TEST(FloatTest, WrapAroundRunsCountedOnce) {
+  // Every thread has one float of 2 cells; warp 0's crosses the top/bottom edge, pick 2's the left/right.
+  const WeavePattern p{4, 4,
+                       {1, 0, 0, 1,
+                        0, 0, 1, 1,
+                        0, 1, 1, 0,
+                        1, 1, 0, 0}};
+  const std::vector<Float> want = {
+      {true, 0, 3, 2},  {true, 1, 2, 2},  {true, 2, 1, 2},  {true, 3, 0, 2},
+      {false, 1, 0, 2}, {false, 0, 1, 2}, {false, 3, 2, 2}, {false, 2, 3, 2},
+  };
+  EXPECT_EQ(ExtractFloats(p), want);
+}
+
+TEST(FloatTest, ThreadOnTopThroughoutIsOneClosedFloat) {
+  // Warp 0 is always up, warp 1 always down: one warp float of the full 3 picks starting at pick 0, and
+  // one unit weft float per pick over warp 1.
+  const std::vector<Float> columns = {
+      {true, 0, 0, 3}, {false, 1, 0, 1}, {false, 1, 1, 1}, {false, 1, 2, 1}};
+  EXPECT_EQ(ExtractFloats({2, 3, {1, 0,
+                                  1, 0,
+                                  1, 0}}),
+            columns);
+  // Pick 0 is all weft: one weft float of the full 3 warps starting at warp 0.
+  const std::vector<Float> rows = {{true, 0, 1, 1}, {true, 2, 1, 1}, {false, 0, 0, 3}, {false, 1, 1, 1}};
+  EXPECT_EQ(ExtractFloats({3, 2, {0, 0, 0,
+                                  1, 0, 1}}),
+            rows);
+  EXPECT_EQ(ExtractFloats({1, 1, {1}}), (std::vector<Float>{{true, 0, 0, 1}}));
+}
+
+// Float lengths of every float, warp then weft, sorted within each kind.
+std::pair<std::vector<int>, std::vector<int>> Lengths(const WeavePattern& p) {
+  std::pair<std::vector<int>, std::vector<int>> l;
+  for (const Float& f : ExtractFloats(p)) (f.warp ? l.first : l.second).push_back(f.length);
+  std::sort(l.first.begin(), l.first.end());
+  std::sort(l.second.begin(), l.second.end());
+  return l;
+}
+
+TEST(FloatTest, SatinFloatLengths) {
+  using V = std::vector<int>;
+  EXPECT_EQ(Lengths(Satin(5, 2, SatinFace::kWarpFaced)), std::make_pair(V{4, 4, 4, 4, 4}, V{1, 1, 1, 1, 1}));
+  EXPECT_EQ(Lengths(Satin(5, 3, SatinFace::kWeftFaced)), std::make_pair(V{1, 1, 1, 1, 1}, V{4, 4, 4, 4, 4}));
+  EXPECT_EQ(Lengths(Satin(8, 3, SatinFace::kWarpFaced)), std::make_pair(V(8, 7), V(8, 1)));
+  EXPECT_EQ(Lengths(Twill(2, 2, TwillDirection::kLeftward)), std::make_pair(V(4, 2), V(4, 2)));
+}
+
+TEST(FloatTest, LengthsCoverTheRepeat) {
+  for (const WeavePattern& p : {PlainWeave(), Twill(3, 1, TwillDirection::kLeftward),
+                                Satin(7, 3, SatinFace::kWeftFaced), Wif(kSinkingWif)}) {
+    int warp = 0, weft = 0;
+    for (const Float& f : ExtractFloats(p)) (f.warp ? warp : weft) += f.length;
+    const AreaFractions a = ComputeAreaFractions(p);
+    EXPECT_DOUBLE_EQ(a.warp, double(warp) / (p.warps * p.picks)) << ToString(p);
+    EXPECT_DOUBLE_EQ(a.weft, double(weft) / (p.warps * p.picks)) << ToString(p);
+  }
+}
+
+TEST(PatternTest, AreaFractions) {
+  const auto expect = [](const WeavePattern& p, double warp) {
+    const AreaFractions a = ComputeAreaFractions(p);
+    EXPECT_DOUBLE_EQ(a.warp, warp) << ToString(p);
+    EXPECT_DOUBLE_EQ(a.weft, 1 - warp) << ToString(p);
+  };
+  expect(PlainWeave(), 0.5);
+  expect(Twill(2, 2, TwillDirection::kRightward), 0.5);
+  expect(Twill(3, 1, TwillDirection::kRightward), 0.75);
+  expect(Twill(1, 3, TwillDirection::kLeftward), 0.25);
+  expect(Satin(5, 2, SatinFace::kWarpFaced), 0.8);
+  expect(Satin(5, 2, SatinFace::kWeftFaced), 0.2);
+  expect({2, 3, {1, 0, 1, 0, 1, 0}}, 0.5);
+}
+
+// ---- Builders ----
+
+TEST(BuilderTest, Twills) {
+  ExpectPattern(PlainWeave(), 2, 2,
+                {1, 0,
+                 0, 1});
+  // 3/1 moving right: warps 0-2 up at pick 0, then 1-3, 2-0, 3-1.
+  ExpectPattern(Twill(3, 1, TwillDirection::kRightward), 4, 4,
+                {1, 1, 1, 0,
+                 0, 1, 1, 1,
+                 1, 0, 1, 1,
+                 1, 1, 0, 1});
+  // 1/3 moving left: warp 0 up at pick 0, then warp 3, 2, 1.
+  ExpectPattern(Twill(1, 3, TwillDirection::kLeftward), 4, 4,
+                {1, 0, 0, 0,
+                 0, 0, 0, 1,
+                 0, 0, 1, 0,
+                 0, 1, 0, 0});
+  EXPECT_EQ(Twill(1, 1, TwillDirection::kLeftward), PlainWeave());
+}
+
+TEST(BuilderTest, Satins) {
+  // Weft-faced 5-end satin, move 3: the warp on top at pick p is 3p mod 5: 0, 3, 1, 4, 2.
+  ExpectPattern(Satin(5, 3, SatinFace::kWeftFaced), 5, 5,
+                {1, 0, 0, 0, 0,
+                 0, 0, 0, 1, 0,
+                 0, 1, 0, 0, 0,
+                 0, 0, 0, 0, 1,
+                 0, 0, 1, 0, 0});
+  // Every satin has exactly one interlacing per row and per column.
+  const WeavePattern s = Satin(8, 3, SatinFace::kWeftFaced);
+  for (int i = 0; i < 8; ++i) {
+    int row = 0, column = 0;
+    for (int j = 0; j < 8; ++j) row += s.at(j, i), column += s.at(i, j);
+    EXPECT_EQ(row, 1);
+    EXPECT_EQ(column, 1);
+  }
+}
+
+TEST(BuilderTest, RejectsBadArguments) {
+  WeavePattern p{1, 1, {1}};
+  EXPECT_NE(MakeTwill(0, 1, TwillDirection::kRightward, &p), "");
+  EXPECT_NE(MakeTwill(2, 0, TwillDirection::kRightward, &p), "");
+  EXPECT_NE(MakeTwill(200, 57, TwillDirection::kRightward, &p), "");
+  EXPECT_EQ(MakeTwill(200, 56, TwillDirection::kRightward, &p), "");
+  p = {1, 1, {1}};
+  EXPECT_NE(MakeSatin(4, 1, SatinFace::kWarpFaced, &p), "");   // too few ends
+  EXPECT_NE(MakeSatin(5, 1, SatinFace::kWarpFaced, &p), "");   // move 1: a twill
+  EXPECT_NE(MakeSatin(5, 4, SatinFace::kWarpFaced, &p), "");   // move ends - 1: a twill
+  EXPECT_NE(MakeSatin(6, 2, SatinFace::kWarpFaced, &p), "");   // shares a factor
+  EXPECT_NE(MakeSatin(10, 5, SatinFace::kWarpFaced, &p), "");  // shares a factor
+  EXPECT_NE(MakeSatin(257, 2, SatinFace::kWarpFaced, &p), "");
+  EXPECT_EQ(p, (WeavePattern{1, 1, {1}})) << "output touched on error";
+}
+
+}  // namespace
+}  // namespace loomlight::models::weave

@@ -224,6 +224,42 @@ TEST_F(ApiTest, BadRequestsNeverDisturbOtherClients) {
   EXPECT_EQ(bad_rejected, 40);
 }
 
+TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) {
+  api::MaterialCache cache(2);
+  const auto& registry = models::Registry::Global();
+  auto material = [](const std::string& preset, double eta) {
+    v1::Material m;
+    m.set_preset(preset);
+    if (eta > 0) {
+      auto* p = m.add_params();
+      p->set_name("eta");
+      p->add_values(eta);
+    }
+    return m;
+  };
+  std::vector<std::shared_ptr<const api::MaterialCache::Entry>> first;
+  for (int round = 0; round < 2; ++round)
+    for (auto [preset, eta] : {std::pair{"velvet", -1.0}, {"velvet", 1.3}, {"silk_shot", -1.0}}) {
+      const v1::Material m = material(preset, eta);
+      std::shared_ptr<const api::MaterialCache::Entry> entry;
+      ASSERT_EQ(cache.Get(m, registry, &entry), "");
+      models::ResolvedMaterial resolved;
+      ASSERT_EQ(models::ResolveMaterial(m, registry, &resolved), "");
+      EXPECT_EQ(entry->model, resolved.model);
+      EXPECT_EQ(entry->packed.data, resolved.model->Pack(resolved.values).data) << preset << " eta " << eta;
+      if (round == 0) first.push_back(entry);
+    }
+  // Capacity 2 with three materials cycling: every lookup of round two missed and packed afresh.
+  std::shared_ptr<const api::MaterialCache::Entry> again;
+  ASSERT_EQ(cache.Get(material("silk_shot", -1.0), registry, &again), "");
+  std::shared_ptr<const api::MaterialCache::Entry> hit;
+  ASSERT_EQ(cache.Get(material("silk_shot", -1.0), registry, &hit), "");
+  EXPECT_EQ(hit.get(), again.get());  // a hit shares the entry
+  std::shared_ptr<const api::MaterialCache::Entry> bad;
+  EXPECT_NE(cache.Get(material("velvet", 7.0), registry, &bad), "");  // out of range: an error, not cached
+  EXPECT_EQ(bad, nullptr);
+}
+
 TEST(Batching, ConcurrentRequestsAreCoalescedIntoOneLaunch) {
   auto server = StartServer();
   std::vector<std::thread> threads;

@@ -1,5 +1,9 @@
 #include "server/api/service.h"
 
+#include <google/protobuf/io/coded_stream.h>
+#include <google/protobuf/io/zero_copy_stream_impl_lite.h>
+
+#include <algorithm>
 #include <cmath>
 
 #include "server/models/material.h"
@@ -45,6 +49,43 @@ grpc::ServerUnaryReactor* Finish(grpc::CallbackServerContext* context, grpc::Sta
 grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
 
 }  // namespace
+
+std::string MaterialCache::Get(const v1::Material& material, const models::Registry& registry,
+                               std::shared_ptr<const Entry>* out) {
+  std::string key;
+  {
+    google::protobuf::io::StringOutputStream stream(&key);
+    google::protobuf::io::CodedOutputStream coded(&stream);
+    coded.SetSerializationDeterministic(true);
+    material.SerializeToCodedStream(&coded);
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = map_.find(key);
+    if (it != map_.end()) {
+      order_.splice(order_.begin(), order_, it->second.second);
+      *out = it->second.first;
+      return "";
+    }
+  }
+  models::ResolvedMaterial resolved;
+  std::string error = models::ResolveMaterial(material, registry, &resolved);
+  if (!error.empty()) return error;  // bad materials are not cached: they are cheap to reject again
+  auto entry = std::make_shared<Entry>();
+  entry->model = resolved.model;
+  entry->packed = resolved.model->Pack(resolved.values);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (map_.find(key) == map_.end()) {
+    order_.push_front(key);
+    map_[key] = {entry, order_.begin()};
+    if (map_.size() > capacity_) {
+      map_.erase(order_.back());
+      order_.pop_back();
+    }
+  }
+  *out = entry;
+  return "";
+}
 
 std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field) {
   if (w.size() % 3 != 0)
@@ -96,8 +137,8 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
                                                      const v1::EvaluateRequest* request,
                                                      v1::EvaluateResponse* response) {
   const auto received = batching::Clock::now();
-  models::ResolvedMaterial material;
-  std::string error = models::ResolveMaterial(request->material(), *registry_, &material);
+  std::shared_ptr<const MaterialCache::Entry> material;
+  std::string error = materials_.Get(request->material(), *registry_, &material);
   if (!error.empty()) return Finish(context, Invalid(error));
   if (!v1::Precision_IsValid(request->precision()))
     return Finish(context, Invalid("precision: unknown value " + std::to_string(request->precision())));
@@ -116,13 +157,13 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     if (!error.empty()) return Finish(context, Invalid(error));
   }
   if (request->uv_size() > 0)
-    return Finish(context, Invalid("uv: model '" + material.model->name() +
+    return Finish(context, Invalid("uv: model '" + material->model->name() +
                                    "' is not spatially varying; send no uv"));
 
   auto job = std::make_shared<batching::Job>();
-  job->model = material.model;
+  job->model = material->model;
   job->fp64 = fp64;
-  job->material = material.model->Pack(material.values);
+  job->material = material->packed;
   job->wi = request->wi().data();
   job->wo = request->wo().data();
   job->n = n;
@@ -131,11 +172,11 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     job->deadline = received + (deadline - std::chrono::system_clock::now());
   job->cancelled = [context] { return context->IsCancelled(); };
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  job->done = [reactor, response, received, model = material.model->name(), fp64](batching::JobResult r) {
+  job->done = [reactor, response, received, model = material->model->name(), fp64](batching::JobResult r) {
     if (r.status == batching::JobStatus::kOk) {
       auto* f = response->mutable_f();
       f->Resize(static_cast<int>(r.f.size()), 0.0f);
-      for (size_t i = 0; i < r.f.size(); ++i) f->Set(static_cast<int>(i), static_cast<float>(r.f[i]));
+      std::copy(r.f.begin(), r.f.end(), f->mutable_data());  // double to float: rounded once
       response->set_model(model);
       response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
       response->set_queue_seconds(r.queue_seconds);

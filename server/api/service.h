@@ -2,7 +2,10 @@
 // batcher. Nothing reaches a kernel unvalidated.
 #pragma once
 
-#include <atomic>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <unordered_map>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/batching/batcher.h"
@@ -14,6 +17,27 @@ namespace loomlight::api {
 constexpr size_t kMaxQueriesPerCall = size_t{1} << 20;  // 1,048,576 direction pairs
 constexpr double kUnitTolerance = 1e-4;                 // | |w| - 1 | accepted (then renormalised)
 constexpr int kMaxMessageBytes = 64 << 20;              // gRPC send/receive limit
+
+// Resolved and packed materials by their serialized request form, least recently used first out: clients
+// send the same few materials over and over, and resolving a preset (maps of parameter values) and packing
+// it (the tangent curve sampled with cos/sin) costs as much as evaluating a small request.
+class MaterialCache {
+ public:
+  struct Entry {
+    const models::Model* model = nullptr;
+    models::PackedMaterial packed;
+  };
+  explicit MaterialCache(size_t capacity) : capacity_(capacity) {}
+  // The cached entry, or one resolved now ("" on success, else the INVALID_ARGUMENT message).
+  std::string Get(const v1::Material& material, const models::Registry& registry,
+                  std::shared_ptr<const Entry>* out);
+
+ private:
+  size_t capacity_;
+  std::mutex mutex_;
+  std::list<std::string> order_;  // most recently used first
+  std::unordered_map<std::string, std::pair<std::shared_ptr<const Entry>, std::list<std::string>::iterator>> map_;
+};
 
 class LoomlightService final : public v1::Loomlight::CallbackService {
  public:
@@ -29,6 +53,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   const models::Registry* registry_;
   batching::Batcher* batcher_;
   bool has_fp64_;
+  MaterialCache materials_{1024};
 };
 
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or

@@ -90,13 +90,13 @@ std::string MaterialCache::Get(const v1::Material& material, const models::Regis
 std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field) {
   if (w.size() % 3 != 0)
     return field + ": length " + std::to_string(w.size()) + " is not a multiple of 3 (packed xyz triples)";
+  auto at = [&](int q) { return field + "[" + std::to_string(q) + "]"; };  // only built for the error
   for (int q = 0; q < w.size() / 3; ++q) {
     const double x = w[3 * q], y = w[3 * q + 1], z = w[3 * q + 2];
-    const std::string at = field + "[" + std::to_string(q) + "]";
-    if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) return at + ": direction is not finite";
+    if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) return at(q) + ": direction is not finite";
     const double len = std::sqrt(x * x + y * y + z * z);
     if (std::fabs(len - 1.0) > kUnitTolerance)
-      return at + ": direction has length " + std::to_string(len) + ", not unit (tolerance " +
+      return at(q) + ": direction has length " + std::to_string(len) + ", not unit (tolerance " +
              std::to_string(kUnitTolerance) + ")";
   }
   return "";

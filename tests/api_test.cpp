@@ -44,8 +44,8 @@ EvaluateRequest Request(const std::string& preset, size_t n, unsigned seed) {
   std::mt19937 rng(seed);
   for (size_t q = 0; q < n; ++q) {
     float a[3], b[3];
-    testing::RandomHemisphere(rng, a);
-    testing::RandomHemisphere(rng, b);
+    accuracy::RandomHemisphere(rng, a);
+    accuracy::RandomHemisphere(rng, b);
     r.mutable_wi()->Add(a, a + 3);
     r.mutable_wo()->Add(b, b + 3);
   }
@@ -132,7 +132,7 @@ TEST_F(ApiTest, EvaluateMatchesReferenceInBothPrecisions) {
     EXPECT_GT(resp.kernel_seconds(), 0);
     std::vector<double> got(resp.f().begin(), resp.f().end());
     // FP64 answers are the double result rounded to float once.
-    const auto e = testing::RelativeErrors(got, ref, 1e-4);
+    const auto e = accuracy::Compare(got, ref, 1e-4);
     EXPECT_LE(e.p99, precision == v1::PRECISION_FP64 ? 6e-8 : 1e-4) << e.ToString();
   }
 }

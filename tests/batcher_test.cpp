@@ -31,8 +31,8 @@ std::unique_ptr<Submitted> MakeJob(const std::string& preset, size_t n, int T = 
   s->wi.resize(3 * n);
   s->wo.resize(3 * n);
   for (size_t q = 0; q < n; ++q) {
-    testing::RandomHemisphere(rng, &s->wi[3 * q]);
-    testing::RandomHemisphere(rng, &s->wo[3 * q]);
+    accuracy::RandomHemisphere(rng, &s->wi[3 * q]);
+    accuracy::RandomHemisphere(rng, &s->wo[3 * q]);
   }
   s->job = std::make_shared<Job>();
   s->job->model = model;

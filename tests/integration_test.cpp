@@ -74,8 +74,8 @@ TEST_F(Integration, ConcurrentClientsGetExactlyTheDirectEvaluation) {
       const int n = 1 + (c * 977 + k * 313) % 4000;
       for (int q = 0; q < n; ++q) {
         float a[3], b[3];
-        testing::RandomHemisphere(rng, a);
-        testing::RandomHemisphere(rng, b);
+        accuracy::RandomHemisphere(rng, a);
+        accuracy::RandomHemisphere(rng, b);
         r.mutable_wi()->Add(a, a + 3);
         r.mutable_wo()->Add(b, b + 3);
       }

@@ -15,21 +15,8 @@ using models::Model;
 
 const Model& Microcylinder() { return *models::Registry::Global().FindModel("microcylinder"); }
 
-struct Pairs {
-  std::vector<float> wi, wo;
-};
-
-Pairs RandomPairs(size_t n, unsigned seed) {
-  std::mt19937 rng(seed);
-  Pairs p;
-  p.wi.resize(3 * n);
-  p.wo.resize(3 * n);
-  for (size_t q = 0; q < n; ++q) {
-    testing::RandomHemisphere(rng, &p.wi[3 * q]);
-    testing::RandomHemisphere(rng, &p.wo[3 * q]);
-  }
-  return p;
-}
+using accuracy::Pairs;
+using accuracy::RandomPairs;
 
 std::vector<double> Reference(const models::PackedMaterial& m, const Pairs& p) {
   std::vector<double> f(p.wi.size());
@@ -66,21 +53,21 @@ TEST_P(PresetAccuracy, KernelsMatchDoubleReference) {
 
   const std::vector<double> f32 = testing::RunKernel(*model, m, false, p.wi, p.wo);
   ExpectFiniteNonNegative(f32, "fp32 kernel");
-  const testing::ErrorStats e32 = testing::RelativeErrors(f32, ref, kFloor);
+  const accuracy::Accuracy e32 = accuracy::Compare(f32, ref, kFloor);
   std::printf("%-34s fp32   %s\n", GetParam().c_str(), e32.ToString().c_str());
   EXPECT_GT(e32.count, 100000u);  // most of the 300,000 values are above the floor
   EXPECT_LE(e32.p99, kP99Fp32);
   EXPECT_LE(e32.max, kMaxFp32);
 
   const std::vector<double> f64 = testing::RunKernel(*model, m, true, p.wi, p.wo);
-  const testing::ErrorStats e64 = testing::RelativeErrors(f64, ref, 0.0);
+  const accuracy::Accuracy e64 = accuracy::Compare(f64, ref, 0.0);
   std::printf("%-34s fp64   %s\n", GetParam().c_str(), e64.ToString().c_str());
   EXPECT_LE(e64.max, kMaxFp64);
 
   std::vector<float> native(ref.size());
   model->NativeEval(m, p.wi.data(), p.wo.data(), p.wi.size() / 3, native.data());
-  const testing::ErrorStats en =
-      testing::RelativeErrors(std::vector<double>(native.begin(), native.end()), ref, kFloor);
+  const accuracy::Accuracy en =
+      accuracy::Compare(std::vector<double>(native.begin(), native.end()), ref, kFloor);
   std::printf("%-34s native %s\n", GetParam().c_str(), en.ToString().c_str());
   EXPECT_LE(en.p99, kP99Fp32);
 }
@@ -101,8 +88,8 @@ Pairs HardCases(const models::PackedMaterial& m) {
   std::mt19937 rng(99);
   for (int k = 0; k < 500; ++k) {
     float a[3], b[3];
-    testing::RandomHemisphere(rng, a);
-    testing::RandomHemisphere(rng, b);
+    accuracy::RandomHemisphere(rng, a);
+    accuracy::RandomHemisphere(rng, b);
     Push(p, a[0], a[1], a[2], a[0], a[1], a[2]);       // wi = wo
     Push(p, -a[0], -a[1], a[2], a[0], a[1], a[2]);     // mirror pair
     Push(p, a[0], a[1], 1e-6, b[0], b[1], b[2]);       // grazing light, n.wi = 1e-6
@@ -136,7 +123,7 @@ TEST(HardCases, Fp32KernelFiniteAndCloseToReference) {
         ExpectFiniteNonNegative(ref, preset.name + " reference");
         const std::vector<double> f32 = testing::RunKernel(*model, m, false, p.wi, p.wo);
         ExpectFiniteNonNegative(f32, preset.name + " fp32");
-        const testing::ErrorStats e = testing::RelativeErrors(f32, ref, kFloor);
+        const accuracy::Accuracy e = accuracy::Compare(f32, ref, kFloor);
         std::printf("%-34s gamma_s %-4g hard cases fp32 %s\n", preset.name.c_str(), gamma_s, e.ToString().c_str());
         // Hard cases sit on lobe peaks and at grazing angles, where float inputs themselves carry the error.
         EXPECT_LE(e.p99, 1e-3) << preset.name;

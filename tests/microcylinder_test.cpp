@@ -151,8 +151,8 @@ std::pair<std::vector<float>, std::vector<float>> HardCases(const models::Packed
   std::mt19937 rng(7);
   for (int k = 0; k < 200; ++k) {
     float a[3], b[3];
-    testing::RandomHemisphere(rng, a);
-    testing::RandomHemisphere(rng, b);
+    accuracy::RandomHemisphere(rng, a);
+    accuracy::RandomHemisphere(rng, b);
     Push(wi, a[0], a[1], a[2]); Push(wo, a[0], a[1], a[2]);       // wi = wo
     Push(wi, -a[0], -a[1], a[2]); Push(wo, a[0], a[1], a[2]);     // wi = -reflect(wo): the mirror pair
     Push(wi, a[0], a[1], 1e-6); Push(wo, b[0], b[1], b[2]);       // grazing light
@@ -168,7 +168,7 @@ std::pair<std::vector<float>, std::vector<float>> HardCases(const models::Packed
       if (t[2] < 0) for (double& x : t) x = -x;
       if (t[2] == 0) t[2] = 1e-6;
       float b[3];
-      testing::RandomHemisphere(rng, b);
+      accuracy::RandomHemisphere(rng, b);
       Push(wi, t[0], t[1], t[2]); Push(wo, b[0], b[1], b[2]);
       Push(wi, b[0], b[1], b[2]); Push(wo, t[0], t[1], t[2]);
       Push(wi, t[0], t[1], t[2]); Push(wo, -t[0], -t[1], t[2]);

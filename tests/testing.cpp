@@ -14,34 +14,6 @@
 
 namespace loomlight::testing {
 
-void RandomHemisphere(std::mt19937& rng, float* w) {
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  const double z = u(rng), phi = 2 * M_PI * u(rng), s = std::sqrt(std::max(0.0, 1 - z * z));
-  w[0] = static_cast<float>(s * std::cos(phi));
-  w[1] = static_cast<float>(s * std::sin(phi));
-  w[2] = static_cast<float>(z);
-}
-
-std::string ErrorStats::ToString() const {
-  std::ostringstream s;
-  s << "median " << median << ", p99 " << p99 << ", max " << max << " over " << count << " values";
-  return s.str();
-}
-
-ErrorStats RelativeErrors(const std::vector<double>& got, const std::vector<double>& ref, double floor) {
-  std::vector<double> e;
-  for (size_t i = 0; i < ref.size(); ++i)
-    if (ref[i] > floor) e.push_back(std::fabs(got[i] - ref[i]) / ref[i]);
-  ErrorStats s;
-  s.count = e.size();
-  if (e.empty()) return s;
-  std::sort(e.begin(), e.end());
-  s.median = e[e.size() / 2];
-  s.p99 = e[std::min(e.size() - 1, static_cast<size_t>(0.99 * e.size()))];
-  s.max = e.back();
-  return s;
-}
-
 runtime::ClRuntime& SharedRuntime() {
   static std::unique_ptr<runtime::ClRuntime> rt = [] {
     std::string error;

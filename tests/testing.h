@@ -9,21 +9,11 @@
 #include <string>
 #include <vector>
 
+#include "server/models/accuracy.h"
 #include "server/models/registry.h"
 #include "server/runtime/cl_runtime.h"
 
 namespace loomlight::testing {
-
-// Uniform direction on the upper hemisphere, as float.
-void RandomHemisphere(std::mt19937& rng, float* w);
-
-struct ErrorStats {
-  double median = 0, p99 = 0, max = 0;
-  size_t count = 0;
-  std::string ToString() const;
-};
-// Relative error |got - ref| / ref over the entries with ref > floor.
-ErrorStats RelativeErrors(const std::vector<double>& got, const std::vector<double>& ref, double floor);
 
 // One runtime (device chosen, programs built, warmed) per test process.
 runtime::ClRuntime& SharedRuntime();

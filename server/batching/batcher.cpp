@@ -9,6 +9,13 @@ bool SameKernel(const Job& a, const Job& b) {
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
 
+JobResult Failed(JobStatus status, std::string message) {
+  JobResult r;
+  r.status = status;
+  r.message = std::move(message);
+  return r;
+}
+
 }  // namespace
 
 Batcher::Batcher(runtime::ClRuntime* runtime, BatcherOptions options)
@@ -41,7 +48,7 @@ void Batcher::Stop() {
   }
   wake_.notify_all();
   if (worker_.joinable()) worker_.join();
-  for (auto& job : left) job->done({JobStatus::kUnavailable, "server is shutting down"});
+  for (auto& job : left) job->done(Failed(JobStatus::kUnavailable, "server is shutting down"));
 }
 
 std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
@@ -87,9 +94,9 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   std::vector<std::shared_ptr<Job>> live;
   for (auto& job : batch) {
     if (job->deadline <= now)
-      job->done({JobStatus::kDeadlineExceeded, "deadline passed while queued"});
+      job->done(Failed(JobStatus::kDeadlineExceeded, "deadline passed while queued"));
     else if (job->cancelled && job->cancelled())
-      job->done({JobStatus::kCancelled, "cancelled while queued"});
+      job->done(Failed(JobStatus::kCancelled, "cancelled while queued"));
     else
       live.push_back(std::move(job));
   }

@@ -1,6 +1,7 @@
 // The native float baseline: the shared model source compiled as C++ with real = float, -O3 -march=native,
 // the queries split over every hardware thread. Benchmarks compare the OpenCL kernels against it.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <thread>
 #include <vector>
@@ -15,13 +16,18 @@ typedef float real;
 }  // namespace device
 
 namespace {
+// Hands out chunks of queries on demand, so a thread slowed by another process does not hold back the rest
+// (fixed equal shares would halve the baseline whenever one core is busy elsewhere).
 template <class Body>
 void ParallelFor(size_t n, Body body) {
-  const size_t workers = std::max(1u, std::thread::hardware_concurrency());
-  const size_t chunk = (n + workers - 1) / workers;
+  constexpr size_t kChunk = 1024;
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t begin; (begin = next.fetch_add(kChunk)) < n;) body(begin, std::min(n, begin + kChunk));
+  };
   std::vector<std::thread> threads;
-  for (size_t begin = 0; begin < n; begin += chunk)
-    threads.emplace_back([=] { body(begin, std::min(n, begin + chunk)); });
+  for (unsigned t = 1; t < std::max(1u, std::thread::hardware_concurrency()); ++t) threads.emplace_back(work);
+  work();
   for (auto& t : threads) t.join();
 }
 }  // namespace

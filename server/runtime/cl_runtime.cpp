@@ -17,23 +17,18 @@ bool Contains(const std::string& haystack, const std::string& needle) {
   return Lower(haystack).find(Lower(needle)) != std::string::npos;
 }
 
-std::string PlatformInfo(cl_platform_id p, cl_platform_info what) {
+// A string property of a platform or device (clGetPlatformInfo / clGetDeviceInfo have the same shape).
+template <class Id, class What, class Getter>
+std::string InfoString(Getter get, Id id, What what) {
   size_t size = 0;
-  clGetPlatformInfo(p, what, 0, nullptr, &size);
+  get(id, what, 0, nullptr, &size);
   std::string s(size, '\0');
-  clGetPlatformInfo(p, what, size, s.data(), nullptr);
+  get(id, what, size, s.data(), nullptr);
   while (!s.empty() && s.back() == '\0') s.pop_back();
   return s;
 }
-
-std::string DeviceInfo(cl_device_id d, cl_device_info what) {
-  size_t size = 0;
-  clGetDeviceInfo(d, what, 0, nullptr, &size);
-  std::string s(size, '\0');
-  clGetDeviceInfo(d, what, size, s.data(), nullptr);
-  while (!s.empty() && s.back() == '\0') s.pop_back();
-  return s;
-}
+std::string PlatformInfo(cl_platform_id p, cl_platform_info what) { return InfoString(clGetPlatformInfo, p, what); }
+std::string DeviceInfo(cl_device_id d, cl_device_info what) { return InfoString(clGetDeviceInfo, d, what); }
 
 std::string ClError(const char* what, cl_int err) { return std::string(what) + " failed (OpenCL error " + std::to_string(err) + ")"; }
 

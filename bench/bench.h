@@ -1,0 +1,37 @@
+// The benchmark's sections and their sizes. Each section returns its part of the markdown report.
+#pragma once
+
+#include <cstddef>
+#include <string>
+
+#include "server/runtime/cl_runtime.h"
+
+namespace loomlight::bench {
+
+struct Sizes {
+  bool quick = false;
+  int timed_runs = 3;                // best of this many after one warm-up
+  size_t kernel_queries = 1000000;   // direction pairs timed per preset and implementation
+  size_t kernel_error_queries = 1000000;  // prefix of those compared with the double reference
+  size_t reference_threads = 2;      // the double reference is split over this many threads
+  size_t sweep_queries = 200000;     // direction pairs timed per tangent-sample count
+  size_t sweep_error_queries = 100000;  // subset compared with the T = 256 reference
+  double service_seconds = 2.5;      // per service configuration (clients stop starting calls after it)
+  size_t service_max_calls = 20000;  // per client and configuration, whichever comes first
+  size_t big_call_queries = size_t{1} << 20;
+
+  static Sizes Full();
+  static Sizes Quick();
+};
+
+// Logs progress to stderr (the report goes to stdout and the file at the end).
+void Progress(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
+
+// Section 1: OpenCL fp32 / fp64 and the native baseline per preset, throughput and error.
+std::string KernelSection(runtime::ClRuntime& rt, const Sizes& sizes);
+// Section 2: throughput and convergence against tangent samples per thread.
+std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes);
+// Section 3: the gRPC service in process, concurrent clients, batching on and off, one maximal call.
+std::string ServiceSection(const Sizes& sizes);
+
+}  // namespace loomlight::bench

@@ -1,0 +1,76 @@
+#include "server/models/accuracy.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace loomlight::accuracy {
+
+void RandomHemisphere(std::mt19937& rng, float* w) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double z = u(rng), phi = 2 * M_PI * u(rng), s = std::sqrt(std::max(0.0, 1 - z * z));
+  w[0] = static_cast<float>(s * std::cos(phi));
+  w[1] = static_cast<float>(s * std::sin(phi));
+  w[2] = static_cast<float>(z);
+}
+
+Pairs Pairs::Head(size_t n) const {
+  n = std::min(n, size());
+  return {std::vector<float>(wi.begin(), wi.begin() + 3 * n), std::vector<float>(wo.begin(), wo.begin() + 3 * n)};
+}
+
+Pairs RandomPairs(size_t n, unsigned seed) {
+  std::mt19937 rng(seed);
+  Pairs p;
+  p.wi.resize(3 * n);
+  p.wo.resize(3 * n);
+  for (size_t q = 0; q < n; ++q) {
+    RandomHemisphere(rng, &p.wi[3 * q]);
+    RandomHemisphere(rng, &p.wo[3 * q]);
+  }
+  return p;
+}
+
+double Percentile(std::vector<double> values, double q) {
+  if (values.empty()) return 0;
+  const size_t k = std::min(values.size() - 1, static_cast<size_t>(q * static_cast<double>(values.size())));
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+  return values[k];
+}
+
+std::string Accuracy::ToString() const {
+  std::ostringstream s;
+  s << "median " << median << ", p99 " << p99 << ", max " << max << " over " << count << " values";
+  return s.str();
+}
+
+template <class T>
+Accuracy Compare(const std::vector<T>& got, const std::vector<double>& ref, double floor, const Pairs* pairs) {
+  Accuracy a;
+  std::vector<double> rel;
+  double abs_sum = 0, ref_sum = 0, log_sq = 0;
+  for (size_t i = 0; i < ref.size(); ++i) {
+    const double f = static_cast<double>(got[i]), r = ref[i];
+    const double diff = std::fabs(f - r);
+    if (r > floor) rel.push_back(diff / r);
+    abs_sum += diff;
+    ref_sum += std::fabs(r);
+    if (pairs) {
+      const double cos_o = pairs->wo[3 * (i / 3) + 2];
+      const double d = std::log1p(f * cos_o) - std::log1p(r * cos_o);
+      log_sq += d * d;
+    }
+  }
+  a.count = rel.size();
+  a.median = Percentile(rel, 0.5);
+  a.p99 = Percentile(rel, 0.99);
+  a.max = rel.empty() ? 0 : *std::max_element(rel.begin(), rel.end());
+  a.rel_l1 = ref_sum > 0 ? abs_sum / ref_sum : 0;
+  a.log_rmse = pairs && !ref.empty() ? std::sqrt(log_sq / static_cast<double>(ref.size())) : 0;
+  return a;
+}
+
+template Accuracy Compare<float>(const std::vector<float>&, const std::vector<double>&, double, const Pairs*);
+template Accuracy Compare<double>(const std::vector<double>&, const std::vector<double>&, double, const Pairs*);
+
+}  // namespace loomlight::accuracy

@@ -224,6 +224,58 @@ TEST_F(ApiTest, BadRequestsNeverDisturbOtherClients) {
   EXPECT_EQ(bad_rejected, 40);
 }
 
+// Random, mostly malformed requests: every answer is OK (with finite, non-negative f of the right size) or
+// INVALID_ARGUMENT, and the server keeps serving.
+TEST_F(ApiTest, RandomRequestsGetAnAnswerAndNeverHurtTheServer) {
+  auto stub = Connect(server_->port());
+  std::mt19937 rng(2026);
+  std::uniform_real_distribution<double> u(0, 1);
+  const char* names[] = {"eta", "tangent_samples", "thread1.coverage", "thread2.albedo", "thread1.gamma_s",
+                         "thread2.tangent_offsets", "thread1.tangent_lengths", "nonsense", ""};
+  const char* presets[] = {"velvet", "linen_plain", "", "silk"};
+  const double specials[] = {0.0, -1.0, 1e308, -1e-308, std::nan(""), INFINITY, 1.0, 256.0, 90.0, -90.0};
+  int ok = 0, invalid = 0;
+  for (int k = 0; k < 400; ++k) {
+    EvaluateRequest req;
+    req.mutable_material()->set_preset(presets[rng() % 4]);
+    if (rng() % 4 == 0) req.mutable_material()->set_model(rng() % 2 ? "microcylinder" : "woolly");
+    for (int p = 0, np = rng() % 3; p < np; ++p) {
+      auto* param = req.mutable_material()->add_params();
+      param->set_name(names[rng() % std::size(names)]);
+      for (int v = 0, nv = rng() % 5; v < nv; ++v)
+        param->add_values(rng() % 2 ? specials[rng() % std::size(specials)] : 4 * u(rng) - 1);
+    }
+    const int n = rng() % 20;
+    for (int i = 0; i < 3 * n + (rng() % 8 == 0 ? 1 : 0); ++i) req.add_wi(float(2 * u(rng) - 1));
+    for (int i = 0; i < 3 * n; ++i) req.add_wo(float(2 * u(rng) - 1));
+    if (rng() % 2) {  // make the directions unit, sometimes with a special value slipped in
+      for (auto* w : {req.mutable_wi(), req.mutable_wo()})
+        for (int q = 0; q + 2 < w->size(); q += 3) {
+          const float l = std::sqrt(w->Get(q) * w->Get(q) + w->Get(q + 1) * w->Get(q + 1) + w->Get(q + 2) * w->Get(q + 2));
+          for (int c = 0; c < 3; ++c) w->Set(q + c, l > 0 ? w->Get(q + c) / l : 1.0f);
+        }
+      if (n > 0 && rng() % 4 == 0) req.mutable_wo()->Set(0, float(specials[rng() % std::size(specials)]));
+    }
+    if (rng() % 10 == 0) req.add_uv(0.5f);
+    if (rng() % 10 == 0) req.set_precision(v1::PRECISION_FP64);
+    EvaluateResponse resp;
+    const grpc::Status s = Call(*stub, req, &resp);
+    if (s.ok()) {
+      ++ok;
+      ASSERT_EQ(resp.f_size(), req.wi_size());
+      for (float f : resp.f()) ASSERT_TRUE(std::isfinite(f) && f >= 0) << f;
+    } else {
+      ++invalid;
+      ASSERT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+      ASSERT_FALSE(s.error_message().empty());
+    }
+  }
+  EXPECT_GT(ok, 10);
+  EXPECT_GT(invalid, 100);
+  EvaluateResponse resp;
+  EXPECT_TRUE(Call(*stub, Request("velvet", 10, 1), &resp).ok());
+}
+
 TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) {
   api::MaterialCache cache(2);
   const auto& registry = models::Registry::Global();

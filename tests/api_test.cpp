@@ -351,43 +351,55 @@ TEST(Batching, NoCoalescingRunsOneRequestPerLaunch) {
   EXPECT_EQ(max_requests, 1);
 }
 
+// Runs BlockingRequest() on another thread; the request is built first so the call starts at once.
+std::thread StartBlockingCall(v1::Loomlight::Stub& stub) {
+  static const EvaluateRequest blocking = BlockingRequest();
+  return std::thread([&stub] {
+    EvaluateResponse resp;
+    EXPECT_TRUE(Call(stub, blocking, &resp).ok());
+  });
+}
+
 TEST(Batching, FullQueueAnswersResourceExhausted) {
   batching::BatcherOptions options;
   options.max_queued_queries = 1000;
   auto server = StartServer(options);
   auto stub = Connect(server->port());
-  // A long request occupies the device; while it runs, the first small one queues and the rest overflow.
-  std::thread big([&] {
-    EvaluateResponse resp;
-    EXPECT_TRUE(Call(*stub, BlockingRequest(), &resp).ok());
-  });
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));
-  std::atomic<int> exhausted{0}, ok{0};
-  std::vector<std::thread> small;
-  for (int t = 0; t < 6; ++t)
-    small.emplace_back([&, t] {
-      EvaluateResponse resp;
-      const grpc::Status s = Call(*stub, Request("velvet", 800, 10 + t), &resp);
-      if (s.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED) ++exhausted;
-      if (s.ok()) ++ok;
-    });
-  for (auto& t : small) t.join();
+  // While a long request occupies the device, the first small one queues and the rest overflow. Rounds of
+  // six small calls are sent until one round overlaps the long call (the first rounds may run before it).
+  std::thread big = StartBlockingCall(*stub);
+  int exhausted = 0, ok = 0;
+  for (int round = 0; round < 200 && exhausted == 0; ++round) {
+    std::atomic<int> round_exhausted{0}, round_ok{0};
+    std::vector<std::thread> small;
+    for (int t = 0; t < 6; ++t)
+      small.emplace_back([&, t] {
+        EvaluateResponse resp;
+        const grpc::Status s = Call(*stub, Request("velvet", 800, 10 + t), &resp);
+        if (s.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED) ++round_exhausted;
+        if (s.ok()) ++round_ok;
+      });
+    for (auto& t : small) t.join();
+    EXPECT_EQ(round_exhausted + round_ok, 6) << "every call is answered OK or RESOURCE_EXHAUSTED";
+    exhausted += round_exhausted;
+    ok += round_ok;
+  }
   big.join();
   EXPECT_GE(exhausted, 1);
   EXPECT_GE(ok, 1);
-  EXPECT_EQ(exhausted + ok, 6);
 }
 
 TEST(Batching, ExpiredRequestsAreDroppedBeforeLaunch) {
   auto server = StartServer();
   auto stub = Connect(server->port());
-  std::thread big([&] {
-    EvaluateResponse resp;
-    EXPECT_TRUE(Call(*stub, BlockingRequest(), &resp).ok());
-  });
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  std::thread big = StartBlockingCall(*stub);
+  // Small calls with a 50 ms deadline succeed until the long call holds the device; then one expires.
+  grpc::Status s;
   EvaluateResponse resp;
-  const grpc::Status s = Call(*stub, Request("velvet", 100, 2), &resp, 0.05);
+  for (int attempt = 0; attempt < 500; ++attempt) {
+    s = Call(*stub, Request("velvet", 100, 2), &resp, 0.05);
+    if (!s.ok()) break;
+  }
   EXPECT_EQ(s.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
   big.join();
   // The server is still healthy afterwards.

@@ -6,6 +6,7 @@ packages=(
   pocl-opencl-icd ocl-icd-opencl-dev opencl-c-headers opencl-clhpp-headers clinfo
   libopenimageio-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
+  prometheus-cpp-dev
   libgtest-dev libgmock-dev
   fonts-dejavu-core
 )

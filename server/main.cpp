@@ -21,7 +21,8 @@ void Usage() {
                "  --max-batch-queries N      queries per coalesced launch (default 1048576)\n"
                "  --max-queue-delay-us N     wait this long for a batch to fill (default 0)\n"
                "  --max-queued-queries N     queued queries before RESOURCE_EXHAUSTED (default 8388608)\n"
-               "  --no-batching              one request per launch\n");
+               "  --no-batching              one request per launch\n"
+               "  --metrics-address HOST:PORT  serve Prometheus metrics at http://HOST:PORT/metrics (default: off)\n");
 }
 
 volatile std::sig_atomic_t g_stop = 0;
@@ -58,6 +59,7 @@ int main(int argc, char** argv) {
     else if (arg == "--max-queue-delay-us") options.batcher.max_queue_delay = std::chrono::microseconds(number());
     else if (arg == "--max-queued-queries") options.batcher.max_queued_queries = number();
     else if (arg == "--no-batching") options.batcher.coalesce = false;
+    else if (arg == "--metrics-address") options.metrics_address = value();
     else if (arg == "--help" || arg == "-h") { Usage(); return 0; }
     else { std::fprintf(stderr, "error: unknown option '%s'\n", arg.c_str()); Usage(); return 2; }
   }
@@ -70,6 +72,8 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "loomlight-server: serving on port %d (OpenCL: %s / %s, float vector width %d, fp64 %s)\n",
                server->port(), server->runtime().platform_name().c_str(), server->runtime().device_name().c_str(),
                server->runtime().vector_width(), server->runtime().has_fp64() ? "yes" : "no");
+  if (server->metrics_port() > 0)
+    std::fprintf(stderr, "loomlight-server: metrics on port %d (/metrics)\n", server->metrics_port());
   std::signal(SIGINT, [](int) { g_stop = 1; });
   std::signal(SIGTERM, [](int) { g_stop = 1; });
   while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));

@@ -1,7 +1,11 @@
 // The gRPC API in process: ListModels, Evaluate against the reference, every bad-input case, and the
 // batcher's behaviour (coalescing, full queue, deadlines) through real calls on a loopback port.
+#include <arpa/inet.h>
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <cmath>
@@ -349,6 +353,47 @@ TEST(Batching, NoCoalescingRunsOneRequestPerLaunch) {
     });
   for (auto& t : threads) t.join();
   EXPECT_EQ(max_requests, 1);
+}
+
+// GET http://127.0.0.1:port/path; the body, or "" on failure.
+std::string HttpGet(int port, const std::string& path) {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<uint16_t>(port));
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  std::string response;
+  if (connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0) {
+    const std::string request = "GET " + path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
+    if (write(fd, request.data(), request.size()) == static_cast<ssize_t>(request.size())) {
+      char buf[4096];
+      for (ssize_t got; (got = read(fd, buf, sizeof buf)) > 0;) response.append(buf, static_cast<size_t>(got));
+    }
+  }
+  close(fd);
+  const size_t body = response.find("\r\n\r\n");
+  return body == std::string::npos ? "" : response.substr(body + 4);
+}
+
+TEST(Metrics, PrometheusEndpointCountsCallsAndQueries) {
+  api::ServerOptions options;
+  options.address = "127.0.0.1:0";
+  options.metrics_address = "127.0.0.1:0";
+  std::string error;
+  auto server = api::LoomlightServer::Start(options, &error);
+  ASSERT_NE(server, nullptr) << error;
+  ASSERT_GT(server->metrics_port(), 0);
+  auto stub = Connect(server->port());
+  EvaluateResponse resp;
+  ASSERT_TRUE(Call(*stub, Request("velvet", 37, 1), &resp).ok());
+  ASSERT_TRUE(Call(*stub, Request("velvet", 5, 2), &resp).ok());
+  EXPECT_EQ(Call(*stub, Request("burlap", 5, 3), &resp).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  const std::string text = HttpGet(server->metrics_port(), "/metrics");
+  EXPECT_NE(text.find("loomlight_calls_total{code=\"OK\",rpc=\"Evaluate\"} 2"), std::string::npos) << text;
+  EXPECT_NE(text.find("loomlight_calls_total{code=\"INVALID_ARGUMENT\",rpc=\"Evaluate\"} 1"), std::string::npos);
+  EXPECT_NE(text.find("loomlight_queries_total{model=\"microcylinder\",precision=\"fp32\"} 42"), std::string::npos);
+  EXPECT_NE(text.find("loomlight_launch_queries_count 2"), std::string::npos);
+  EXPECT_NE(text.find("loomlight_kernel_seconds_bucket"), std::string::npos);
 }
 
 // Runs BlockingRequest() on another thread; the request is built first so the call starts at once.

@@ -21,8 +21,14 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   const models::Registry& registry = models::Registry::Global();
   if (!s->runtime_->BuildPrograms(registry, error)) return nullptr;
 
+  s->metrics_ = std::make_unique<Metrics>();
+  if (!options.metrics_address.empty()) {
+    *error = s->metrics_->Serve(options.metrics_address);
+    if (!error->empty()) return nullptr;
+  }
   s->batcher_ = std::make_unique<batching::Batcher>(s->runtime_.get(), options.batcher);
-  s->service_ = std::make_unique<LoomlightService>(&registry, s->batcher_.get(), s->runtime_->has_fp64());
+  s->service_ = std::make_unique<LoomlightService>(&registry, s->batcher_.get(), s->runtime_->has_fp64(),
+                                                   s->metrics_.get());
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;

@@ -16,6 +16,7 @@ struct ServerOptions {
   std::string address = "127.0.0.1:50051";  // port 0 picks a free port (see LoomlightServer::port)
   runtime::RuntimeOptions runtime;
   batching::BatcherOptions batcher;
+  std::string metrics_address;  // "host:port" for Prometheus' /metrics ("" = none; port 0 picks one)
 };
 
 class LoomlightServer {
@@ -27,12 +28,14 @@ class LoomlightServer {
   void Wait() { server_->Wait(); }
   void Shutdown();
   int port() const { return port_; }
+  int metrics_port() const { return metrics_->port(); }
   const runtime::ClRuntime& runtime() const { return *runtime_; }
 
  private:
   LoomlightServer() = default;
   std::unique_ptr<runtime::ClRuntime> runtime_;
   std::unique_ptr<batching::Batcher> batcher_;
+  std::unique_ptr<Metrics> metrics_;
   std::unique_ptr<LoomlightService> service_;
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;

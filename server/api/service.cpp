@@ -40,10 +40,8 @@ grpc::Status ToStatus(const batching::JobResult& r) {
   return {grpc::StatusCode::INTERNAL, "unknown job status"};
 }
 
-grpc::ServerUnaryReactor* Finish(grpc::CallbackServerContext* context, grpc::Status status) {
-  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  reactor->Finish(std::move(status));
-  return reactor;
+double SecondsSince(batching::Clock::time_point t) {
+  return std::chrono::duration<double>(batching::Clock::now() - t).count();
 }
 
 grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
@@ -87,6 +85,14 @@ std::string MaterialCache::Get(const v1::Material& material, const models::Regis
   return "";
 }
 
+grpc::ServerUnaryReactor* LoomlightService::Reply(grpc::CallbackServerContext* context, const char* rpc,
+                                                  batching::Clock::time_point received, grpc::Status status) {
+  metrics_->Call(rpc, status.error_code(), SecondsSince(received));
+  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  reactor->Finish(std::move(status));
+  return reactor;
+}
+
 std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field) {
   if (w.size() % 3 != 0)
     return field + ": length " + std::to_string(w.size()) + " is not a multiple of 3 (packed xyz triples)";
@@ -105,6 +111,7 @@ std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, 
 grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerContext* context,
                                                        const v1::ListModelsRequest*,
                                                        v1::ListModelsResponse* response) {
+  const auto received = batching::Clock::now();
   for (const auto& model : registry_->models()) {
     v1::ModelInfo* info = response->add_models();
     info->set_name(model->name());
@@ -130,7 +137,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
   }
   response->set_max_queries_per_call(kMaxQueriesPerCall);
   response->set_unit_tolerance(kUnitTolerance);
-  return Finish(context, grpc::Status::OK);
+  return Reply(context, "ListModels", received, grpc::Status::OK);
 }
 
 grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext* context,
@@ -139,25 +146,25 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   const auto received = batching::Clock::now();
   std::shared_ptr<const MaterialCache::Entry> material;
   std::string error = materials_.Get(request->material(), *registry_, &material);
-  if (!error.empty()) return Finish(context, Invalid(error));
+  if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
   if (!v1::Precision_IsValid(request->precision()))
-    return Finish(context, Invalid("precision: unknown value " + std::to_string(request->precision())));
+    return Reply(context, "Evaluate", received, Invalid("precision: unknown value " + std::to_string(request->precision())));
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
   if (fp64 && !has_fp64_)
-    return Finish(context, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+    return Reply(context, "Evaluate", received, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
   if (request->wi_size() != request->wo_size())
-    return Finish(context, Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
+    return Reply(context, "Evaluate", received, Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
                                    std::to_string(request->wi_size())));
   const size_t n = request->wi_size() / 3;
   if (n > kMaxQueriesPerCall)
-    return Finish(context, Invalid("wi: " + std::to_string(n) + " queries exceed the limit of " +
+    return Reply(context, "Evaluate", received, Invalid("wi: " + std::to_string(n) + " queries exceed the limit of " +
                                    std::to_string(kMaxQueriesPerCall) + " per call"));
   for (const auto& [field, w] : {std::pair{"wi", &request->wi()}, std::pair{"wo", &request->wo()}}) {
     error = ValidateDirections(*w, field);
-    if (!error.empty()) return Finish(context, Invalid(error));
+    if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
   }
   if (request->uv_size() > 0)
-    return Finish(context, Invalid("uv: model '" + material->model->name() +
+    return Reply(context, "Evaluate", received, Invalid("uv: model '" + material->model->name() +
                                    "' is not spatially varying; send no uv"));
 
   auto job = std::make_shared<batching::Job>();
@@ -172,7 +179,8 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     job->deadline = received + (deadline - std::chrono::system_clock::now());
   job->cancelled = [context] { return context->IsCancelled(); };
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  job->done = [reactor, response, received, model = material->model->name(), fp64](batching::JobResult r) {
+  Metrics* metrics = metrics_;
+  job->done = [reactor, response, received, metrics, n, model = material->model->name(), fp64](batching::JobResult r) {
     if (r.status == batching::JobStatus::kOk) {
       auto* f = response->mutable_f();
       f->Resize(static_cast<int>(r.f.size()), 0.0f);
@@ -183,12 +191,16 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
       response->set_kernel_seconds(r.kernel_seconds);
       response->set_batch_queries(static_cast<uint32_t>(r.batch_queries));
       response->set_batch_requests(static_cast<uint32_t>(r.batch_requests));
-      response->set_total_seconds(std::chrono::duration<double>(batching::Clock::now() - received).count());
+      response->set_total_seconds(SecondsSince(received));
+      metrics->Evaluated(model, fp64, n, r.batch_queries, r.batch_requests, r.queue_seconds, r.kernel_seconds);
     }
-    reactor->Finish(ToStatus(r));
+    const grpc::Status status = ToStatus(r);
+    metrics->Call("Evaluate", status.error_code(), SecondsSince(received));
+    reactor->Finish(status);
   };
   if (!batcher_->Submit(job)) {
-    reactor->Finish({grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"});
+    return Reply(context, "Evaluate", received,
+                 {grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"});
   }
   return reactor;
 }

@@ -8,6 +8,7 @@
 #include <unordered_map>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/metrics.h"
 #include "server/batching/batcher.h"
 #include "server/models/registry.h"
 
@@ -41,8 +42,8 @@ class MaterialCache {
 
 class LoomlightService final : public v1::Loomlight::CallbackService {
  public:
-  LoomlightService(const models::Registry* registry, batching::Batcher* batcher, bool has_fp64)
-      : registry_(registry), batcher_(batcher), has_fp64_(has_fp64) {}
+  LoomlightService(const models::Registry* registry, batching::Batcher* batcher, bool has_fp64, Metrics* metrics)
+      : registry_(registry), batcher_(batcher), has_fp64_(has_fp64), metrics_(metrics) {}
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
                                        v1::ListModelsResponse* response) override;
@@ -50,9 +51,14 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
                                      v1::EvaluateResponse* response) override;
 
  private:
+  // Finishes a call on the default reactor and records it.
+  grpc::ServerUnaryReactor* Reply(grpc::CallbackServerContext* context, const char* rpc,
+                                  batching::Clock::time_point received, grpc::Status status);
+
   const models::Registry* registry_;
   batching::Batcher* batcher_;
   bool has_fp64_;
+  Metrics* metrics_;
   MaterialCache materials_{1024};
 };
 

@@ -1,0 +1,96 @@
+#include "server/api/metrics.h"
+
+#include <cmath>
+
+namespace loomlight::api {
+namespace {
+
+const char* CodeName(grpc::StatusCode code) {
+  switch (code) {
+    case grpc::StatusCode::OK: return "OK";
+    case grpc::StatusCode::CANCELLED: return "CANCELLED";
+    case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
+    case grpc::StatusCode::DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
+    case grpc::StatusCode::RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
+    case grpc::StatusCode::FAILED_PRECONDITION: return "FAILED_PRECONDITION";
+    case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
+    case grpc::StatusCode::INTERNAL: return "INTERNAL";
+    default: return "OTHER";
+  }
+}
+
+// Powers of `step` from `first`, `count` of them: histogram buckets spanning several decades.
+prometheus::Histogram::BucketBoundaries Geometric(double first, double step, int count) {
+  prometheus::Histogram::BucketBoundaries b;
+  for (int i = 0; i < count; ++i) b.push_back(first * std::pow(step, i));
+  return b;
+}
+
+}  // namespace
+
+Metrics::Metrics()
+    : registry_(std::make_shared<prometheus::Registry>()),
+      calls_(prometheus::BuildCounter()
+                 .Name("loomlight_calls_total")
+                 .Help("Finished RPCs by method and status code")
+                 .Register(*registry_)),
+      call_seconds_(prometheus::BuildHistogram()
+                        .Name("loomlight_call_seconds")
+                        .Help("Time in the server per RPC")
+                        .Register(*registry_)),
+      queries_(prometheus::BuildCounter()
+                   .Name("loomlight_queries_total")
+                   .Help("Direction pairs evaluated, by model and precision")
+                   .Register(*registry_)),
+      launch_queries_(prometheus::BuildHistogram()
+                          .Name("loomlight_launch_queries")
+                          .Help("Queries in the kernel launch each request rode in")
+                          .Register(*registry_)
+                          .Add({}, Geometric(1, 4, 11))),
+      launch_requests_(prometheus::BuildHistogram()
+                           .Name("loomlight_launch_requests")
+                           .Help("Requests coalesced into the launch each request rode in")
+                           .Register(*registry_)
+                           .Add({}, Geometric(1, 2, 9))),
+      queue_seconds_(prometheus::BuildHistogram()
+                         .Name("loomlight_queue_seconds")
+                         .Help("Time a request waited for its launch")
+                         .Register(*registry_)
+                         .Add({}, Geometric(1e-5, 4, 10))),
+      kernel_seconds_(prometheus::BuildHistogram()
+                          .Name("loomlight_kernel_seconds")
+                          .Help("Duration of the launch each request rode in")
+                          .Register(*registry_)
+                          .Add({}, Geometric(1e-5, 4, 10))) {}
+
+std::string Metrics::Serve(const std::string& address) {
+  try {
+    exposer_ = std::make_unique<prometheus::Exposer>(address, 1);
+  } catch (const std::exception& e) {
+    return "cannot serve metrics on " + address + ": " + e.what();
+  }
+  exposer_->RegisterCollectable(registry_);
+  return "";
+}
+
+int Metrics::port() const {
+  if (!exposer_) return 0;
+  const auto ports = exposer_->GetListeningPorts();
+  return ports.empty() ? 0 : ports.front();
+}
+
+void Metrics::Call(const std::string& rpc, grpc::StatusCode code, double seconds) {
+  calls_.Add({{"rpc", rpc}, {"code", CodeName(code)}}).Increment();
+  call_seconds_.Add({{"rpc", rpc}}, Geometric(1e-5, 4, 10)).Observe(seconds);
+}
+
+void Metrics::Evaluated(const std::string& model, bool fp64, size_t queries, size_t launch_queries,
+                        size_t launch_requests, double queue_seconds, double kernel_seconds) {
+  queries_.Add({{"model", model}, {"precision", fp64 ? "fp64" : "fp32"}}).Increment(static_cast<double>(queries));
+  launch_queries_.Observe(static_cast<double>(launch_queries));
+  launch_requests_.Observe(static_cast<double>(launch_requests));
+  queue_seconds_.Observe(queue_seconds);
+  kernel_seconds_.Observe(kernel_seconds);
+}
+
+}  // namespace loomlight::api

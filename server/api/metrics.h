@@ -1,0 +1,41 @@
+// Prometheus metrics of the service (prometheus-cpp), served over HTTP at /metrics when an address is set.
+#pragma once
+
+#include <prometheus/counter.h>
+#include <prometheus/exposer.h>
+#include <prometheus/histogram.h>
+#include <prometheus/registry.h>
+
+#include <grpcpp/grpcpp.h>
+
+#include <memory>
+#include <string>
+
+namespace loomlight::api {
+
+class Metrics {
+ public:
+  Metrics();
+  // Starts the HTTP endpoint ("host:port", port 0 picks one); "" on success, else the reason.
+  std::string Serve(const std::string& address);
+  int port() const;
+
+  // One finished call of an RPC, with its status and time in the server.
+  void Call(const std::string& rpc, grpc::StatusCode code, double seconds);
+  // Queries evaluated for a model and precision, and the launch the request rode in.
+  void Evaluated(const std::string& model, bool fp64, size_t queries, size_t launch_queries,
+                 size_t launch_requests, double queue_seconds, double kernel_seconds);
+
+ private:
+  std::shared_ptr<prometheus::Registry> registry_;
+  prometheus::Family<prometheus::Counter>& calls_;
+  prometheus::Family<prometheus::Histogram>& call_seconds_;
+  prometheus::Family<prometheus::Counter>& queries_;
+  prometheus::Histogram& launch_queries_;
+  prometheus::Histogram& launch_requests_;
+  prometheus::Histogram& queue_seconds_;
+  prometheus::Histogram& kernel_seconds_;
+  std::unique_ptr<prometheus::Exposer> exposer_;
+};
+
+}  // namespace loomlight::api

@@ -2,7 +2,7 @@
 //
 // OpenCL: the .cl entry file includes this first. `real` is the arithmetic type of one work-item: float,
 // or floatN when LL_WIDTH = N > 1 (each work-item evaluates N queries as explicit vectors: PoCL 3.1's own
-// work-item-loop vectorizer gives up on this model, see README), or double with LL_FP64 (LL_WIDTH 1).
+// work-item-loop vectorizer gives up on this model, see README), or double / doubleN with LL_FP64.
 // `scalar` is the element type of material data, `mask` the type of a comparison of reals.
 // C++: include <cmath>, open a namespace, `typedef double real;` (or float) and include this file and the
 // model headers inside it, so one source gives the double reference and the float native baseline.
@@ -32,6 +32,11 @@ typedef int mask;
 #define LL_STORE(v, i, p) ((p)[i] = (v))
 #define LL_TO_INT(x) ((int)(x))
 #define LL_AS_FLOAT(x) as_float(x)
+#elif defined(LL_FP64)
+typedef LL_CAT(double, LL_WIDTH) real;
+typedef LL_CAT(long, LL_WIDTH) mask;  // what comparing doubleN gives
+#define LL_LOAD(i, p) LL_CAT(convert_double, LL_WIDTH)(LL_CAT(vload, LL_WIDTH)(i, p))  // inputs are float
+#define LL_STORE(v, i, p) LL_CAT(vstore, LL_WIDTH)(v, i, p)
 #else
 typedef LL_CAT(float, LL_WIDTH) real;
 typedef LL_CAT(int, LL_WIDTH) mask;
@@ -72,6 +77,7 @@ using std::sqrt;
 // (a unit float vector carries ~6e-8 absolute error), so reflection models treat them as n.w = 0.
 #define LL_HORIZON_EPS R(1e-7)
 
+#if !(defined(__OPENCL_C_VERSION__) && defined(LL_FP64))  // double kernels use the exact builtins
 // atan2 with no library call and no branch (PoCL's builtin atan2 is an out-of-line call). Octant reduction
 // to a = min/max in [0, 1], then atan(a) = pi/4 + atan((a-1)/(a+1)) above tan(pi/8), leaving |z| <= 0.4142 for
 // Cephes' atanf polynomial (about 1 ulp in float). z is one division, (mn - mx)/(mn + mx) or mn/mx.
@@ -103,6 +109,8 @@ LL_INLINE real ll_exp_poly(real x) {
   const real scale = LL_AS_FLOAT((LL_TO_INT(n) + 127) << 23);
   return x < R(-87.0) ? R(0.0) : e * scale;
 }
+
+#endif
 
 #if defined(__OPENCL_C_VERSION__)
 #ifdef LL_FP64

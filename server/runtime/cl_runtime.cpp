@@ -153,7 +153,7 @@ bool ClRuntime::Build(const std::string& source, const std::string& function, bo
     *error = ClError("clCreateProgramWithSource", err);
     return false;
   }
-  out->width = fp64 ? 1 : vector_width_;
+  out->width = fp64 ? std::max(1, vector_width_ / 2) : vector_width_;  // doubles are twice as wide
   const size_t items = std::max<size_t>(1, local_size_ / out->width);
   const std::string options = "-cl-std=CL1.2 -DLL_LOCAL_SIZE=" + std::to_string(items) +
                               " -DLL_WIDTH=" + std::to_string(out->width) + (fp64 ? " -DLL_FP64" : "");

@@ -99,7 +99,9 @@ TEST_F(ApiTest, ListModelsDescribesSchemaAndPresets) {
   grpc::ClientContext ctx;
   v1::ListModelsResponse resp;
   ASSERT_TRUE(stub->ListModels(&ctx, {}, &resp).ok());
-  ASSERT_EQ(resp.models_size(), 1);
+  ASSERT_EQ(resp.models_size(), 2);
+  EXPECT_EQ(resp.models(1).name(), "woven");
+  EXPECT_EQ(resp.models(1).presets(0).name(), "cotton_twill");
   const v1::ModelInfo& m = resp.models(0);
   EXPECT_EQ(m.name(), "microcylinder");
   EXPECT_EQ(m.presets_size(), 6);
@@ -192,6 +194,33 @@ TEST_F(ApiTest, BadInputIsRejectedNamingTheField) {
     EXPECT_EQ(s.error_message().rfind(root, 0), 0u) << c.name << ": " << s.error_message();
     EXPECT_NE(s.error_message().find(field), std::string::npos) << c.name << ": '" << s.error_message()
                                                                  << "' should name '" << field << "'";
+  }
+}
+
+TEST_F(ApiTest, WovenPatternsAreValidatedAndEvaluated) {
+  auto stub = Connect(server_->port());
+  auto woven = [](int warps, std::vector<double> cells) {
+    EvaluateRequest r = Request("cotton_twill", 50, 9);
+    AddParam(r, "pattern.warps", {double(warps)});
+    AddParam(r, "pattern.cells", std::move(cells));
+    return r;
+  };
+  EvaluateResponse resp;
+  grpc::Status s = Call(*stub, woven(4, {1, 0, 1, 0, 1}), &resp);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("pattern.cells"), std::string::npos) << s.error_message();
+  s = Call(*stub, woven(2, {1, 0.5, 0, 1}), &resp);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("0 or 1"), std::string::npos) << s.error_message();
+  // A plain weave has half warp, half weft: its BRDF lies between the all-warp and all-weft cloths.
+  std::vector<std::vector<float>> f;
+  for (const auto& cells : std::vector<std::vector<double>>{{1, 0, 0, 1}, {1, 1, 1, 1}, {0, 0, 0, 0}}) {
+    ASSERT_TRUE(Call(*stub, woven(2, cells), &resp).ok());
+    f.emplace_back(resp.f().begin(), resp.f().end());
+  }
+  for (size_t i = 0; i < f[0].size(); ++i) {
+    ASSERT_TRUE(std::isfinite(f[0][i]));
+    EXPECT_NEAR(f[0][i], 0.5 * (f[1][i] + f[2][i]), 1e-5 * (f[1][i] + f[2][i]) + 1e-6) << i;
   }
 }
 

@@ -10,10 +10,14 @@ double MicrocylinderCurveOffset(const double* offsets, const double* lengths, in
 int MicrocylinderMaterialStride(int tangent_samples);
 void MicrocylinderEval(const double* material, int tangent_samples, const float* wi, const float* wo,
                        size_t n, double* f);
+// Woven-cotton BRDF (kernels/models/woven.h), packed material of WV_MATERIAL_SIZE values.
+int WovenMaterialSize();
+void WovenBrdf(const double* material, const float* wi, const float* wo, size_t n, double* f);
 }  // namespace loomlight::reference
 
 namespace loomlight::native {
 // Splits the n queries over all hardware threads.
 void MicrocylinderEval(const float* material, int tangent_samples, const float* wi, const float* wo, size_t n,
                        float* f);
+void WovenBrdf(const float* material, const float* wi, const float* wo, size_t n, float* f);
 }  // namespace loomlight::native

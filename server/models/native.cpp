@@ -13,6 +13,8 @@ namespace device {
 typedef float real;
 #include "common/shim.h"
 #include "models/microcylinder.h"
+#include "common/ellipse_window.h"
+#include "models/woven.h"
 }  // namespace device
 
 namespace {
@@ -38,6 +40,13 @@ void MicrocylinderEval(const float* material, int tangent_samples, const float* 
     for (size_t q = begin; q < end; ++q)
       device::mc_eval(material, tangent_samples, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q],
                       wo[3 * q + 1], wo[3 * q + 2], f + 3 * q);
+  });
+}
+void WovenBrdf(const float* material, const float* wi, const float* wo, size_t n, float* f) {
+  ParallelFor(n, [&](size_t begin, size_t end) {
+    for (size_t q = begin; q < end; ++q)
+      device::wv_brdf(material, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q], wo[3 * q + 1], wo[3 * q + 2],
+                      f + 3 * q);
   });
 }
 }  // namespace loomlight::native

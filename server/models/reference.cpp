@@ -9,6 +9,8 @@ namespace device {
 typedef double real;
 #include "common/shim.h"
 #include "models/microcylinder.h"
+#include "common/ellipse_window.h"
+#include "models/woven.h"
 }  // namespace device
 
 double MicrocylinderCurveOffset(const double* offsets, const double* lengths, int n, double s) {
@@ -22,5 +24,12 @@ void MicrocylinderEval(const double* material, int tangent_samples, const float*
   for (size_t q = 0; q < n; ++q)
     device::mc_eval(material, tangent_samples, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q],
                     wo[3 * q + 1], wo[3 * q + 2], f + 3 * q);
+}
+int WovenMaterialSize() { return WV_MATERIAL_SIZE; }
+
+void WovenBrdf(const double* material, const float* wi, const float* wo, size_t n, double* f) {
+  for (size_t q = 0; q < n; ++q)
+    device::wv_brdf(material, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q], wo[3 * q + 1], wo[3 * q + 2],
+                    f + 3 * q);
 }
 }  // namespace loomlight::reference

@@ -24,6 +24,7 @@ Registry& Registry::Global() {
   static Registry* registry = [] {
     auto* r = new Registry;
     r->Add(MakeMicrocylinderModel());
+    r->Add(MakeWovenModel());
     return r;
   }();
   return *registry;

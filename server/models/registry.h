@@ -87,5 +87,6 @@ class Registry {
 // The built-in models, added by Registry::Global() (an explicit list: static registrars in a static
 // library would be dropped by the linker).
 std::unique_ptr<Model> MakeMicrocylinderModel();
+std::unique_ptr<Model> MakeWovenModel();
 
 }  // namespace loomlight::models

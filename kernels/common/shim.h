@@ -127,6 +127,15 @@ inline float ll_exp(float x) { return ll_exp_poly(x); }
 inline double ll_exp(double x) { return std::exp(x); }
 #endif
 
+// Scales (x, y, z) to unit length: the API accepts directions within its unit tolerance, and the models'
+// projections assume exactly unit vectors.
+LL_INLINE void ll_normalize(real* x, real* y, real* z) {
+  const real inv = R(1.0) / sqrt(*x * *x + *y * *y + *z * *z);
+  *x *= inv;
+  *y *= inv;
+  *z *= inv;
+}
+
 // Unit-area Gaussian g(w, x) = exp(-x^2 / (2 w^2)) / (w sqrt(2 pi)), given inv_w = 1 / w; t = x / w first
 // (SPEC.md section 1), as a product so that loops over x pay no division.
 LL_INLINE real ll_gaussian(real inv_w, real x) {

@@ -109,10 +109,8 @@ LL_INLINE void mc_accumulate_thread(LL_GLOBAL const scalar* thread, int T, scala
 // within its unit tolerance, and the model's projections assume exactly unit vectors.
 LL_INLINE void mc_eval(LL_GLOBAL const scalar* mat, int T, real wix, real wiy, real wiz, real wox, real woy,
                        real woz, real* f) {
-  const real inv_li = R(1.0) / sqrt(wix * wix + wiy * wiy + wiz * wiz);
-  const real inv_lo = R(1.0) / sqrt(wox * wox + woy * woy + woz * woz);
-  wix *= inv_li; wiy *= inv_li; wiz *= inv_li;
-  wox *= inv_lo; woy *= inv_lo; woz *= inv_lo;
+  ll_normalize(&wix, &wiy, &wiz);
+  ll_normalize(&wox, &woy, &woz);
   const scalar eta = mat[0];
   LL_GLOBAL const scalar* t1 = mat + 1;
   LL_GLOBAL const scalar* t2 = t1 + mc_thread_stride(T);

@@ -106,14 +106,19 @@ LL_INLINE void wv_ellipse(LL_GLOBAL const scalar* th, real lhx, real lhy, real* 
   *by = minor * c;
 }
 
+// The highlight ellipse of thread type t (0 warp, 1 weft) in its segment-local frame, from the global half
+// vector's (hx, hy): the warp frame is the global one, the weft frame maps (x, y) to (-y, x).
+LL_INLINE void wv_thread_ellipse(LL_GLOBAL const scalar* th, int t, real hx, real hy, real* cx, real* cy,
+                                 scalar* ax, scalar* ay, scalar* bx, scalar* by) {
+  wv_ellipse(th, t == 0 ? hx : -hy, t == 0 ? hy : hx, cx, cy, ax, ay, bx, by);
+}
+
 // BRDF f(wi, wo), RGB into f[0..2]. wi, wo are renormalised here (the API accepts directions within its unit
 // tolerance).
 LL_INLINE void wv_brdf(LL_GLOBAL const scalar* mat, real wix, real wiy, real wiz, real wox, real woy, real woz,
                        real* f) {
-  const real inv_li = R(1.0) / sqrt(wix * wix + wiy * wiy + wiz * wiz);
-  const real inv_lo = R(1.0) / sqrt(wox * wox + woy * woy + woz * woz);
-  wix *= inv_li; wiy *= inv_li; wiz *= inv_li;
-  wox *= inv_lo; woy *= inv_lo; woz *= inv_lo;
+  ll_normalize(&wix, &wiy, &wiz);
+  ll_normalize(&wox, &woy, &woz);
   const scalar eta = mat[0];
   const scalar frac[2] = {mat[1], 1 - mat[1]};
   real hx, hy;
@@ -122,12 +127,9 @@ LL_INLINE void wv_brdf(LL_GLOBAL const scalar* mat, real wix, real wiy, real wiz
   real acc[3] = {R(0.0), R(0.0), R(0.0)};
   for (int t = 0; t < 2; ++t) {
     LL_GLOBAL const scalar* th = mat + 2 + WV_THREAD_STRIDE * t;
-    // Local half vector: warp = global; weft: (x, y) -> (-y, x).
-    const real lhx = t == 0 ? hx : -hy;
-    const real lhy = t == 0 ? hy : hx;
     real cx, cy;
     scalar ax, ay, bx, by;
-    wv_ellipse(th, lhx, lhy, &cx, &cy, &ax, &ay, &bx, &by);
+    wv_thread_ellipse(th, t, hx, hy, &cx, &cy, &ax, &ay, &bx, &by);
     const scalar s_x = th[6], s_y = th[7];
     const real area = ll_ellipse_rect_area(cx, cy, R(0.0) + ax, R(0.0) + ay, R(0.0) + bx, R(0.0) + by, R(0.0),
                                            R(0.0), R(0.0) + s_x, R(0.0) + s_y);
@@ -141,21 +143,17 @@ LL_INLINE void wv_brdf(LL_GLOBAL const scalar* mat, real wix, real wiy, real wiz
 // [0, s_x] x [0, s_y] (see the texture layout above for the uv mapping), RGB into f[0..2].
 LL_INLINE void wv_btf_local(LL_GLOBAL const scalar* mat, int thread_type, real local_x, real local_y, real wix,
                             real wiy, real wiz, real wox, real woy, real woz, real* f) {
-  const real inv_li = R(1.0) / sqrt(wix * wix + wiy * wiy + wiz * wiz);
-  const real inv_lo = R(1.0) / sqrt(wox * wox + woy * woy + woz * woz);
-  wix *= inv_li; wiy *= inv_li; wiz *= inv_li;
-  wox *= inv_lo; woy *= inv_lo; woz *= inv_lo;
+  ll_normalize(&wix, &wiy, &wiz);
+  ll_normalize(&wox, &woy, &woz);
   const scalar eta = mat[0];
   real hx, hy;
   mask lit;
   const real spec = wv_common(eta, wix, wiy, wiz, wox, woy, woz, &hx, &hy, &lit);
   const int t = thread_type == 0 ? 0 : 1;
   LL_GLOBAL const scalar* th = mat + 2 + WV_THREAD_STRIDE * t;
-  const real lhx = t == 0 ? hx : -hy;
-  const real lhy = t == 0 ? hy : hx;
   real cx, cy;
   scalar ax, ay, bx, by;
-  wv_ellipse(th, lhx, lhy, &cx, &cy, &ax, &ay, &bx, &by);
+  wv_thread_ellipse(th, t, hx, hy, &cx, &cy, &ax, &ay, &bx, &by);
   const scalar alpha = th[8], ecc = th[9];
   // Foci c +- alpha eta_e (cos phi_E, sin phi_E) = c +- eta_e a.
   const real fx = ecc * ax, fy = ecc * ay;

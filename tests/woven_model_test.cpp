@@ -47,7 +47,9 @@ std::vector<double> Pack(double eta, double warp_fraction, const Thread& warp, c
   for (const Thread* t : {&warp, &weft}) {
     for (double v : t->kd) m.push_back(v);
     for (double v : t->ks) m.push_back(v);
-    for (double v : {t->sx, t->sy, t->alpha, t->ecc, t->phi_deg * kDeg, t->kx, t->ky}) m.push_back(v);
+    for (double v : {t->sx, t->sy, t->alpha, t->ecc, std::cos(t->phi_deg * kDeg), std::sin(t->phi_deg * kDeg),
+                     t->kx, t->ky})
+      m.push_back(v);
   }
   return m;
 }

@@ -1,19 +1,6 @@
-// OpenCL entry point for the microcylinder model. Each work-item evaluates LL_WIDTH consecutive queries
-// ("lanes") of one material as explicit vectors. Directions and results are planar (x of every lane, then
-// y, then z; r, then g, then b); the host groups lanes by material and pads, so no work-item branches.
+// OpenCL entry point for the microcylinder model; the launch-uniform value is the tangent sample count.
 #include "common/shim.h"
+#include "common/eval_kernel.h"
 #include "models/microcylinder.h"
 
-__kernel __attribute__((reqd_work_group_size(LL_LOCAL_SIZE, 1, 1)))
-void microcylinder_eval(__global const scalar* materials, const int material_stride, const int tangent_samples,
-                        __global const int* group_material, __global const float* wi, __global const float* wo,
-                        __global scalar* f, const int lanes) {
-  const int g = get_global_id(0);
-  __global const scalar* mat = materials + group_material[g] * material_stride;
-  real out[3];
-  mc_eval(mat, tangent_samples, LL_LOAD(g, wi), LL_LOAD(g, wi + lanes), LL_LOAD(g, wi + 2 * lanes),
-          LL_LOAD(g, wo), LL_LOAD(g, wo + lanes), LL_LOAD(g, wo + 2 * lanes), out);
-  LL_STORE(out[0], g, f);
-  LL_STORE(out[1], g, f + lanes);
-  LL_STORE(out[2], g, f + 2 * lanes);
-}
+LL_DEFINE_EVAL_KERNEL(microcylinder_eval, mc_eval)

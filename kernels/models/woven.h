@@ -2,17 +2,17 @@
 // Shared source: compiled as OpenCL C and as C++ (double reference, float baseline).
 // Include kernels/common/shim.h and kernels/common/ellipse_window.h first.
 //
-// Packed material (array of scalar), WV_MATERIAL_SIZE = 28 values:
+// Packed material (array of scalar), WV_MATERIAL_SIZE = 30 values:
 //   [0]               eta (Fresnel index, default 1.5)
 //   [1]               warp area fraction of the repeat (number of 1 cells / cells); weft = 1 - this
-//   [2 + 13 t ...]    thread type t (t = 0: warp, t = 1: weft), WV_THREAD_STRIDE = 13 values:
+//   [2 + 14 t ...]    thread type t (t = 0: warp, t = 1: weft), WV_THREAD_STRIDE = 14 values:
 //                       +0..2  kd (r, g, b)
 //                       +3..5  ks (r, g, b)
 //                       +6, 7  segment size s = (s_x, s_y), local y along the thread
 //                       +8     alpha, semi-major axis of the highlight ellipse (local units)
 //                       +9     eccentricity eta_e in [0, 1)
-//                       +10    phi_E, the ellipse's major-axis angle from local +x (radians)
-//                       +11,12 k = (k_x, k_y), highlight travel per unit of the local half vector
+//                       +10,11 cos, sin of phi_E, the ellipse's major-axis angle from local +x
+//                       +12,13 k = (k_x, k_y), highlight travel per unit of the local half vector
 //
 // Texture layout. The repeat is warps x picks cells; cell (w, p) covers u in [w/W, (w+1)/W),
 // v in [p/P, (p+1)/P). Weft runs along x (u), warp along y (v). Each float (one segment window: a maximal
@@ -48,24 +48,8 @@
 // 2 (n.h)/((wi.h)(n.wo))) is a min over a set that the swap permutes. That form also keeps every
 // intermediate bounded near the horizon (each term <= 1e14 for n.w > 1e-7).
 
-#define WV_THREAD_STRIDE 13
+#define WV_THREAD_STRIDE 14
 #define WV_MATERIAL_SIZE (2 + 2 * WV_THREAD_STRIDE)
-
-// cos and sin of a material angle (scalar, the same for every query of a launch).
-LL_INLINE scalar wv_cos(scalar x) {
-#ifdef __OPENCL_C_VERSION__
-  return cos(x);
-#else
-  return std::cos(x);
-#endif
-}
-LL_INLINE scalar wv_sin(scalar x) {
-#ifdef __OPENCL_C_VERSION__
-  return sin(x);
-#else
-  return std::sin(x);
-#endif
-}
 
 // Direction-only factors shared by BTF and BRDF. Inputs unit (renormalised by the callers).
 // Writes the half vector's cloth-plane components (hx, hy) and returns Fr G / ((n.wi)(n.wo)), or 0 below
@@ -93,11 +77,11 @@ LL_INLINE real wv_common(scalar eta, real wix, real wiy, real wiz, real wox, rea
 // Thread type t's ellipse for local half vector (lhx, lhy): centre c, semi-axis vectors a, b.
 LL_INLINE void wv_ellipse(LL_GLOBAL const scalar* th, real lhx, real lhy, real* cx, real* cy, scalar* ax,
                           scalar* ay, scalar* bx, scalar* by) {
-  const scalar s_x = th[6], s_y = th[7], alpha = th[8], ecc = th[9], phi = th[10];
-  const scalar kx = th[11], ky = th[12];
+  const scalar s_x = th[6], s_y = th[7], alpha = th[8], ecc = th[9];
+  const scalar c = th[10], s = th[11];  // cos, sin of phi_E, packed by the host: no trigonometry here
+  const scalar kx = th[12], ky = th[13];
   *cx = R(0.5) * s_x * (kx * lhx + R(1.0));
   *cy = R(0.5) * s_y * (ky * lhy + R(1.0));
-  const scalar c = wv_cos(phi), s = wv_sin(phi);
   // 1 - e^2 as (1 - e)(1 + e): no cancellation for e near 1 (0.995 in the twill preset).
   const scalar minor = alpha * sqrt((1 - ecc) * (1 + ecc));
   *ax = alpha * c;

@@ -106,7 +106,9 @@ class WovenModel : public Model {
       m.data.insert(m.data.end(), v.at(p + "size").begin(), v.at(p + "size").end());
       m.data.push_back(v.at(p + "alpha")[0]);
       m.data.push_back(v.at(p + "eccentricity")[0]);
-      m.data.push_back(v.at(p + "phi_e")[0] * kDegree);
+      const double phi_e = v.at(p + "phi_e")[0] * kDegree;
+      m.data.push_back(std::cos(phi_e));
+      m.data.push_back(std::sin(phi_e));
       m.data.insert(m.data.end(), v.at(p + "k").begin(), v.at(p + "k").end());
     }
     return m;

@@ -45,14 +45,9 @@ std::unique_ptr<v1::Loomlight::Stub> Connect(int port) {
 EvaluateRequest Request(const std::string& preset, size_t n, unsigned seed) {
   EvaluateRequest r;
   r.mutable_material()->set_preset(preset);
-  std::mt19937 rng(seed);
-  for (size_t q = 0; q < n; ++q) {
-    float a[3], b[3];
-    accuracy::RandomHemisphere(rng, a);
-    accuracy::RandomHemisphere(rng, b);
-    r.mutable_wi()->Add(a, a + 3);
-    r.mutable_wo()->Add(b, b + 3);
-  }
+  const accuracy::Pairs p = accuracy::RandomPairs(n, seed);
+  r.mutable_wi()->Add(p.wi.begin(), p.wi.end());
+  r.mutable_wo()->Add(p.wo.begin(), p.wo.end());
   return r;
 }
 

@@ -67,18 +67,12 @@ TEST_F(Integration, ConcurrentClientsGetExactlyTheDirectEvaluation) {
   std::vector<std::vector<v1::EvaluateResponse>> responses(kClients, std::vector<v1::EvaluateResponse>(kCalls));
   std::vector<std::vector<grpc::Status>> status(kClients, std::vector<grpc::Status>(kCalls));
   for (int c = 0; c < kClients; ++c) {
-    std::mt19937 rng(c);
     for (int k = 0; k < kCalls; ++k) {
       v1::EvaluateRequest r;
       *r.mutable_material() = ClientMaterial(c);
-      const int n = 1 + (c * 977 + k * 313) % 4000;
-      for (int q = 0; q < n; ++q) {
-        float a[3], b[3];
-        accuracy::RandomHemisphere(rng, a);
-        accuracy::RandomHemisphere(rng, b);
-        r.mutable_wi()->Add(a, a + 3);
-        r.mutable_wo()->Add(b, b + 3);
-      }
+      const accuracy::Pairs p = accuracy::RandomPairs(1 + (c * 977 + k * 313) % 4000, c * kCalls + k);
+      r.mutable_wi()->Add(p.wi.begin(), p.wi.end());
+      r.mutable_wo()->Add(p.wo.begin(), p.wo.end());
       requests[c].push_back(r);
     }
   }

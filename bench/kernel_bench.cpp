@@ -39,7 +39,7 @@ std::vector<double> Reference(const PackedMaterial& m, const Pairs& p, size_t th
   for (size_t begin = 0; begin < p.size(); begin += chunk) {
     const size_t n = std::min(chunk, p.size() - begin);
     workers.emplace_back([&, begin, n] {
-      Microcylinder().ReferenceEval(m, &p.wi[3 * begin], &p.wo[3 * begin], n, &f[3 * begin]);
+      Microcylinder().ReferenceEval(m, &p.wi[3 * begin], &p.wo[3 * begin], nullptr, n, &f[3 * begin]);
     });
   }
   for (auto& w : workers) w.join();
@@ -48,11 +48,8 @@ std::vector<double> Reference(const PackedMaterial& m, const Pairs& p, size_t th
 
 // The OpenCL kernel over all pairs in one launch; f receives 3 values per pair.
 void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const PackedMaterial& m, const Pairs& p, std::vector<double>* f) {
-  const std::vector<int> index(p.size(), 0);
-  const runtime::LaunchArgs args{&Microcylinder(), fp64,        m.uniform,   &m.data, m.data.size(),
-                                 &index,           p.wi.data(), p.wo.data(), p.size()};
   std::string error;
-  if (!rt.Run(args, f, &error)) {
+  if (!rt.RunSingle(Microcylinder(), m, fp64, p.wi.data(), p.wo.data(), nullptr, p.size(), f, &error)) {
     std::fprintf(stderr, "OpenCL launch failed: %s\n", error.c_str());
     std::exit(1);
   }
@@ -61,7 +58,7 @@ void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const PackedMaterial& m, const
 // The native float baseline over all pairs (all hardware threads).
 void RunNative(const PackedMaterial& m, const Pairs& p, std::vector<float>* f) {
   f->resize(3 * p.size());
-  Microcylinder().NativeEval(m, p.wi.data(), p.wo.data(), p.size(), f->data());
+  Microcylinder().NativeEval(m, p.wi.data(), p.wo.data(), nullptr, p.size(), f->data());
 }
 
 struct Measurement {

@@ -122,7 +122,7 @@ TEST_F(ApiTest, EvaluateMatchesReferenceInBothPrecisions) {
   models::ResolvedMaterial resolved;
   ASSERT_EQ(models::ResolveMaterial(req.material(), models::Registry::Global(), &resolved), "");
   std::vector<double> ref(3 * 5000);
-  model.ReferenceEval(model.Pack(resolved.values), req.wi().data(), req.wo().data(), 5000, ref.data());
+  model.ReferenceEval(model.Pack(resolved.values), req.wi().data(), req.wo().data(), nullptr, 5000, ref.data());
   for (auto precision : {v1::PRECISION_FP32, v1::PRECISION_FP64}) {
     req.set_precision(precision);
     EvaluateResponse resp;

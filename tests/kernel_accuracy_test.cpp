@@ -20,7 +20,7 @@ using accuracy::RandomPairs;
 
 std::vector<double> Reference(const models::PackedMaterial& m, const Pairs& p) {
   std::vector<double> f(p.wi.size());
-  Microcylinder().ReferenceEval(m, p.wi.data(), p.wo.data(), p.wi.size() / 3, f.data());
+  Microcylinder().ReferenceEval(m, p.wi.data(), p.wo.data(), nullptr, p.wi.size() / 3, f.data());
   return f;
 }
 
@@ -65,7 +65,7 @@ TEST_P(PresetAccuracy, KernelsMatchDoubleReference) {
   EXPECT_LE(e64.max, kMaxFp64);
 
   std::vector<float> native(ref.size());
-  model->NativeEval(m, p.wi.data(), p.wo.data(), p.wi.size() / 3, native.data());
+  model->NativeEval(m, p.wi.data(), p.wo.data(), nullptr, p.wi.size() / 3, native.data());
   const accuracy::Accuracy en =
       accuracy::Compare(std::vector<double>(native.begin(), native.end()), ref, kFloor);
   std::printf("%-34s native %s\n", GetParam().c_str(), en.ToString().c_str());
@@ -162,11 +162,16 @@ TEST(MaterialIndex, MixedMaterialsInOneLaunchEqualSeparateLaunches) {
   for (const auto& preset : model.presets()) mats.push_back(model.Pack(model.PresetValues(preset)));
   const Pairs p = RandomPairs(6 * 1000, 77);
   std::vector<double> all;
+  std::vector<size_t> offsets;
   std::vector<int> index;
   for (size_t q = 0; q < p.wi.size() / 3; ++q) index.push_back(static_cast<int>(q % mats.size()));
-  for (const auto& m : mats) all.insert(all.end(), m.data.begin(), m.data.end());
-  runtime::LaunchArgs args{&model, false, mats[0].uniform, &all, mats[0].data.size(), &index, p.wi.data(),
-                           p.wo.data(), p.wi.size() / 3};
+  for (const auto& m : mats) {
+    offsets.push_back(all.size());
+    all.insert(all.end(), m.data.begin(), m.data.end());
+  }
+  const runtime::LaunchArgs args{.model = &model, .fp64 = false, .uniform = mats[0].uniform, .materials = &all,
+                                 .material_offset = &offsets, .material_index = &index, .wi = p.wi.data(),
+                                 .wo = p.wo.data(), .n = p.wi.size() / 3};
   std::vector<double> mixed;
   std::string error;
   ASSERT_TRUE(testing::SharedRuntime().Run(args, &mixed, &error)) << error;
@@ -197,7 +202,7 @@ TEST(Woven, KernelsMatchDoubleReferenceAndStayFiniteOnHardCases) {
     Push(p, a[0], a[1], 1e-6, a[0], a[1], a[2]);       // grazing light
   }
   std::vector<double> ref(p.wi.size());
-  model->ReferenceEval(m, p.wi.data(), p.wo.data(), p.size(), ref.data());
+  model->ReferenceEval(m, p.wi.data(), p.wo.data(), nullptr, p.size(), ref.data());
   ExpectFiniteNonNegative(ref, "woven reference");
   const std::vector<double> f32 = testing::RunKernel(*model, m, false, p.wi, p.wo);
   ExpectFiniteNonNegative(f32, "woven fp32");

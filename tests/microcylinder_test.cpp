@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 
+#include "server/models/host_models.h"
 #include "server/models/registry.h"
 #include "tests/testing.h"
 
@@ -85,7 +86,7 @@ TEST(MicrocylinderCurve, SamplesArcLengthMidpointsAndJumps) {
   ParamValues v = Preset("velvet");
   v["tangent_samples"] = {4};
   const models::PackedMaterial m = Microcylinder().Pack(v);
-  ASSERT_EQ(m.data.size(), Microcylinder().MaterialStride(4));
+  ASSERT_EQ(m.data.size(), size_t(reference::MicrocylinderMaterialStride(4)));
   // Thread 2: -90 -> -55 over [0, 0.5], jump, 55 -> 90 over [0.5, 1]; midpoints 1/8, 3/8, 5/8, 7/8.
   const double expected[4] = {-81.25, -63.75, 63.75, 81.25};
   for (int k = 0; k < 4; ++k) {
@@ -102,7 +103,7 @@ TEST(MicrocylinderCurve, SamplesArcLengthMidpointsAndJumps) {
 
 std::vector<double> Reference(const ParamValues& v, const std::vector<float>& wi, const std::vector<float>& wo) {
   std::vector<double> f(wi.size());
-  Microcylinder().ReferenceEval(Microcylinder().Pack(v), wi.data(), wo.data(), wi.size() / 3, f.data());
+  Microcylinder().ReferenceEval(Microcylinder().Pack(v), wi.data(), wo.data(), nullptr, wi.size() / 3, f.data());
   return f;
 }
 

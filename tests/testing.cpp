@@ -29,13 +29,13 @@ runtime::ClRuntime& SharedRuntime() {
 }
 
 std::vector<double> RunKernel(const models::Model& model, const models::PackedMaterial& m, bool fp64,
-                              const std::vector<float>& wi, const std::vector<float>& wo) {
-  const size_t n = wi.size() / 3;
-  const std::vector<int> index(n, 0);
-  runtime::LaunchArgs args{&model, fp64, m.uniform, &m.data, m.data.size(), &index, wi.data(), wo.data(), n};
+                              const std::vector<float>& wi, const std::vector<float>& wo,
+                              const std::vector<float>& uv) {
   std::vector<double> f;
   std::string error;
-  EXPECT_TRUE(SharedRuntime().Run(args, &f, &error)) << error;
+  EXPECT_TRUE(SharedRuntime().RunSingle(model, m, fp64, wi.data(), wo.data(), uv.empty() ? nullptr : uv.data(),
+                                        wi.size() / 3, &f, &error))
+      << error;
   return f;
 }
 

@@ -19,8 +19,10 @@ namespace loomlight::testing {
 runtime::ClRuntime& SharedRuntime();
 
 // Runs a packed material through a kernel in one launch.
+// uv (pairs) empty: f(wi, wo); else the model's spatially varying kernel.
 std::vector<double> RunKernel(const models::Model& model, const models::PackedMaterial& m, bool fp64,
-                              const std::vector<float>& wi, const std::vector<float>& wo);
+                              const std::vector<float>& wi, const std::vector<float>& wo,
+                              const std::vector<float>& uv = {});
 
 // The loomlight-server binary started on 127.0.0.1 with a free port; killed on destruction.
 class ServerProcess {

@@ -67,6 +67,7 @@ typedef bool mask;
 using std::atan2;
 using std::exp;
 using std::fabs;
+using std::floor;
 using std::sqrt;
 #endif
 
@@ -125,6 +126,20 @@ inline float ll_atan2(float y, float x) { return ll_atan2_poly(y, x); }  // real
 inline double ll_atan2(double y, double x) { return std::atan2(y, x); }
 inline float ll_exp(float x) { return ll_exp_poly(x); }
 inline double ll_exp(double x) { return std::exp(x); }
+#endif
+
+// table[index] per lane, index a real holding a whole number (a per-lane lookup: spatially varying models
+// find each query's texture cell). OpenCL C has no gather for vectors, so wide kernels spill the indices
+// to private memory and load lane by lane; the arithmetic around it stays vectorised.
+#if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
+LL_INLINE real ll_gather(LL_GLOBAL const scalar* table, real index) {
+  scalar lane[LL_WIDTH];
+  LL_CAT(vstore, LL_WIDTH)(index, 0, lane);
+  for (int i = 0; i < LL_WIDTH; ++i) lane[i] = table[(int)lane[i]];
+  return LL_CAT(vload, LL_WIDTH)(0, lane);
+}
+#else
+LL_INLINE real ll_gather(LL_GLOBAL const scalar* table, real index) { return table[(int)index]; }
 #endif
 
 // Scales (x, y, z) to unit length: the API accepts directions within its unit tolerance, and the models'

@@ -2,7 +2,7 @@
 // Shared source: compiled as OpenCL C and as C++ (double reference, float baseline).
 // Include kernels/common/shim.h and kernels/common/ellipse_window.h first.
 //
-// Packed material (array of scalar), WV_MATERIAL_SIZE = 30 values:
+// Packed material (array of scalar), WV_MATERIAL_SIZE = 30 values, then the cell table of wv_btf:
 //   [0]               eta (Fresnel index, default 1.5)
 //   [1]               warp area fraction of the repeat (number of 1 cells / cells); weft = 1 - this
 //   [2 + 14 t ...]    thread type t (t = 0: warp, t = 1: weft), WV_THREAD_STRIDE = 14 values:
@@ -123,31 +123,73 @@ LL_INLINE void wv_brdf(LL_GLOBAL const scalar* mat, real wix, real wiy, real wiz
   for (int c = 0; c < 3; ++c) f[c] = lit ? acc[c] : R(0.0);
 }
 
+// 1 where local point (lx, ly) of a thread-type-t segment lies inside its highlight ellipse for the global
+// half vector's (hx, hy), else 0: |F1 - p| + |F2 - p| <= 2 alpha, foci c +- eta_e a.
+LL_INLINE real wv_in_highlight(LL_GLOBAL const scalar* th, int t, real hx, real hy, real lx, real ly) {
+  real cx, cy;
+  scalar ax, ay, bx, by;
+  wv_thread_ellipse(th, t, hx, hy, &cx, &cy, &ax, &ay, &bx, &by);
+  const scalar alpha = th[8], ecc = th[9];
+  const scalar fx = ecc * ax, fy = ecc * ay;
+  const real dx = lx - cx, dy = ly - cy;
+  const real d1x = dx - fx, d1y = dy - fy, d2x = dx + fx, d2y = dy + fy;
+  const real d = sqrt(d1x * d1x + d1y * d1y) + sqrt(d2x * d2x + d2y * d2y);
+  return d <= R(2.0) * alpha ? R(1.0) : R(0.0);
+}
+
 // BTF of one segment of thread type t (0 warp, 1 weft) at segment-local point (local_x, local_y) in
 // [0, s_x] x [0, s_y] (see the texture layout above for the uv mapping), RGB into f[0..2].
 LL_INLINE void wv_btf_local(LL_GLOBAL const scalar* mat, int thread_type, real local_x, real local_y, real wix,
                             real wiy, real wiz, real wox, real woy, real woz, real* f) {
   ll_normalize(&wix, &wiy, &wiz);
   ll_normalize(&wox, &woy, &woz);
-  const scalar eta = mat[0];
   real hx, hy;
   mask lit;
-  const real spec = wv_common(eta, wix, wiy, wiz, wox, woy, woz, &hx, &hy, &lit);
+  const real spec = wv_common(mat[0], wix, wiy, wiz, wox, woy, woz, &hx, &hy, &lit);
   const int t = thread_type == 0 ? 0 : 1;
   LL_GLOBAL const scalar* th = mat + 2 + WV_THREAD_STRIDE * t;
-  real cx, cy;
-  scalar ax, ay, bx, by;
-  wv_thread_ellipse(th, t, hx, hy, &cx, &cy, &ax, &ay, &bx, &by);
-  const scalar alpha = th[8], ecc = th[9];
-  // Foci c +- alpha eta_e (cos phi_E, sin phi_E) = c +- eta_e a.
-  const real fx = ecc * ax, fy = ecc * ay;
-  const real dx = local_x - cx, dy = local_y - cy;
-  const real d1x = dx - fx, d1y = dy - fy, d2x = dx + fx, d2y = dy + fy;
-  const real d = sqrt(d1x * d1x + d1y * d1y) + sqrt(d2x * d2x + d2y * d2y);
-  const real ind = d <= R(2.0) * alpha ? R(1.0) : R(0.0);
+  const real ind = wv_in_highlight(th, t, hx, hy, local_x, local_y);
   for (int c = 0; c < 3; ++c) {
     const real v = th[c] + th[3 + c] * (ind * spec);
     f[c] = lit ? v : R(0.0);
+  }
+}
+
+// BTF at texture position (u, v) (pattern repeats; any real, the pattern tiles), RGB into f[0..2]: the
+// kernel form, which finds the float under (u, v) in the cell table packed after the 30 values above:
+//   [30] warps W, [31] picks P, then per cell c = pick * W + warp two values: the cell's offset (in cells)
+//   from its float's first cell, and the float's length, positive for a warp float, negative for weft.
+// The lookup is a per-lane gather; everything else is the segment-local BTF of wv_btf_local, evaluated for
+// both thread types and selected per lane (no branch on lane data).
+LL_INLINE void wv_btf(LL_GLOBAL const scalar* mat, real wix, real wiy, real wiz, real wox, real woy, real woz,
+                      real u, real v, real* f) {
+  ll_normalize(&wix, &wiy, &wiz);
+  ll_normalize(&wox, &woy, &woz);
+  real hx, hy;
+  mask lit;
+  const real spec = wv_common(mat[0], wix, wiy, wiz, wox, woy, woz, &hx, &hy, &lit);
+  const scalar warps = mat[WV_MATERIAL_SIZE], picks = mat[WV_MATERIAL_SIZE + 1];
+  // u - floor(u) rounds to 1 for tiny negative u: the min keeps the cell inside the repeat (fu = 1 then).
+  const real gu = (u - floor(u)) * warps, gv = (v - floor(v)) * picks;
+  const real w = LL_FMIN(floor(gu), warps - 1), p = LL_FMIN(floor(gv), picks - 1);
+  const real fu = gu - w, fv = gv - p;  // position in the cell, [0, 1]
+  LL_GLOBAL const scalar* table = mat + WV_MATERIAL_SIZE + 2;
+  const real entry = R(2.0) * (p * warps + w);
+  const real offset = ll_gather(table, entry), run = ll_gather(table, entry + R(1.0));
+  const mask warp = run > R(0.0);
+  // Fraction along the float and across it (weft: local x = 1 - fv, the +90 degree turn of the layout).
+  const real along = (offset + (warp ? fv : fu)) / fabs(run);
+  const real across = warp ? fu : R(1.0) - fv;
+  LL_GLOBAL const scalar* tw = mat + 2;
+  LL_GLOBAL const scalar* tf = mat + 2 + WV_THREAD_STRIDE;
+  const real in_warp = wv_in_highlight(tw, 0, hx, hy, tw[6] * across, tw[7] * along);
+  const real in_weft = wv_in_highlight(tf, 1, hx, hy, tf[6] * across, tf[7] * along);
+  const real ind = warp ? in_warp : in_weft;
+  for (int c = 0; c < 3; ++c) {
+    const real kd = warp ? R(0.0) + tw[c] : R(0.0) + tf[c];
+    const real ks = warp ? R(0.0) + tw[3 + c] : R(0.0) + tf[3 + c];
+    const real val = kd + ks * (ind * spec);
+    f[c] = lit ? val : R(0.0);
   }
 }
 

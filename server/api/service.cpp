@@ -108,6 +108,18 @@ std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, 
   return "";
 }
 
+std::string ValidateTextureCoordinates(const google::protobuf::RepeatedField<float>& uv, size_t n,
+                                       const std::string& field) {
+  if (static_cast<size_t>(uv.size()) != 2 * n)
+    return field + ": length " + std::to_string(uv.size()) + " is not 2 per query (" + std::to_string(2 * n) +
+           " for " + std::to_string(n) + " queries)";
+  for (int i = 0; i < uv.size(); ++i)
+    if (!std::isfinite(uv[i]) || std::fabs(uv[i]) > kMaxTextureCoordinate)
+      return field + "[" + std::to_string(i) + "]: " + std::to_string(uv[i]) + " is not finite within +-" +
+             std::to_string(static_cast<int>(kMaxTextureCoordinate)) + " pattern repeats";
+  return "";
+}
+
 grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerContext* context,
                                                        const v1::ListModelsRequest*,
                                                        v1::ListModelsResponse* response) {
@@ -116,6 +128,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
     v1::ModelInfo* info = response->add_models();
     info->set_name(model->name());
     info->set_description(model->description());
+    info->set_spatially_varying(model->spatially_varying());
     for (const models::ParamSpec& p : model->params()) {
       v1::ParamSchema* s = info->add_params();
       s->set_name(p.name);
@@ -163,9 +176,13 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     error = ValidateDirections(*w, field);
     if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
   }
-  if (request->uv_size() > 0)
-    return Reply(context, "Evaluate", received, Invalid("uv: model '" + material->model->name() +
-                                   "' is not spatially varying; send no uv"));
+  if (request->uv_size() > 0) {
+    if (!material->model->spatially_varying())
+      return Reply(context, "Evaluate", received, Invalid("uv: model '" + material->model->name() +
+                                     "' is not spatially varying; send no uv"));
+    error = ValidateTextureCoordinates(request->uv(), n, "uv");
+    if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
+  }
 
   auto job = std::make_shared<batching::Job>();
   job->model = material->model;
@@ -173,6 +190,7 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   job->material = material->packed;
   job->wi = request->wi().data();
   job->wo = request->wo().data();
+  job->uv = request->uv_size() > 0 ? request->uv().data() : nullptr;
   job->n = n;
   const auto deadline = context->deadline();
   if (deadline != std::chrono::system_clock::time_point::max())

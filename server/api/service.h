@@ -18,6 +18,8 @@ namespace loomlight::api {
 constexpr size_t kMaxQueriesPerCall = size_t{1} << 20;  // 1,048,576 direction pairs
 constexpr double kUnitTolerance = 1e-4;                 // | |w| - 1 | accepted (then renormalised)
 constexpr int kMaxMessageBytes = 64 << 20;              // gRPC send/receive limit
+// |u|, |v| accepted, in pattern repeats: at 1024 a float still resolves 1/32 of a cell of a 256-thread repeat.
+constexpr float kMaxTextureCoordinate = 1024.0f;
 
 // Resolved and packed materials by their serialized request form, least recently used first out: clients
 // send the same few materials over and over, and resolving a preset (maps of parameter values) and packing
@@ -65,5 +67,8 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or
 // "field[i]: reason".
 std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field);
+// Checks texture coordinates: 2 per query, finite, within kMaxTextureCoordinate. Returns "" or "field[i]: reason".
+std::string ValidateTextureCoordinates(const google::protobuf::RepeatedField<float>& uv, size_t n,
+                                       const std::string& field);
 
 }  // namespace loomlight::api

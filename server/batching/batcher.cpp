@@ -4,7 +4,8 @@ namespace loomlight::batching {
 namespace {
 
 bool SameKernel(const Job& a, const Job& b) {
-  return a.model == b.model && a.fp64 == b.fp64 && a.material.uniform == b.material.uniform;
+  return a.model == b.model && a.fp64 == b.fp64 && a.material.uniform == b.material.uniform &&
+         (a.uv != nullptr) == (b.uv != nullptr);
 }
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
@@ -104,36 +105,43 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
 
   const models::Model* model = live.front()->model;
   const int uniform = live.front()->material.uniform;
-  const size_t stride = model->MaterialStride(uniform);
-  size_t n = 0;
-  for (auto& job : live) n += job->n;
+  const bool spatial = live.front()->uv != nullptr;
+  size_t n = 0, material_values = 0;
+  for (auto& job : live) {
+    n += job->n;
+    material_values += job->material.data.size();
+  }
 
   std::vector<double> materials;
-  materials.reserve(stride * live.size());
+  materials.reserve(material_values);
+  std::vector<size_t> offsets;
   std::vector<int> index;
   index.reserve(n);
-  std::vector<float> wi_all, wo_all;
+  // One job reads straight from its request; several are concatenated.
+  std::vector<float> wi_all, wo_all, uv_all;
   const float* wi = live.front()->wi;
   const float* wo = live.front()->wo;
-  if (live.size() > 1) {
-    wi_all.reserve(3 * n);
-    wo_all.reserve(3 * n);
-  }
+  const float* uv = live.front()->uv;
   for (size_t j = 0; j < live.size(); ++j) {
     const Job& job = *live[j];
+    offsets.push_back(materials.size());
     materials.insert(materials.end(), job.material.data.begin(), job.material.data.end());
     index.insert(index.end(), job.n, static_cast<int>(j));
     if (live.size() > 1) {
       wi_all.insert(wi_all.end(), job.wi, job.wi + 3 * job.n);
       wo_all.insert(wo_all.end(), job.wo, job.wo + 3 * job.n);
+      if (spatial) uv_all.insert(uv_all.end(), job.uv, job.uv + 2 * job.n);
     }
   }
   if (live.size() > 1) {
     wi = wi_all.data();
     wo = wo_all.data();
+    uv = spatial ? uv_all.data() : nullptr;
   }
 
-  runtime::LaunchArgs args{model, live.front()->fp64, uniform, &materials, stride, &index, wi, wo, n};
+  const runtime::LaunchArgs args{.model = model, .fp64 = live.front()->fp64, .uniform = uniform,
+                                 .materials = &materials, .material_offset = &offsets, .material_index = &index,
+                                 .wi = wi, .wo = wo, .uv = uv, .n = n};
   std::vector<double> f;
   std::string error;
   const Clock::time_point start = Clock::now();

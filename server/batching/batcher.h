@@ -1,4 +1,5 @@
-// Dynamic batcher: concurrent Evaluate calls for the same kernel (model, precision, launch-uniform value)
+// Dynamic batcher: concurrent Evaluate calls for the same kernel (model, precision, launch-uniform value,
+// with or without uv)
 // are coalesced into one launch, each query carrying its material's index. One launch is in flight at a
 // time (the CPU device already uses every core for one launch); whatever queues meanwhile forms the next.
 #pragma once
@@ -30,13 +31,14 @@ struct JobResult {
   size_t batch_queries = 0, batch_requests = 0;
 };
 
-// One request's work. wi and wo point at the caller's data, which must outlive the completion callback.
+// One request's work. wi, wo (and uv) point at the caller's data, which must outlive the completion callback.
 struct Job {
   const models::Model* model = nullptr;
   bool fp64 = false;
   models::PackedMaterial material;
   const float* wi = nullptr;
   const float* wo = nullptr;
+  const float* uv = nullptr;  // texture coordinates (spatially varying models): the BTF kernel
   size_t n = 0;
   Clock::time_point deadline = Clock::time_point::max();
   std::function<bool()> cancelled;        // polled before launch; may be empty

@@ -10,14 +10,15 @@ double MicrocylinderCurveOffset(const double* offsets, const double* lengths, in
 int MicrocylinderMaterialStride(int tangent_samples);
 void MicrocylinderEval(const double* material, int tangent_samples, const float* wi, const float* wo,
                        size_t n, double* f);
-// Woven-cotton BRDF (kernels/models/woven.h), packed material of WV_MATERIAL_SIZE values.
+// Woven cotton (kernels/models/woven.h): WV_MATERIAL_SIZE values, then the cell table. With uv (pairs) the
+// BTF, with uv = nullptr the BRDF.
 int WovenMaterialSize();
-void WovenBrdf(const double* material, const float* wi, const float* wo, size_t n, double* f);
+void WovenEval(const double* material, const float* wi, const float* wo, const float* uv, size_t n, double* f);
 }  // namespace loomlight::reference
 
 namespace loomlight::native {
 // Splits the n queries over all hardware threads.
 void MicrocylinderEval(const float* material, int tangent_samples, const float* wi, const float* wo, size_t n,
                        float* f);
-void WovenBrdf(const float* material, const float* wi, const float* wo, size_t n, float* f);
+void WovenEval(const float* material, const float* wi, const float* wo, const float* uv, size_t n, float* f);
 }  // namespace loomlight::native

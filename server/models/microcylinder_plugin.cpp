@@ -109,7 +109,7 @@ class MicrocylinderModel : public Model {
   }
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
-  KernelSpec kernel() const override { return {"models/microcylinder.cl", "microcylinder_eval"}; }
+  KernelSpec kernel() const override { return {"models/microcylinder.cl", "microcylinder_eval", ""}; }
 
   std::string Validate(const ParamValues& v) const override {
     for (const char* t : {"thread1", "thread2"}) {
@@ -153,13 +153,12 @@ class MicrocylinderModel : public Model {
     return m;
   }
 
-  size_t MaterialStride(int T) const override { return reference::MicrocylinderMaterialStride(T); }
-
-  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n,
+  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
                      double* f) const override {
     reference::MicrocylinderEval(m.data.data(), m.uniform, wi, wo, n, f);
   }
-  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n, float* f) const override {
+  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
+                  float* f) const override {
     const std::vector<float> data(m.data.begin(), m.data.end());
     native::MicrocylinderEval(data.data(), m.uniform, wi, wo, n, f);
   }

@@ -27,9 +27,14 @@ void MicrocylinderEval(const double* material, int tangent_samples, const float*
 }
 int WovenMaterialSize() { return WV_MATERIAL_SIZE; }
 
-void WovenBrdf(const double* material, const float* wi, const float* wo, size_t n, double* f) {
-  for (size_t q = 0; q < n; ++q)
-    device::wv_brdf(material, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q], wo[3 * q + 1], wo[3 * q + 2],
-                    f + 3 * q);
+void WovenEval(const double* material, const float* wi, const float* wo, const float* uv, size_t n, double* f) {
+  for (size_t q = 0; q < n; ++q) {
+    const float* a = wi + 3 * q;
+    const float* b = wo + 3 * q;
+    if (uv)
+      device::wv_btf(material, a[0], a[1], a[2], b[0], b[1], b[2], uv[2 * q], uv[2 * q + 1], f + 3 * q);
+    else
+      device::wv_brdf(material, a[0], a[1], a[2], b[0], b[1], b[2], f + 3 * q);
+  }
 }
 }  // namespace loomlight::reference

@@ -32,17 +32,20 @@ struct PresetSpec {
   ParamValues values;  // overrides of the defaults; the registry completes them
 };
 
-// Device layout of one material, in double (converted to the kernel's precision at launch).
+// Device layout of one material, in double (converted to the kernel's precision at launch). Its size may
+// depend on the parameters (a woven material carries its pattern); a launch concatenates materials.
 struct PackedMaterial {
   std::vector<double> data;
   int uniform = 0;  // launch-uniform integer (e.g. tangent samples); only equal ones share a launch
 };
 
-// A model's kernel: the entry file under kernels/ and the kernel function, with the common signature
-// (materials, material_stride, uniform, material_index, wi, wo, f).
+// A model's kernels: the entry file under kernels/ and its kernel functions, all with the signature of
+// kernels/common/eval_kernel.h. `function` evaluates f(wi, wo); a spatially varying model also names
+// `uv_function`, f(wi, wo, uv) (its BTF), used when a request carries texture coordinates.
 struct KernelSpec {
   std::string source;
   std::string function;
+  std::string uv_function;  // "" when the model does not vary over the surface
 };
 
 class Model {
@@ -56,14 +59,15 @@ class Model {
   // Cross-parameter checks beyond the schema's per-value ranges; returns "" or "field: reason".
   virtual std::string Validate(const ParamValues& values) const = 0;
   virtual PackedMaterial Pack(const ParamValues& values) const = 0;
-  // Floats in one packed material for a launch with this uniform value (all materials of a launch share it).
-  virtual size_t MaterialStride(int uniform) const = 0;
-  // Double-precision host reference: f for n queries (RGB), same source as the kernel.
-  virtual void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n,
-                             double* f) const = 0;
+  // Double-precision host reference: f for n queries (RGB), same source as the kernel. uv (pairs) is
+  // nullptr for f(wi, wo) and given only to spatially varying models.
+  virtual void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv,
+                             size_t n, double* f) const = 0;
   // Float native baseline (same source, -O3 -march=native, all cores).
-  virtual void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n,
+  virtual void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                           float* f) const = 0;
+
+  bool spatially_varying() const { return !kernel().uv_function.empty(); }
 
   const ParamSpec* FindParam(const std::string& name) const;
   // Defaults completed with the preset's values.

@@ -79,6 +79,24 @@ std::string PatternOf(const ParamValues& v, weave::WeavePattern* out) {
   return error.empty() ? "" : "pattern.cells: " + error;
 }
 
+// The BTF's cell table (kernels/models/woven.h, wv_btf): warps, picks, then per cell its offset from the
+// start of its float and the float's length (negative for weft floats).
+void AppendCellTable(const weave::WeavePattern& pattern, std::vector<double>* data) {
+  const size_t base = data->size() + 2;
+  data->push_back(pattern.warps);
+  data->push_back(pattern.picks);
+  data->resize(base + 2 * pattern.cells.size(), 0.0);
+  for (const weave::Float& fl : weave::ExtractFloats(pattern)) {
+    for (int k = 0; k < fl.length; ++k) {
+      const int warp = fl.warp ? fl.start_warp : (fl.start_warp + k) % pattern.warps;
+      const int pick = fl.warp ? (fl.start_pick + k) % pattern.picks : fl.start_pick;
+      const size_t cell = size_t(pick) * pattern.warps + warp;
+      (*data)[base + 2 * cell] = k;
+      (*data)[base + 2 * cell + 1] = fl.warp ? fl.length : -fl.length;
+    }
+  }
+}
+
 class WovenModel : public Model {
  public:
   std::string name() const override { return "woven"; }
@@ -88,7 +106,7 @@ class WovenModel : public Model {
   }
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
-  KernelSpec kernel() const override { return {"models/woven.cl", "woven_brdf"}; }
+  KernelSpec kernel() const override { return {"models/woven.cl", "woven_brdf", "woven_btf"}; }
 
   std::string Validate(const ParamValues& v) const override {
     weave::WeavePattern pattern;
@@ -111,18 +129,18 @@ class WovenModel : public Model {
       m.data.push_back(std::sin(phi_e));
       m.data.insert(m.data.end(), v.at(p + "k").begin(), v.at(p + "k").end());
     }
+    AppendCellTable(pattern, &m.data);
     return m;
   }
 
-  size_t MaterialStride(int) const override { return reference::WovenMaterialSize(); }
-
-  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n,
+  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                      double* f) const override {
-    reference::WovenBrdf(m.data.data(), wi, wo, n, f);
+    reference::WovenEval(m.data.data(), wi, wo, uv, n, f);
   }
-  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, size_t n, float* f) const override {
+  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
+                  float* f) const override {
     const std::vector<float> data(m.data.begin(), m.data.end());
-    native::WovenBrdf(data.data(), wi, wo, n, f);
+    native::WovenEval(data.data(), wi, wo, uv, n, f);
   }
 
  private:

@@ -132,14 +132,15 @@ std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std:
 ClRuntime::~ClRuntime() {
   for (auto& [key, p] : programs_) {
     if (p.kernel) clReleaseKernel(p.kernel);
+    if (p.uv_kernel) clReleaseKernel(p.uv_kernel);
     if (p.program) clReleaseProgram(p.program);
   }
   if (queue_) clReleaseCommandQueue(queue_);
   if (context_) clReleaseContext(context_);
 }
 
-bool ClRuntime::Build(const std::string& source, const std::string& function, bool fp64, Program* out,
-                      std::string* error) {
+bool ClRuntime::Build(const models::KernelSpec& spec, bool fp64, Program* out, std::string* error) {
+  const std::string& source = spec.source;
   const auto& sources = EmbeddedKernelSources();
   auto it = sources.find(source);
   if (it == sources.end()) {
@@ -167,10 +168,13 @@ bool ClRuntime::Build(const std::string& source, const std::string& function, bo
              std::to_string(err) + "):\n" + log;
     return false;
   }
-  out->kernel = clCreateKernel(out->program, function.c_str(), &err);
-  if (err != CL_SUCCESS) {
-    *error = ClError(("clCreateKernel " + function).c_str(), err);
-    return false;
+  for (auto [function, kernel] : {std::pair{&spec.function, &out->kernel}, std::pair{&spec.uv_function, &out->uv_kernel}}) {
+    if (function->empty()) continue;
+    *kernel = clCreateKernel(out->program, function->c_str(), &err);
+    if (err != CL_SUCCESS) {
+      *error = ClError(("clCreateKernel " + *function).c_str(), err);
+      return false;
+    }
   }
   return true;
 }
@@ -179,10 +183,8 @@ bool ClRuntime::BuildPrograms(const models::Registry& registry, std::string* err
   for (const auto& model : registry.models()) {
     for (bool fp64 : {false, true}) {
       if (fp64 && !has_fp64_) continue;
-      Program p;
-      const models::KernelSpec spec = model->kernel();
-      if (!Build(spec.source, spec.function, fp64, &p, error)) return false;
-      programs_[{model->name(), fp64}] = p;
+      Program& p = programs_[{model->name(), fp64}];  // owned by the map at once: released even on failure
+      if (!Build(model->kernel(), fp64, &p, error)) return false;
     }
   }
   return true;
@@ -191,16 +193,26 @@ bool ClRuntime::BuildPrograms(const models::Registry& registry, std::string* err
 bool ClRuntime::Warm(const models::Registry& registry, std::string* error) {
   for (const auto& model : registry.models()) {
     const models::PackedMaterial m = model->Pack(model->DefaultValues());
-    const std::vector<int> index(1, 0);
-    const float up[3] = {0, 0, 1};
+    const float up[3] = {0, 0, 1}, uv[2] = {0.5f, 0.5f};
     for (bool fp64 : {false, true}) {
       if (fp64 && !has_fp64_) continue;
-      std::vector<double> f;
-      LaunchArgs args{model.get(), fp64, m.uniform, &m.data, m.data.size(), &index, up, up, 1};
-      if (!Run(args, &f, error)) return false;
+      for (bool spatial : {false, true}) {
+        if (spatial && !model->spatially_varying()) continue;
+        std::vector<double> f;
+        if (!RunSingle(*model, m, fp64, up, up, spatial ? uv : nullptr, 1, &f, error)) return false;
+      }
     }
   }
   return true;
+}
+
+bool ClRuntime::RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
+                          const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error) {
+  const std::vector<int> index(n, 0);
+  const std::vector<size_t> offset(1, 0);
+  const LaunchArgs args{.model = &model, .fp64 = fp64, .uniform = m.uniform, .materials = &m.data,
+                        .material_offset = &offset, .material_index = &index, .wi = wi, .wo = wo, .uv = uv, .n = n};
+  return Run(args, f, error);
 }
 
 bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* error) {
@@ -209,27 +221,40 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     *error = "no " + std::string(a.fp64 ? "fp64" : "fp32") + " kernel for model '" + a.model->name() + "'";
     return false;
   }
+  const Program& program = it->second;
+  cl_kernel k = a.uv ? program.uv_kernel : program.kernel;
+  if (!k) {
+    *error = "model '" + a.model->name() + "' is not spatially varying";
+    return false;
+  }
+  if (a.materials->size() > size_t(INT32_MAX)) {
+    *error = "materials of one launch exceed 2^31 values";
+    return false;
+  }
   f->assign(3 * a.n, 0.0);
   if (a.n == 0) return true;
-  const Program& program = it->second;
   const size_t width = program.width;
   const size_t items_per_group = std::max<size_t>(1, local_size_ / width);
 
   // Lanes: each work-item evaluates `width` consecutive lanes of one material, so a run of queries of one
   // material starts at a multiple of the width; the lane count is padded to whole work-groups. Padding
-  // lanes look straight up, so every lane computes finite values.
+  // lanes look straight up at uv (0, 0), so every lane computes finite values.
   std::vector<size_t> lane_of(a.n);
-  std::vector<int> group_material;
+  std::vector<int> group_offset;  // where each work-item's material starts
+  int group_m = -1;
   size_t lanes = 0;
   for (size_t q = 0; q < a.n; ++q) {
     const int m = (*a.material_index)[q];
-    if (lanes % width != 0 && m != group_material.back()) lanes += width - lanes % width;
-    if (lanes % width == 0) group_material.push_back(m);
+    if (lanes % width != 0 && m != group_m) lanes += width - lanes % width;
+    if (lanes % width == 0) {
+      group_offset.push_back(static_cast<int>((*a.material_offset)[m]));
+      group_m = m;
+    }
     lane_of[q] = lanes++;
   }
   const size_t lanes_per_group = width * items_per_group;
   lanes = (lanes + lanes_per_group - 1) / lanes_per_group * lanes_per_group;
-  group_material.resize(lanes / width, 0);
+  group_offset.resize(lanes / width, 0);
   std::vector<float> wi(3 * lanes, 0.0f), wo(3 * lanes, 0.0f);  // planar: x, y, z blocks
   std::fill(wi.begin() + 2 * lanes, wi.end(), 1.0f);
   std::fill(wo.begin() + 2 * lanes, wo.end(), 1.0f);
@@ -238,6 +263,10 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
       wi[c * lanes + lane_of[q]] = a.wi[3 * q + c];
       wo[c * lanes + lane_of[q]] = a.wo[3 * q + c];
     }
+  std::vector<float> uv(a.uv ? 2 * lanes : 1, 0.0f);  // planar u, v; one dummy value for f(wi, wo)
+  if (a.uv)
+    for (size_t q = 0; q < a.n; ++q)
+      for (size_t c = 0; c < 2; ++c) uv[c * lanes + lane_of[q]] = a.uv[2 * q + c];
   const size_t real_size = a.fp64 ? sizeof(double) : sizeof(float);
   std::vector<float> materials_f;
   const void* materials_ptr = a.materials->data();
@@ -255,22 +284,22 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     return m;
   };
   cl_mem mat = make(std::max<size_t>(1, a.materials->size()) * real_size, materials_ptr, CL_MEM_READ_ONLY);
-  cl_mem idx = make(group_material.size() * sizeof(int), group_material.data(), CL_MEM_READ_ONLY);
+  cl_mem idx = make(group_offset.size() * sizeof(int), group_offset.data(), CL_MEM_READ_ONLY);
   cl_mem bwi = make(wi.size() * sizeof(float), wi.data(), CL_MEM_READ_ONLY);
   cl_mem bwo = make(wo.size() * sizeof(float), wo.data(), CL_MEM_READ_ONLY);
+  cl_mem buv = make(uv.size() * sizeof(float), uv.data(), CL_MEM_READ_ONLY);
   cl_mem out = make(3 * lanes * real_size, nullptr, CL_MEM_WRITE_ONLY);
   if (err != CL_SUCCESS) {
     *error = ClError("clCreateBuffer", err);
     return false;
   }
-  cl_kernel k = program.kernel;
-  const cl_int stride = static_cast<cl_int>(a.stride), uniform = a.uniform, nlanes = static_cast<cl_int>(lanes);
+  const cl_int uniform = a.uniform, nlanes = static_cast<cl_int>(lanes);
   clSetKernelArg(k, 0, sizeof(cl_mem), &mat);
-  clSetKernelArg(k, 1, sizeof(cl_int), &stride);
-  clSetKernelArg(k, 2, sizeof(cl_int), &uniform);
-  clSetKernelArg(k, 3, sizeof(cl_mem), &idx);
-  clSetKernelArg(k, 4, sizeof(cl_mem), &bwi);
-  clSetKernelArg(k, 5, sizeof(cl_mem), &bwo);
+  clSetKernelArg(k, 1, sizeof(cl_int), &uniform);
+  clSetKernelArg(k, 2, sizeof(cl_mem), &idx);
+  clSetKernelArg(k, 3, sizeof(cl_mem), &bwi);
+  clSetKernelArg(k, 4, sizeof(cl_mem), &bwo);
+  clSetKernelArg(k, 5, sizeof(cl_mem), &buv);
   clSetKernelArg(k, 6, sizeof(cl_mem), &out);
   clSetKernelArg(k, 7, sizeof(cl_int), &nlanes);
   const size_t global = lanes / width;

@@ -25,16 +25,18 @@ struct RuntimeOptions {
   int vector_width = 8;    // queries per work-item in float kernels (explicit vectors); fp64 kernels use 1
 };
 
-// One launch: n queries; materials concatenated, `stride` values each; material_index picks one per query.
+// One launch: n queries; materials concatenated, material m starting at materials[material_offset[m]];
+// material_index picks one per query. uv (pairs) selects the model's spatially varying kernel.
 struct LaunchArgs {
   const models::Model* model = nullptr;
   bool fp64 = false;
   int uniform = 0;
   const std::vector<double>* materials = nullptr;
-  size_t stride = 0;
+  const std::vector<size_t>* material_offset = nullptr;
   const std::vector<int>* material_index = nullptr;
   const float* wi = nullptr;
   const float* wo = nullptr;
+  const float* uv = nullptr;  // nullptr: f(wi, wo)
   size_t n = 0;
 };
 
@@ -52,6 +54,9 @@ class ClRuntime {
 
   // Runs one launch and returns f (3 per query) in double. Thread-safe: launches are serialised.
   bool Run(const LaunchArgs& args, std::vector<double>* f, std::string* error);
+  // One material for all n queries (uv nullptr: f(wi, wo)).
+  bool RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
+                 const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error);
 
   bool has_fp64() const { return has_fp64_; }
   const std::string& device_name() const { return device_name_; }
@@ -64,10 +69,10 @@ class ClRuntime {
   struct Program {
     cl_program program = nullptr;
     cl_kernel kernel = nullptr;
-    int width = 1;  // queries per work-item
+    cl_kernel uv_kernel = nullptr;  // spatially varying models only
+    int width = 1;                  // queries per work-item
   };
-  bool Build(const std::string& source, const std::string& function, bool fp64, Program* out,
-             std::string* error);
+  bool Build(const models::KernelSpec& spec, bool fp64, Program* out, std::string* error);
 
   cl_platform_id platform_ = nullptr;
   cl_device_id device_ = nullptr;

@@ -1,5 +1,6 @@
 #include "client/material.h"
 
+#include <fstream>
 #include <sstream>
 
 namespace loomlight::client {
@@ -19,7 +20,24 @@ v1::Param parse_param(const std::string& text) {
   return param;
 }
 
+// "name=path" -> Param with the file's text (e.g. pattern.wif=draft.wif).
+v1::Param parse_param_file(const std::string& text) {
+  const auto eq = text.find('=');
+  if (eq == std::string::npos || eq == 0 || eq + 1 == text.size())
+    throw UsageError("--param-file needs NAME=PATH, got '" + text + "'");
+  const std::string path = text.substr(eq + 1);
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw UsageError("--param-file: cannot read '" + path + "'");
+  std::ostringstream contents;
+  contents << in.rdbuf();
+  v1::Param param;
+  param.set_name(text.substr(0, eq));
+  param.set_text(contents.str());
+  return param;
+}
+
 std::string join_values(const v1::Param& param) {
+  if (!param.text().empty()) return "<" + std::to_string(param.text().size()) + " bytes of text>";
   std::ostringstream out;
   for (int i = 0; i < param.values_size(); ++i) out << (i ? "," : "") << param.values(i);
   return out.str();
@@ -32,6 +50,7 @@ const OptionList& material_options() {
       {"preset", "NAME", "a preset material (see `loomlight models`)"},
       {"model", "NAME", "a model; with --preset it must be the preset's model"},
       {"param", "NAME=V1[,V2...]", "set a parameter (repeatable); overrides the preset's value"},
+      {"param-file", "NAME=PATH", "set a text parameter from a file, e.g. pattern.wif=draft.wif (repeatable)"},
       {"fp64", "", "evaluate with the double-precision reference kernels"},
   };
   return options;
@@ -44,6 +63,7 @@ v1::EvaluateRequest material_request(const ParsedOptions& options) {
   if (auto model = options.last("model")) material.set_model(*model);
   if (material.preset().empty() && material.model().empty()) throw UsageError("give --preset NAME or --model NAME");
   for (const auto& entry : options.matching({"param"})) *material.add_params() = parse_param(entry.value);
+  for (const auto& entry : options.matching({"param-file"})) *material.add_params() = parse_param_file(entry.value);
   request.set_precision(options.has("fp64") ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
   return request;
 }

@@ -51,16 +51,19 @@ std::string type_name(v1::ParamSchema::Type type) {
     case v1::ParamSchema::TYPE_INT: return "int";
     case v1::ParamSchema::TYPE_RGB: return "rgb";
     case v1::ParamSchema::TYPE_REAL_LIST: return "real list";
+    case v1::ParamSchema::TYPE_TEXT: return "text";
     default: return "?";
   }
 }
 
 std::string count_text(const v1::ParamSchema& p) {
+  if (p.type() == v1::ParamSchema::TYPE_TEXT) return "<=" + std::to_string(p.max_count()) + " bytes";
   if (p.min_count() == p.max_count()) return std::to_string(p.min_count());
   return std::to_string(p.min_count()) + ".." + std::to_string(p.max_count());
 }
 
 std::string range_text(const v1::ParamSchema& p) {
+  if (p.type() == v1::ParamSchema::TYPE_TEXT) return "-";
   std::ostringstream out;
   out << std::setprecision(9) << '[' << p.min() << ", " << p.max() << ']';
   return out.str();

@@ -9,7 +9,9 @@
 
 #include <atomic>
 #include <cmath>
+#include <algorithm>
 #include <functional>
+#include <random>
 #include <thread>
 
 #include "grpc/health/v1/health.grpc.pb.h"
@@ -216,6 +218,119 @@ TEST_F(ApiTest, WovenPatternsAreValidatedAndEvaluated) {
   for (size_t i = 0; i < f[0].size(); ++i) {
     ASSERT_TRUE(std::isfinite(f[0][i]));
     EXPECT_NEAR(f[0][i], 0.5 * (f[1][i] + f[2][i]), 1e-5 * (f[1][i] + f[2][i]) + 1e-6) << i;
+  }
+}
+
+// A plain weave written by hand as a WIF draft: two shafts threaded straight, tie-up 1-1 and 2-2, treadled
+// 1, 2, so warp 1 rises on pick 1 and warp 2 on pick 2.
+constexpr char kPlainWif[] =
+    "[WIF]\nVersion=1.1\nSource Program=hand\n[CONTENTS]\nWEAVING=yes\nWARP=yes\nWEFT=yes\nTHREADING=yes\n"
+    "TIEUP=yes\nTREADLING=yes\n[WEAVING]\nShafts=2\nTreadles=2\nRising Shed=yes\n[WARP]\nThreads=2\n[WEFT]\n"
+    "Threads=2\n[THREADING]\n1=1\n2=2\n[TIEUP]\n1=1\n2=2\n[TREADLING]\n1=1\n2=2\n";
+
+void AddText(EvaluateRequest& r, const std::string& name, const std::string& text) {
+  auto* p = r.mutable_material()->add_params();
+  p->set_name(name);
+  p->set_text(text);
+}
+
+TEST_F(ApiTest, WifDraftsSetTheWovenPattern) {
+  auto stub = Connect(server_->port());
+  EvaluateRequest by_cells = Request("cotton_twill", 200, 21);
+  AddParam(by_cells, "pattern.warps", {2});
+  AddParam(by_cells, "pattern.cells", {1, 0, 0, 1});
+  EvaluateRequest by_wif = Request("cotton_twill", 200, 21);
+  AddText(by_wif, "pattern.wif", kPlainWif);
+  for (auto* r : {&by_cells, &by_wif}) {  // the BTF depends on the cells themselves, not only their fractions
+    for (int q = 0; q < 200; ++q) {
+      r->add_uv(0.37f * q);
+      r->add_uv(0.11f * q - 3);
+    }
+  }
+  EvaluateResponse a, b;
+  ASSERT_TRUE(Call(*stub, by_cells, &a).ok());
+  const grpc::Status s = Call(*stub, by_wif, &b);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  ASSERT_EQ(a.f_size(), b.f_size());
+  for (int i = 0; i < a.f_size(); ++i) ASSERT_EQ(a.f(i), b.f(i)) << i;
+
+  struct BadText {
+    const char* name;
+    std::function<void(EvaluateRequest&)> mutate;
+    std::string expected;  // substring of the message
+  };
+  std::string bad_shaft = kPlainWif;
+  bad_shaft.replace(bad_shaft.find("[THREADING]\n1=1"), 15, "[THREADING]\n1=9");
+  const int bad_line = 1 + int(std::count(bad_shaft.begin(), bad_shaft.begin() + bad_shaft.find("1=9"), '\n'));
+  const std::vector<BadText> cases = {
+      {"malformed WIF", [&](EvaluateRequest& r) { AddText(r, "pattern.wif", bad_shaft); },
+       "material.params[0].text: WIF line " + std::to_string(bad_line) + ":"},
+      {"not a WIF", [](EvaluateRequest& r) { AddText(r, "pattern.wif", "hello"); }, "material.params[0].text: WIF line"},
+      {"empty text", [](EvaluateRequest& r) { AddText(r, "pattern.wif", ""); }, "material.params[0].text"},
+      {"values for text", [](EvaluateRequest& r) { AddParam(r, "pattern.wif", {1}); }, "material.params[0].values"},
+      {"text for values", [](EvaluateRequest& r) { AddText(r, "eta", "1.5"); }, "material.params[0].text"},
+      {"both WIF and cells", [](EvaluateRequest& r) { AddParam(r, "pattern.cells", {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 1, 0, 0, 1}); AddText(r, "pattern.wif", kPlainWif); },
+       "material.params[1].name"},
+  };
+  for (const BadText& c : cases) {
+    EvaluateRequest req = Request("cotton_twill", 4, 1);
+    c.mutate(req);
+    EvaluateResponse resp;
+    const grpc::Status st = Call(*stub, req, &resp);
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.name;
+    EXPECT_NE(st.error_message().find(c.expected), std::string::npos)
+        << c.name << ": '" << st.error_message() << "' should contain '" << c.expected << "'";
+  }
+}
+
+// Evaluate with uv runs the woven BTF kernel: equal to the double reference (fp64 to float rounding; fp32
+// except where float rounding moves a sample across a highlight's edge, where the BTF jumps), and uv is
+// validated like the directions.
+TEST_F(ApiTest, WovenBtfWithUvMatchesReference) {
+  auto stub = Connect(server_->port());
+  const int n = 20000;
+  EvaluateRequest req = Request("cotton_satin", n, 5);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> U(-3, 3);
+  for (int q = 0; q < 2 * n; ++q) req.add_uv(U(rng));
+  const models::Model& model = *models::Registry::Global().FindModel("woven");
+  models::ResolvedMaterial resolved;
+  ASSERT_EQ(models::ResolveMaterial(req.material(), models::Registry::Global(), &resolved), "");
+  std::vector<double> ref(3 * n);
+  model.ReferenceEval(model.Pack(resolved.values), req.wi().data(), req.wo().data(), req.uv().data(), n, ref.data());
+  for (auto precision : {v1::PRECISION_FP32, v1::PRECISION_FP64}) {
+    req.set_precision(precision);
+    EvaluateResponse resp;
+    const grpc::Status s = Call(*stub, req, &resp);
+    ASSERT_TRUE(s.ok()) << s.error_message();
+    ASSERT_EQ(resp.f_size(), 3 * n);
+    int off = 0;
+    for (int i = 0; i < 3 * n; ++i) {
+      ASSERT_TRUE(std::isfinite(resp.f(i)) && resp.f(i) >= 0) << i;
+      const double tol = precision == v1::PRECISION_FP64 ? 6e-8 : 1e-5;
+      off += std::fabs(resp.f(i) - ref[i]) > tol * std::max(ref[i], 1e-3);
+    }
+    // fp32: edge flips only, a few per 10^4 samples (the satin's long highlight edges); fp64: none.
+    EXPECT_LE(off, precision == v1::PRECISION_FP64 ? 0 : 3 * n / 1000) << v1::Precision_Name(precision);
+  }
+  struct BadUv {
+    const char* name;
+    std::function<void(EvaluateRequest&)> mutate;
+    const char* field;
+  };
+  const std::vector<BadUv> cases = {
+      {"odd count", [](EvaluateRequest& r) { r.mutable_uv()->RemoveLast(); }, "uv: length"},
+      {"NaN", [](EvaluateRequest& r) { r.mutable_uv()->Set(5, std::nanf("")); }, "uv[5]"},
+      {"too far", [](EvaluateRequest& r) { r.mutable_uv()->Set(2, 1e6f); }, "uv[2]"},
+  };
+  for (const auto& c : cases) {
+    EvaluateRequest bad = Request("cotton_twill", 4, 1);
+    for (int q = 0; q < 8; ++q) bad.add_uv(0.25f);
+    c.mutate(bad);
+    EvaluateResponse resp;
+    const grpc::Status st = Call(*stub, bad, &resp);
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.name;
+    EXPECT_EQ(st.error_message().rfind(c.field, 0), 0u) << c.name << ": " << st.error_message();
   }
 }
 

@@ -4,6 +4,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <iterator>
+#include <random>
 
 #include "server/models/registry.h"
 #include "tests/testing.h"
@@ -214,6 +216,111 @@ TEST(Woven, KernelsMatchDoubleReferenceAndStayFiniteOnHardCases) {
   const accuracy::Accuracy e64 = accuracy::Compare(f64, ref, 0.0);
   std::printf("cotton_twill fp64 %s\n", e64.ToString().c_str());
   EXPECT_LE(e64.max, kMaxFp64);
+}
+
+// Texture positions for BTF queries: random in [-3, 3) (the pattern tiles), plus the hard ones: exact cell
+// boundaries of a 2-, 4- and 5-thread repeat, tiny negatives (u - floor(u) rounds to 1) and far repeats.
+std::vector<float> TexturePositions(size_t n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> U(-3, 3);
+  const float hard[] = {0.0f, 0.5f, 0.25f, 0.75f, 0.2f, 0.4f, 0.6f, 0.8f, 1.0f, -1e-9f, -1e-30f, 0.99999994f, 1000.25f, -1023.9f};
+  std::vector<float> uv(2 * n);
+  for (size_t i = 0; i < uv.size(); ++i) uv[i] = (i % 7 == 0) ? hard[(i / 7) % std::size(hard)] : U(rng);
+  return uv;
+}
+
+std::vector<models::PackedMaterial> WovenPresets(const Model** model) {
+  *model = models::Registry::Global().FindModel("woven");
+  std::vector<models::PackedMaterial> packed;
+  for (const auto& preset : (*model)->presets()) packed.push_back((*model)->Pack((*model)->PresetValues(preset)));
+  return packed;
+}
+
+// The woven BTF kernels against the double reference for every woven preset. The BTF is an indicator of
+// the highlight ellipse, so a float rounding of a sample lying within ~1e-7 of an ellipse edge flips it: such
+// values differ by ks Fr G/(n.wi n.wo), while every other value agrees to float rounding. The test bounds the
+// share of flips (ellipse perimeter x ~1e-7 relative position error: ~1e-5 expected) and the error of the rest.
+// Pairs mirrored about half vectors within 0.35 rad of the normal: the highlights then lie in their windows.
+Pairs NearSpecularPairs(size_t n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> U(0, 1);
+  Pairs p;
+  while (p.size() < n) {
+    const double tilt = 0.35 * U(rng), az = 6.283185307179586 * U(rng);
+    const double h[3] = {std::sin(tilt) * std::cos(az), std::sin(tilt) * std::sin(az), std::cos(tilt)};
+    float wi[3];
+    accuracy::RandomHemisphere(rng, wi);
+    const double d = 2 * (wi[0] * h[0] + wi[1] * h[1] + wi[2] * h[2]);
+    const float wo[3] = {float(d * h[0] - wi[0]), float(d * h[1] - wi[1]), float(d * h[2] - wi[2])};
+    if (wo[2] <= 0.01f) continue;
+    Push(p, wi[0], wi[1], wi[2], wo[0], wo[1], wo[2]);
+  }
+  return p;
+}
+
+TEST(Woven, BtfKernelsMatchDoubleReference) {
+  const Model* model = nullptr;
+  const auto packed = WovenPresets(&model);
+  ASSERT_EQ(packed.size(), 3u);
+  Pairs p = RandomPairs(50000, 99);
+  const Pairs near = NearSpecularPairs(50000, 98);
+  p.wi.insert(p.wi.end(), near.wi.begin(), near.wi.end());
+  p.wo.insert(p.wo.end(), near.wo.begin(), near.wo.end());
+  const std::vector<float> uv = TexturePositions(p.size(), 17);
+  for (size_t k = 0; k < packed.size(); ++k) {
+    const std::string name = model->presets()[k].name;
+    std::vector<double> ref(p.wi.size());
+    model->ReferenceEval(packed[k], p.wi.data(), p.wo.data(), uv.data(), p.size(), ref.data());
+    ExpectFiniteNonNegative(ref, name + " reference");
+    for (bool fp64 : {false, true}) {
+      const std::vector<double> f = testing::RunKernel(*model, packed[k], fp64, p.wi, p.wo, uv);
+      ExpectFiniteNonNegative(f, name);
+      size_t flips = 0;
+      std::vector<double> rest_got, rest_ref;
+      for (size_t i = 0; i < f.size(); ++i) {
+        if (std::fabs(f[i] - ref[i]) > 1e-4 * ref[i]) {
+          ++flips;
+        } else {
+          rest_got.push_back(f[i]);
+          rest_ref.push_back(ref[i]);
+        }
+      }
+      const accuracy::Accuracy e = accuracy::Compare(rest_got, rest_ref, kFloor);
+      std::printf("%s BTF %s: %zu of %zu values flipped at highlight edges; others %s\n", name.c_str(),
+                  fp64 ? "fp64" : "fp32", flips, f.size(), e.ToString().c_str());
+      EXPECT_LE(flips, fp64 ? 0u : f.size() / 2000) << name;
+      EXPECT_LE(e.max, fp64 ? kMaxFp64 : 1e-5) << name;
+    }
+  }
+}
+
+// Materials of different sizes (2x2, 4x4 and 5x5 cell tables) in one BTF launch, interleaved query by query,
+// give exactly what each gives alone: each work-item finds its own material's offset.
+TEST(Woven, MixedPatternsInOneBtfLaunchEqualSeparateLaunches) {
+  const Model* model = nullptr;
+  const auto packed = WovenPresets(&model);
+  const Pairs p = RandomPairs(3 * 2000, 7);
+  const std::vector<float> uv = TexturePositions(p.size(), 8);
+  std::vector<double> all;
+  std::vector<size_t> offsets;
+  for (const auto& m : packed) {
+    offsets.push_back(all.size());
+    all.insert(all.end(), m.data.begin(), m.data.end());
+  }
+  std::vector<int> index;
+  for (size_t q = 0; q < p.size(); ++q) index.push_back(static_cast<int>((q / 5) % packed.size()));  // runs of 5
+  const runtime::LaunchArgs args{.model = model, .fp64 = false, .uniform = 0, .materials = &all,
+                                 .material_offset = &offsets, .material_index = &index, .wi = p.wi.data(),
+                                 .wo = p.wo.data(), .uv = uv.data(), .n = p.size()};
+  std::vector<double> mixed;
+  std::string error;
+  ASSERT_TRUE(testing::SharedRuntime().Run(args, &mixed, &error)) << error;
+  for (size_t j = 0; j < packed.size(); ++j) {
+    const std::vector<double> alone = testing::RunKernel(*model, packed[j], false, p.wi, p.wo, uv);
+    for (size_t q = 0; q < p.size(); ++q)
+      if (index[q] == int(j))
+        for (int c = 0; c < 3; ++c) ASSERT_EQ(mixed[3 * q + c], alone[3 * q + c]) << "material " << j << " query " << q;
+  }
 }
 
 }  // namespace

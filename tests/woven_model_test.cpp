@@ -10,6 +10,7 @@
 #include <random>
 #include <vector>
 
+#include "server/models/registry.h"
 #include "server/models/weave/pattern.h"
 
 namespace wv_double {
@@ -140,6 +141,51 @@ TEST(WovenModel, LocateMatchesExtractFloats) {
   // A thread on top over the whole repeat (one self-joining float) and a wrapping float.
   const weave::WeavePattern odd = {3, 2, {1, 0, 0, 1, 0, 1}};
   CheckLocate(odd, TwillMaterial(odd));
+}
+
+// The kernel's BTF (wv_btf: float lookup in the packed cell table, both thread types selected per lane)
+// against the independent host walk (wv_locate over the cells, then wv_btf_local), on materials packed by the
+// registered model: the same value, to the bit, at random and boundary texture positions, for standard
+// weaves, a pattern with non-interlacing threads and wrapping floats, and a random one.
+TEST(WovenModel, PackedCellTableBtfEqualsLocatedBtf) {
+  const loomlight::models::Model& model = *loomlight::models::Registry::Global().FindModel("woven");
+  weave::WeavePattern satin, random_pattern{7, 5, {}};
+  ASSERT_EQ(weave::MakeSatin(5, 2, weave::SatinFace::kWeftFaced, &satin), "");
+  std::mt19937_64 rng(11);
+  for (int i = 0; i < 35; ++i) random_pattern.cells.push_back(rng() % 2);
+  const std::vector<weave::WeavePattern> patterns = {Twill31(), weave::PlainWeave(), satin,
+                                                     weave::WeavePattern{3, 2, {1, 0, 0, 1, 0, 1}}, random_pattern};
+  std::uniform_real_distribution<double> U(0, 1);
+  for (const weave::WeavePattern& pat : patterns) {
+    SCOPED_TRACE(weave::ToString(pat));
+    loomlight::models::ParamValues v = model.PresetValues(model.presets()[0]);
+    v["pattern.warps"] = {double(pat.warps)};
+    v["pattern.cells"] = std::vector<double>(pat.cells.begin(), pat.cells.end());
+    ASSERT_EQ(model.Validate(v), "");
+    const std::vector<double> m = model.Pack(v).data;
+    int lit = 0;
+    for (int q = 0; q < 20000; ++q) {
+      // Half vectors near the normal so that the highlights cover part of their windows.
+      const double tilt = 0.3 * U(rng), az = 2 * kPi * U(rng);
+      const Vec h = {std::sin(tilt) * std::cos(az), std::sin(tilt) * std::sin(az), std::cos(tilt)};
+      const Vec wi = Normalize({h[0] + 0.3 * (U(rng) - 0.5), h[1] + 0.3 * (U(rng) - 0.5), h[2]});
+      const Vec wo = Reflect(wi, h);
+      if (wo[2] <= 0.01) continue;
+      // Every third position on a cell corner (k / W, l / P), where the cell choice matters most.
+      const bool corner = q % 3 == 0;
+      const double u = corner ? double(rng() % (3 * pat.warps)) / pat.warps - 1 : 6 * U(rng) - 3;
+      const double vv = corner ? double(rng() % (3 * pat.picks)) / pat.picks - 1 : 6 * U(rng) - 3;
+      int t;
+      double lx, ly;
+      wv_double::wv_locate(pat.cells.data(), pat.warps, pat.picks, u, vv, &t, &lx, &ly, m.data());
+      const auto want = BtfD(m, t, lx, ly, wi, wo);
+      std::array<double, 3> got;
+      wv_double::wv_btf(m.data(), wi[0], wi[1], wi[2], wo[0], wo[1], wo[2], u, vv, got.data());
+      for (int c = 0; c < 3; ++c) ASSERT_EQ(got[c], want[c]) << "u " << u << " v " << vv << " channel " << c;
+      lit += want[0] > m[2 + 14 * t];  // inside a highlight: the kd of its thread type is exceeded
+    }
+    EXPECT_GT(lit, 1000) << "too few samples inside highlights to test the lookup";
+  }
 }
 
 // BRDF = mean of the BTF over one repeat, by N x N midpoint quadrature in uv.

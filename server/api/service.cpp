@@ -17,6 +17,7 @@ v1::ParamSchema::Type ToProto(models::ParamType t) {
     case models::ParamType::kInt: return v1::ParamSchema::TYPE_INT;
     case models::ParamType::kRgb: return v1::ParamSchema::TYPE_RGB;
     case models::ParamType::kRealList: return v1::ParamSchema::TYPE_REAL_LIST;
+    case models::ParamType::kText: return v1::ParamSchema::TYPE_TEXT;
   }
   return v1::ParamSchema::TYPE_UNSPECIFIED;
 }

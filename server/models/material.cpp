@@ -3,6 +3,7 @@
 #include <cmath>
 #include <set>
 #include <sstream>
+#include <vector>
 
 namespace loomlight::models {
 namespace {
@@ -58,6 +59,7 @@ std::string ResolveMaterial(const v1::Material& material, const Registry& regist
   out->model = model;
 
   std::set<std::string> seen;
+  std::vector<int> texts;  // indices of text parameters
   for (int i = 0; i < material.params_size(); ++i) {
     const v1::Param& param = material.params(i);
     const std::string pfield = field + ".params[" + std::to_string(i) + "]";
@@ -66,10 +68,32 @@ std::string ResolveMaterial(const v1::Material& material, const Registry& regist
       return pfield + ".name: model '" + model->name() + "' has no parameter '" + param.name() + "'";
     if (!seen.insert(param.name()).second)
       return pfield + ".name: parameter '" + param.name() + "' given twice";
+    if (spec->type == ParamType::kText) {
+      texts.push_back(i);  // applied after every value, so its parameters cannot also be given
+      continue;
+    }
+    if (!param.text().empty())
+      return pfield + ".text: parameter '" + param.name() + "' takes values, not text";
     const std::vector<double> values(param.values().begin(), param.values().end());
     std::string err = CheckValues(*spec, values, pfield + ".values");
     if (!err.empty()) return err;
     out->values[param.name()] = values;
+  }
+  for (int i : texts) {
+    const v1::Param& param = material.params(i);
+    const std::string pfield = field + ".params[" + std::to_string(i) + "]";
+    const ParamSpec& spec = *model->FindParam(param.name());
+    if (param.values_size() > 0) return pfield + ".values: parameter '" + param.name() + "' takes text, not values";
+    if (param.text().empty() || param.text().size() > spec.max_count)
+      return pfield + ".text: parameter '" + param.name() + "' takes 1 to " + std::to_string(spec.max_count) +
+             " bytes of text, got " + std::to_string(param.text().size());
+    ParamValues applied = out->values;
+    std::string err = model->ApplyText(param.name(), param.text(), &applied);
+    if (!err.empty()) return pfield + ".text: " + err;
+    for (const auto& [name, v] : applied)
+      if (v != out->values[name] && seen.count(name))
+        return pfield + ".name: parameter '" + param.name() + "' sets '" + name + "', which is also given";
+    out->values = std::move(applied);
   }
   std::string err = model->Validate(out->values);
   if (!err.empty()) return field + ".params: " + err;

@@ -10,7 +10,8 @@ const ParamSpec* Model::FindParam(const std::string& name) const {
 
 ParamValues Model::DefaultValues() const {
   ParamValues values;
-  for (const ParamSpec& p : params()) values[p.name] = p.defaults;
+  for (const ParamSpec& p : params())
+    if (p.type != ParamType::kText) values[p.name] = p.defaults;
   return values;
 }
 

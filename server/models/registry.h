@@ -9,7 +9,9 @@
 
 namespace loomlight::models {
 
-enum class ParamType { kReal, kInt, kRgb, kRealList };
+// kText parameters carry text (Param.text, up to max_count bytes) that the model turns into other
+// parameters' values (Model::ApplyText); they have no values of their own.
+enum class ParamType { kReal, kInt, kRgb, kRealList, kText };
 
 struct ParamSpec {
   std::string name;
@@ -59,6 +61,11 @@ class Model {
   // Cross-parameter checks beyond the schema's per-value ranges; returns "" or "field: reason".
   virtual std::string Validate(const ParamValues& values) const = 0;
   virtual PackedMaterial Pack(const ParamValues& values) const = 0;
+  // Sets the parameters a kText parameter stands for (e.g. a WIF draft -> the weave pattern). Returns ""
+  // or the reason, e.g. "line 12: ...". Models without text parameters keep this default.
+  virtual std::string ApplyText(const std::string& name, const std::string& text, ParamValues* values) const {
+    return "parameter '" + name + "' takes no text";
+  }
   // Double-precision host reference: f for n queries (RGB), same source as the kernel. uv (pairs) is
   // nullptr for f(wi, wo) and given only to spatially varying models.
   virtual void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv,

@@ -1,11 +1,12 @@
 // Registry entry of the woven-cotton model (Irawan and Marschner 2006, SPEC.md section 3): schema, the
-// paper's twill preset, validation and packing. Served today as its BRDF (the mean of the BTF over one
-// pattern repeat); the BTF (uv queries) and texture slices are still to come (issue 3).
+// paper's twill preset and our plain and sateen, patterns as cell matrices or WIF drafts, validation and
+// packing. Served as the BTF (queries with uv) and as the BRDF (the mean of the BTF over one pattern repeat).
 #include <cmath>
 
 #include "server/models/host_models.h"
 #include "server/models/registry.h"
 #include "server/models/weave/pattern.h"
+#include "server/models/weave/wif.h"
 
 namespace loomlight::models {
 namespace {
@@ -44,21 +45,67 @@ std::vector<ParamSpec> Schema() {
       {"pattern.cells", ParamType::kRealList, "1", 0.0, 1.0, Cells(twill),
        "weave pattern, row by row (one row per pick): 1 = warp on top, 0 = weft on top", 1,
        size_t(weave::kMaxRepeat) * weave::kMaxRepeat},
+      {"pattern.wif", ParamType::kText, "", 0, 0, {},
+       "a WIF (Weaving Information File) draft; its drawdown sets pattern.warps and pattern.cells", 1,
+       weave::kMaxWifBytes},
   };
   for (auto& p : ThreadParams("warp", "y, texture v")) s.push_back(p);
   for (auto& p : ThreadParams("weft", "x, texture u")) s.push_back(p);
   return s;
 }
 
+// The thread-type parameters of a preset, in schema order.
+struct ThreadLook {
+  std::vector<double> kd, ks, size;
+  double alpha, eccentricity, phi_e;
+  std::vector<double> k;
+};
+
+void AddThread(const std::string& t, const ThreadLook& look, ParamValues* v) {
+  const std::string p = t + ".";
+  (*v)[p + "kd"] = look.kd;
+  (*v)[p + "ks"] = look.ks;
+  (*v)[p + "size"] = look.size;
+  (*v)[p + "alpha"] = {look.alpha};
+  (*v)[p + "eccentricity"] = {look.eccentricity};
+  (*v)[p + "phi_e"] = {look.phi_e};
+  (*v)[p + "k"] = look.k;
+}
+
+PresetSpec MakePreset(std::string name, std::string description, const weave::WeavePattern& pattern,
+                      const ThreadLook& warp, const ThreadLook& weft) {
+  PresetSpec preset{std::move(name), std::move(description), {}};
+  preset.values["pattern.warps"] = {double(pattern.warps)};
+  preset.values["pattern.cells"] = Cells(pattern);
+  AddThread("warp", warp, &preset.values);
+  AddThread("weft", weft, &preset.values);
+  return preset;
+}
+
 std::vector<PresetSpec> Presets() {
-  // The paper's twill ellipse parameters (Sec. 6) on a 3/1 twill; kd and ks are ours (a dark cotton, the
-  // paper measured black cloth and gives no colours).
-  return {{"cotton_twill",
-           "Woven cotton 3/1 twill with the paper's ellipse parameters (Irawan and Marschner Sec. 6)",
-           {{"warp.kd", {0.05, 0.04, 0.03}}, {"warp.ks", {0.70, 0.65, 0.60}}, {"warp.size", {1, 6}},
-            {"warp.alpha", {3}}, {"warp.eccentricity", {0.995}}, {"warp.phi_e", {95}}, {"warp.k", {1.5, 3.1}},
-            {"weft.kd", {0.03, 0.04, 0.06}}, {"weft.ks", {0.50, 0.55, 0.62}}, {"weft.size", {1, 2}},
-            {"weft.alpha", {1}}, {"weft.eccentricity", {0.9}}, {"weft.phi_e", {80}}, {"weft.k", {3.7, 1.6}}}}};
+  weave::WeavePattern sateen;
+  weave::MakeSatin(5, 2, weave::SatinFace::kWeftFaced, &sateen);
+  return {
+      // The paper's twill ellipse parameters (Sec. 6) on a 3/1 twill; kd and ks are ours (a dark cotton, the
+      // paper measured black cloth and gives no colours).
+      MakePreset("cotton_twill", "Woven cotton 3/1 twill with the paper's ellipse parameters (Irawan and Marschner Sec. 6)",
+                 Twill31(), {{0.05, 0.04, 0.03}, {0.70, 0.65, 0.60}, {1, 6}, 3, 0.995, 95, {1.5, 3.1}},
+                 {{0.03, 0.04, 0.06}, {0.50, 0.55, 0.62}, {1, 2}, 1, 0.9, 80, {3.7, 1.6}}),
+      // Plain weave (the paper's Fig. 16, values ours): every float is one cell, so both thread types show
+      // short, nearly round segments of equal area; the highlight is a small ellipse along each thread
+      // that travels less than the twill's (the thread crimps over every crossing), giving the even
+      // checker of small glints of Fig. 16. Undyed cotton: light, warm kd.
+      MakePreset("cotton_plain", "Woven cotton plain weave, undyed (after Irawan and Marschner Fig. 16; parameters ours)",
+                 weave::PlainWeave(), {{0.20, 0.18, 0.15}, {0.45, 0.43, 0.40}, {1, 1.5}, 0.7, 0.8, 90, {2.0, 1.5}},
+                 {{0.19, 0.17, 0.14}, {0.45, 0.43, 0.40}, {1, 1.5}, 0.7, 0.8, 90, {2.0, 1.5}}),
+      // Sateen (the paper's Fig. 18, values ours): a weft-faced 5-end satin (move 2), so 80% of the face is
+      // weft floats over four warps. Their long straight segments carry elongated, strongly eccentric
+      // highlights that sweep far along the float (large k_y): the sheen bands of Fig. 18. The warp shows
+      // only at the single tacking cells, short and dull.
+      MakePreset("cotton_satin", "Woven cotton 5-end sateen, weft-faced (after Irawan and Marschner Fig. 18; parameters ours)",
+                 sateen, {{0.10, 0.09, 0.12}, {0.25, 0.25, 0.28}, {1, 1}, 0.5, 0.6, 90, {2.0, 2.0}},
+                 {{0.12, 0.10, 0.14}, {0.80, 0.78, 0.85}, {1, 4}, 2.0, 0.98, 90, {1.5, 3.5}}),
+  };
 }
 
 // The pattern of a parameter set, or the reason it is not one.
@@ -102,11 +149,21 @@ class WovenModel : public Model {
   std::string name() const override { return "woven"; }
   std::string description() const override {
     return "Irawan and Marschner 2006 woven cotton: elliptical highlights clipped by the weave's thread "
-           "segments (served as the BRDF, the BTF averaged over a pattern repeat)";
+           "segments: the BTF at uv (pattern repeats), or without uv the BRDF, its mean over a repeat";
   }
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
   KernelSpec kernel() const override { return {"models/woven.cl", "woven_brdf", "woven_btf"}; }
+
+  std::string ApplyText(const std::string& name, const std::string& text, ParamValues* v) const override {
+    if (name != "pattern.wif") return Model::ApplyText(name, text, v);
+    weave::WeavePattern pattern;
+    const std::string error = weave::ParseWif(text, &pattern);
+    if (!error.empty()) return "WIF " + error;
+    (*v)["pattern.warps"] = {double(pattern.warps)};
+    (*v)["pattern.cells"] = Cells(pattern);
+    return "";
+  }
 
   std::string Validate(const ParamValues& v) const override {
     weave::WeavePattern pattern;

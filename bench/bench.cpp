@@ -96,15 +96,17 @@ int main(int argc, char** argv) {
   const Sizes sizes = args.quick ? Sizes::Quick() : Sizes::Full();
   const CpuSnapshot start = CpuSnapshot::Now();
 
-  std::string machine, sections;
+  std::string machine, sections, woven;
   {
     std::unique_ptr<loomlight::runtime::ClRuntime> rt = StartRuntime();
     if (!rt) return 1;
     machine = MachineDescription(rt->platform_name(), rt->device_name(), sizes.quick);
     sections += KernelSection(*rt, sizes);
     sections += TangentSweepSection(*rt, sizes);
+    woven = WovenSection(*rt, sizes);  // numbered after the service section, which was there first
   }
   sections += ServiceSection(sizes);
+  sections += woven;
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   const std::string report = "# Loomlight benchmark\n\n" + machine + "- Quietness: " + quietness +

@@ -29,6 +29,8 @@ void Progress(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
 
 // Section 1: OpenCL fp32 / fp64 and the native baseline per preset, throughput and error.
 std::string KernelSection(runtime::ClRuntime& rt, const Sizes& sizes);
+// Woven cotton presets: BRDF and BTF, OpenCL fp32 / fp64 and the native baseline, throughput and error.
+std::string WovenSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Section 2: throughput and convergence against tangent samples per thread.
 std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Section 3: the gRPC service in process, concurrent clients, batching on and off, one maximal call.

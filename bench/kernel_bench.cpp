@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <optional>
+#include <random>
 #include <thread>
 
 #include "bench/bench.h"
@@ -31,34 +32,45 @@ const models::PresetSpec& FindPreset(const std::string& name) {
   return *preset;
 }
 
-// The double reference for the pairs, split into contiguous chunks over `threads` threads.
-std::vector<double> Reference(const PackedMaterial& m, const Pairs& p, size_t threads) {
-  std::vector<double> f(3 * p.size());
-  const size_t chunk = (p.size() + threads - 1) / threads;
+// What one measurement evaluates: a model's material on direction pairs, with texture positions for a BTF.
+struct Workload {
+  const Model& model;
+  const PackedMaterial& material;
+  const Pairs& pairs;
+  const float* uv = nullptr;  // a (u, v) per pair, or nullptr for f(wi, wo)
+};
+
+// The double reference for the first n pairs, split into contiguous chunks over `threads` threads.
+std::vector<double> Reference(const Workload& w, size_t n, size_t threads) {
+  n = std::min(n, w.pairs.size());
+  std::vector<double> f(3 * n);
+  const size_t chunk = (n + threads - 1) / threads;
   std::vector<std::thread> workers;
-  for (size_t begin = 0; begin < p.size(); begin += chunk) {
-    const size_t n = std::min(chunk, p.size() - begin);
-    workers.emplace_back([&, begin, n] {
-      Microcylinder().ReferenceEval(m, &p.wi[3 * begin], &p.wo[3 * begin], nullptr, n, &f[3 * begin]);
+  for (size_t begin = 0; begin < n; begin += chunk) {
+    const size_t count = std::min(chunk, n - begin);
+    workers.emplace_back([&, begin, count] {
+      w.model.ReferenceEval(w.material, &w.pairs.wi[3 * begin], &w.pairs.wo[3 * begin],
+                            w.uv ? w.uv + 2 * begin : nullptr, count, &f[3 * begin]);
     });
   }
-  for (auto& w : workers) w.join();
+  for (auto& t : workers) t.join();
   return f;
 }
 
 // The OpenCL kernel over all pairs in one launch; f receives 3 values per pair.
-void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const PackedMaterial& m, const Pairs& p, std::vector<double>* f) {
+void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const Workload& w, std::vector<double>* f) {
   std::string error;
-  if (!rt.RunSingle(Microcylinder(), m, fp64, p.wi.data(), p.wo.data(), nullptr, p.size(), f, &error)) {
+  if (!rt.RunSingle(w.model, w.material, fp64, w.pairs.wi.data(), w.pairs.wo.data(), w.uv, w.pairs.size(), f,
+                    &error)) {
     std::fprintf(stderr, "OpenCL launch failed: %s\n", error.c_str());
     std::exit(1);
   }
 }
 
 // The native float baseline over all pairs (all hardware threads).
-void RunNative(const PackedMaterial& m, const Pairs& p, std::vector<float>* f) {
-  f->resize(3 * p.size());
-  Microcylinder().NativeEval(m, p.wi.data(), p.wo.data(), nullptr, p.size(), f->data());
+void RunNative(const Workload& w, std::vector<float>* f) {
+  f->resize(3 * w.pairs.size());
+  w.model.NativeEval(w.material, w.pairs.wi.data(), w.pairs.wo.data(), w.uv, w.pairs.size(), f->data());
 }
 
 struct Measurement {
@@ -83,13 +95,13 @@ struct PresetResult {
 };
 
 // The implementations take turns (BestOfEach), so a busy spell of the machine does not favour one of them.
-PresetResult MeasurePreset(runtime::ClRuntime& rt, const PackedMaterial& m, const Pairs& pairs, const Sizes& sizes) {
-  const std::vector<double> ref = Reference(m, pairs.Head(sizes.kernel_error_queries), sizes.reference_threads);
+PresetResult MeasurePreset(runtime::ClRuntime& rt, const Workload& w, const Sizes& sizes) {
+  const std::vector<double> ref = Reference(w, sizes.kernel_error_queries, sizes.reference_threads);
+  const Pairs& pairs = w.pairs;
   std::vector<double> fp32, fp64;
   std::vector<float> native;
-  std::vector<std::function<void()>> runs = {[&] { RunOpenCl(rt, false, m, pairs, &fp32); },
-                                             [&] { RunNative(m, pairs, &native); }};
-  if (rt.has_fp64()) runs.push_back([&] { RunOpenCl(rt, true, m, pairs, &fp64); });
+  std::vector<std::function<void()>> runs = {[&] { RunOpenCl(rt, false, w, &fp32); }, [&] { RunNative(w, &native); }};
+  if (rt.has_fp64()) runs.push_back([&] { RunOpenCl(rt, true, w, &fp64); });
   const std::vector<double> seconds = BestOfEach(sizes.timed_runs, runs);
   PresetResult r;
   r.fp32 = Summarise(seconds[0], fp32, pairs, ref);
@@ -117,7 +129,8 @@ std::string KernelSection(runtime::ClRuntime& rt, const Sizes& sizes) {
   const auto& presets = Microcylinder().presets();
   for (const models::PresetSpec& preset : presets) {
     Progress("kernels: %s\n", preset.name.c_str());
-    const PresetResult r = MeasurePreset(rt, PresetMaterial(preset), pairs, sizes);
+    const PackedMaterial m = PresetMaterial(preset);
+    const PresetResult r = MeasurePreset(rt, {Microcylinder(), m, pairs}, sizes);
     speed.Add(SpeedRow(preset.name, r));
     log_ratio_sum += std::log(r.fp32.queries_per_second / r.native.queries_per_second);
     error.Add(AccuracyRow(preset.name, "OpenCL fp32", r.fp32.accuracy));
@@ -147,6 +160,54 @@ std::string KernelSection(runtime::ClRuntime& rt, const Sizes& sizes) {
   return Section("1. Kernel throughput and accuracy per preset", method, body);
 }
 
+std::string WovenSection(runtime::ClRuntime& rt, const Sizes& sizes) {
+  const Model& woven = *models::Registry::Global().FindModel("woven");
+  const Pairs pairs = RandomPairs(sizes.kernel_queries, 2025);
+  // Texture positions uniform over 4 x 4 repeats (the pattern tiles; the lookup cost does not depend on them).
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> U(0.0f, 4.0f);
+  std::vector<float> uv(2 * pairs.size());
+  for (float& x : uv) x = U(rng);
+  Table speed({"preset", "query", "OpenCL fp32 (q/s)", "OpenCL fp64 (q/s)", "native fp32 (q/s)", "OpenCL fp32 / native",
+               "OpenCL fp64 / fp32"},
+              2);
+  Table error({"preset", "query", "implementation", "rel. err median", "rel. err p99", "rel. err max",
+               "values > 1e-4", "cos-weighted log RMSE"},
+              3);
+  for (const models::PresetSpec& preset : woven.presets()) {
+    const PackedMaterial m = woven.Pack(woven.PresetValues(preset));
+    for (bool btf : {false, true}) {
+      const std::string query = btf ? "BTF (uv)" : "BRDF";
+      Progress("woven: %s %s\n", preset.name.c_str(), query.c_str());
+      const PresetResult r = MeasurePreset(rt, {woven, m, pairs, btf ? uv.data() : nullptr}, sizes);
+      std::vector<std::string> row = SpeedRow(preset.name, r);
+      row.insert(row.begin() + 1, query);
+      speed.Add(row);
+      for (auto [impl, a] : {std::pair{"OpenCL fp32", &r.fp32.accuracy}, std::pair{"native fp32", &r.native.accuracy}}) {
+        std::vector<std::string> e = AccuracyRow(preset.name, impl, *a);
+        e.insert(e.begin() + 1, query);
+        error.Add(e);
+      }
+      if (r.fp64) {
+        std::vector<std::string> e = AccuracyRow(preset.name, "OpenCL fp64", r.fp64->accuracy);
+        e.insert(e.begin() + 1, query);
+        error.Add(e);
+      }
+    }
+  }
+  const std::string method =
+      "Woven cotton presets, the same " + Count(sizes.kernel_queries) + " uniform-hemisphere pairs for every "
+      "implementation; the BTF rows add a texture position per pair, uniform over 4 x 4 pattern repeats. Timing and "
+      "errors as in section 1 (best of " + std::to_string(sizes.timed_runs) + ", whole launches, errors on the first " +
+      Count(sizes.kernel_error_queries) + " pairs against the double reference).";
+  const std::string how =
+      "The BRDF costs two analytic ellipse-window areas per query, the BTF one cell-table lookup (a per-lane gather "
+      "in the OpenCL kernel) and two ellipse tests. The BTF is an indicator of the highlight ellipse, so a float "
+      "sample within ~1e-7 of an edge can flip: the max column shows such flips when they occur.";
+  return Section("4. Woven cotton: BRDF and BTF throughput and accuracy", method,
+                 TableBlock(how, speed) + TableBlock("errors against the double reference, as in section 1.", error));
+}
+
 std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes) {
   constexpr int kReferenceSamples = 256;
   const std::vector<int> counts = {4, 8, 16, 32, 64, 128, kReferenceSamples};
@@ -156,13 +217,14 @@ std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes) {
   for (const std::string& name : presets) {
     const models::PresetSpec& preset = FindPreset(name);
     Progress("tangent sweep: %s reference\n", name.c_str());
-    const std::vector<double> ref = Reference(PresetMaterial(preset, kReferenceSamples),
-                                              pairs.Head(sizes.sweep_error_queries), sizes.reference_threads);
+    const PackedMaterial reference_material = PresetMaterial(preset, kReferenceSamples);
+    const std::vector<double> ref =
+        Reference({Microcylinder(), reference_material, pairs}, sizes.sweep_error_queries, sizes.reference_threads);
     for (int T : counts) {
       Progress("tangent sweep: %s T=%d\n", name.c_str(), T);
       const PackedMaterial m = PresetMaterial(preset, T);
       std::vector<double> f;
-      const double seconds = BestOf(sizes.timed_runs, [&] { RunOpenCl(rt, false, m, pairs, &f); });
+      const double seconds = BestOf(sizes.timed_runs, [&] { RunOpenCl(rt, false, {Microcylinder(), m, pairs}, &f); });
       const Measurement r = Summarise(seconds, f, pairs, ref);
       const std::string label = std::to_string(T) + (T == kReferenceSamples ? " (rounding only)" : "");
       table.Add({name, label, Rate(r.queries_per_second), Sci(r.accuracy.rel_l1), Sci(r.accuracy.log_rmse),

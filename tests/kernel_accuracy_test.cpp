@@ -290,6 +290,9 @@ TEST(Woven, BtfKernelsMatchDoubleReference) {
                   fp64 ? "fp64" : "fp32", flips, f.size(), e.ToString().c_str());
       EXPECT_LE(flips, fp64 ? 0u : f.size() / 2000) << name;
       EXPECT_LE(e.max, fp64 ? kMaxFp64 : 1e-5) << name;
+      // Reciprocity, exact in the kernels too: h and wi.h come from the commutative wi + wo.
+      const std::vector<double> swapped = testing::RunKernel(*model, packed[k], fp64, p.wo, p.wi, uv);
+      for (size_t i = 0; i < f.size(); ++i) ASSERT_EQ(f[i], swapped[i]) << name << " value " << i;
     }
   }
 }

@@ -96,9 +96,13 @@ TEST_F(ApiTest, ListModelsDescribesSchemaAndPresets) {
   grpc::ClientContext ctx;
   v1::ListModelsResponse resp;
   ASSERT_TRUE(stub->ListModels(&ctx, {}, &resp).ok());
-  ASSERT_EQ(resp.models_size(), 2);
-  EXPECT_EQ(resp.models(1).name(), "woven");
-  EXPECT_EQ(resp.models(1).presets(0).name(), "cotton_twill");
+  const auto& registered = models::Registry::Global().models();
+  ASSERT_EQ(resp.models_size(), int(registered.size()));
+  for (int i = 0; i < resp.models_size(); ++i) {
+    EXPECT_EQ(resp.models(i).name(), registered[i]->name());
+    EXPECT_EQ(resp.models(i).presets_size(), int(registered[i]->presets().size()));
+    EXPECT_EQ(resp.models(i).spatially_varying(), resp.models(i).name() == "woven") << resp.models(i).name();
+  }
   const v1::ModelInfo& m = resp.models(0);
   EXPECT_EQ(m.name(), "microcylinder");
   EXPECT_EQ(m.presets_size(), 6);

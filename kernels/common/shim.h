@@ -173,3 +173,36 @@ LL_INLINE real ll_fresnel_dielectric(scalar eta, real c) {
   const real fr = R(0.5) * (rs * rs + rp * rp);
   return g2 <= R(0.0) ? R(1.0) : fr;
 }
+
+// expm1(x) = exp(x) - 1, accurate to a few ulp also for small |x|, where exp(x) - 1 cancels (it returns 0 in
+// float for |x| < 3e-8). Float path without library calls (keeps PoCL's vectorizer): the Taylor polynomial
+// through x^8/8! on |x| <= 1/2 (truncation < 1.4e-8 relative), ll_exp_poly(x) - 1 outside it (cancellation
+// there costs at most a factor 1.6). Same domain as ll_exp_poly (x <= 88).
+#if !(defined(__OPENCL_C_VERSION__) && defined(LL_FP64))
+LL_INLINE real ll_expm1_poly(real x) {
+  const real p = R(1.0) + x * (R(0.5) + x * (R(1.6666666666666667e-1) + x * (R(4.1666666666666667e-2) +
+                 x * (R(8.3333333333333333e-3) + x * (R(1.3888888888888889e-3) + x * (R(1.9841269841269841e-4) +
+                 x * R(2.4801587301587302e-5)))))));
+  return fabs(x) <= R(0.5) ? x * p : ll_exp_poly(x) - R(1.0);
+}
+#endif
+#if defined(__OPENCL_C_VERSION__)
+#ifdef LL_FP64
+#define ll_expm1 expm1
+#else
+#define ll_expm1 ll_expm1_poly
+#endif
+#else
+inline float ll_expm1(float x) { return ll_expm1_poly(x); }
+inline double ll_expm1(double x) { return std::expm1(x); }
+using std::fma;
+#endif
+
+// a b - c d to about 1.5 ulp even where the two products nearly cancel (Kahan: the rounding error of c d,
+// recovered exactly by an fma, is added back); a plain a b - c d loses all digits there. fma is one
+// instruction on CPUs with FMA (PoCL vectorises it); elsewhere a slower exact library routine.
+LL_INLINE real ll_diff_of_products(real a, real b, real c, real d) {
+  const real cd = c * d;
+  const real cd_error = fma(-c, d, cd);
+  return fma(a, b, -cd) + cd_error;
+}

@@ -15,6 +15,8 @@ typedef float real;
 #include "models/microcylinder.h"
 #include "common/ellipse_window.h"
 #include "models/woven.h"
+#include "models/thin_layer.h"
+#include "models/fiber.h"
 }  // namespace device
 
 namespace {
@@ -52,6 +54,20 @@ void WovenEval(const float* material, const float* wi, const float* wo, const fl
       else
         device::wv_brdf(material, a[0], a[1], a[2], b[0], b[1], b[2], f + 3 * q);
     }
+  });
+}
+void ThinLayerEval(const float* material, const float* wi, const float* wo, size_t n, float* f) {
+  ParallelFor(n, [&](size_t begin, size_t end) {
+    for (size_t q = begin; q < end; ++q)
+      device::tl_eval(material, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q], wo[3 * q + 1], wo[3 * q + 2],
+                      f + 3 * q);
+  });
+}
+void FiberEval(const float* material, int mode, const float* wi, const float* wo, size_t n, float* f) {
+  ParallelFor(n, [&](size_t begin, size_t end) {
+    for (size_t q = begin; q < end; ++q)
+      device::fb_eval(material, mode, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q], wo[3 * q + 1],
+                      wo[3 * q + 2], f + 3 * q);
   });
 }
 }  // namespace loomlight::native

@@ -26,6 +26,8 @@ Registry& Registry::Global() {
     auto* r = new Registry;
     r->Add(MakeMicrocylinderModel());
     r->Add(MakeWovenModel());
+    r->Add(MakeThinLayerModel());
+    r->Add(MakeFiberModel());
     return r;
   }();
   return *registry;

@@ -99,5 +99,7 @@ class Registry {
 // library would be dropped by the linker).
 std::unique_ptr<Model> MakeMicrocylinderModel();
 std::unique_ptr<Model> MakeWovenModel();
+std::unique_ptr<Model> MakeThinLayerModel();
+std::unique_ptr<Model> MakeFiberModel();
 
 }  // namespace loomlight::models

@@ -96,7 +96,7 @@ int main(int argc, char** argv) {
   const Sizes sizes = args.quick ? Sizes::Quick() : Sizes::Full();
   const CpuSnapshot start = CpuSnapshot::Now();
 
-  std::string machine, sections, woven;
+  std::string machine, sections, woven, transmission;
   {
     std::unique_ptr<loomlight::runtime::ClRuntime> rt = StartRuntime();
     if (!rt) return 1;
@@ -104,9 +104,14 @@ int main(int argc, char** argv) {
     sections += KernelSection(*rt, sizes);
     sections += TangentSweepSection(*rt, sizes);
     woven = WovenSection(*rt, sizes);  // numbered after the service section, which was there first
+    transmission = TransmissionSection(*rt, sizes);
   }
   sections += ServiceSection(sizes);
   sections += woven;
+  sections += SliceSection(sizes);
+  sections += transmission;
+  sections += TabulateSection(sizes);
+  sections += RenderSection(sizes);
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   const std::string report = "# Loomlight benchmark\n\n" + machine + "- Quietness: " + quietness +

@@ -31,9 +31,18 @@ void Progress(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
 std::string KernelSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Woven cotton presets: BRDF and BTF, OpenCL fp32 / fp64 and the native baseline, throughput and error.
 std::string WovenSection(runtime::ClRuntime& rt, const Sizes& sizes);
+// Thin layer (single scattering, all orders) and fiber (simple, R + TT) presets: throughput and error, with
+// the thin layer's naive formulas next to the stable ones.
+std::string TransmissionSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Section 2: throughput and convergence against tangent samples per thread.
 std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Section 3: the gRPC service in process, concurrent clients, batching on and off, one maximal call.
 std::string ServiceSection(const Sizes& sizes);
+// Section 5: TextureSlice time against resolution and samples per pixel, and the slice mean against the BRDF.
+std::string SliceSection(const Sizes& sizes);
+// Tabulate: cells/s on the MERL grid and a 4D grid per model, fp32 and fp64, and their table difference.
+std::string TabulateSection(const Sizes& sizes);
+// Render: thumbnail time for the cylinder scene at full and chosen fidelity, error against a reference.
+std::string RenderSection(const Sizes& sizes);
 
 }  // namespace loomlight::bench

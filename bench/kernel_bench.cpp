@@ -2,6 +2,7 @@
 // direction pairs, timed best-of-N, with their errors against the double reference.
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <optional>
 #include <random>
 #include <thread>
@@ -10,6 +11,7 @@
 #include "bench/report.h"
 #include "bench/stats.h"
 #include "server/models/registry.h"
+#include "tests/naive_formulas.h"
 
 namespace loomlight::bench {
 namespace {
@@ -160,6 +162,76 @@ std::string KernelSection(runtime::ClRuntime& rt, const Sizes& sizes) {
   return Section("1. Kernel throughput and accuracy per preset", method, body);
 }
 
+namespace {
+
+// One way of querying a model: a label, parameter overrides on each preset, and whether queries carry uv.
+struct Variant {
+  std::string label;
+  models::ParamValues overrides;
+  bool uv = false;
+};
+
+// Extra error rows for a preset and variant (e.g. a naive formula), given the material and the reference.
+using ExtraRows = std::function<void(const PackedMaterial& m, const std::vector<double>& ref, const Pairs& pairs,
+                                     std::vector<std::pair<std::string, Accuracy>>* rows)>;
+
+// Every preset of the model in every variant through OpenCL fp32 / fp64 and the native baseline: a speed
+// table and an error table (first columns preset, variant).
+std::string VariantTables(runtime::ClRuntime& rt, const Sizes& sizes, const Model& model,
+                          const std::vector<Variant>& variants, const Pairs& pairs, const std::vector<float>& uv,
+                          const ExtraRows& extra = {}) {
+  Table speed({"preset", "variant", "OpenCL fp32 (q/s)", "OpenCL fp64 (q/s)", "native fp32 (q/s)",
+               "OpenCL fp32 / native", "OpenCL fp64 / fp32"},
+              2);
+  Table error({"preset", "variant", "implementation", "rel. err median", "rel. err p99", "rel. err max",
+               "values > 1e-4", "cos-weighted log RMSE"},
+              3);
+  auto add_error = [&](const std::string& preset, const std::string& variant, const std::string& impl,
+                       const Accuracy& a) {
+    std::vector<std::string> e = AccuracyRow(preset, impl, a);
+    e.insert(e.begin() + 1, variant);
+    error.Add(e);
+  };
+  for (const models::PresetSpec& preset : model.presets()) {
+    for (const Variant& variant : variants) {
+      models::ParamValues values = model.PresetValues(preset);
+      for (const auto& [name, v] : variant.overrides) values[name] = v;
+      const PackedMaterial m = model.Pack(values);
+      Progress("%s: %s %s\n", model.name().c_str(), preset.name.c_str(), variant.label.c_str());
+      const Workload w{model, m, pairs, variant.uv ? uv.data() : nullptr};
+      const PresetResult r = MeasurePreset(rt, w, sizes);
+      std::vector<std::string> row = SpeedRow(preset.name, r);
+      row.insert(row.begin() + 1, variant.label);
+      speed.Add(row);
+      add_error(preset.name, variant.label, "OpenCL fp32", r.fp32.accuracy);
+      if (r.fp64) add_error(preset.name, variant.label, "OpenCL fp64", r.fp64->accuracy);
+      add_error(preset.name, variant.label, "native fp32", r.native.accuracy);
+      if (extra) {
+        std::vector<std::pair<std::string, Accuracy>> rows;
+        extra(m, Reference(w, sizes.kernel_error_queries, sizes.reference_threads), pairs, &rows);
+        for (const auto& [impl, a] : rows) add_error(preset.name, variant.label, impl, a);
+      }
+    }
+  }
+  return TableBlock("queries/s, higher is better, as in section 1.", speed) +
+         TableBlock("errors against the double reference, as in section 1 (f > 1e-4).", error);
+}
+
+// Uniform pairs over the whole sphere: wo flipped below the surface for every other pair (transmission), and
+// every 50th pair exactly straight through (wo = -wi, so |n.wo| = |n.wi|: the 0/0 of the printed formula).
+Pairs SpherePairs(size_t n, unsigned seed) {
+  Pairs p = RandomPairs(n, seed);
+  for (size_t q = 0; q < p.size(); ++q) {
+    if (q % 50 == 0)
+      for (int c = 0; c < 3; ++c) p.wo[3 * q + c] = -p.wi[3 * q + c];
+    else if (q % 2 == 1)
+      p.wo[3 * q + 2] = -p.wo[3 * q + 2];
+  }
+  return p;
+}
+
+}  // namespace
+
 std::string WovenSection(runtime::ClRuntime& rt, const Sizes& sizes) {
   const Model& woven = *models::Registry::Global().FindModel("woven");
   const Pairs pairs = RandomPairs(sizes.kernel_queries, 2025);
@@ -168,44 +240,49 @@ std::string WovenSection(runtime::ClRuntime& rt, const Sizes& sizes) {
   std::uniform_real_distribution<float> U(0.0f, 4.0f);
   std::vector<float> uv(2 * pairs.size());
   for (float& x : uv) x = U(rng);
-  Table speed({"preset", "query", "OpenCL fp32 (q/s)", "OpenCL fp64 (q/s)", "native fp32 (q/s)", "OpenCL fp32 / native",
-               "OpenCL fp64 / fp32"},
-              2);
-  Table error({"preset", "query", "implementation", "rel. err median", "rel. err p99", "rel. err max",
-               "values > 1e-4", "cos-weighted log RMSE"},
-              3);
-  for (const models::PresetSpec& preset : woven.presets()) {
-    const PackedMaterial m = woven.Pack(woven.PresetValues(preset));
-    for (bool btf : {false, true}) {
-      const std::string query = btf ? "BTF (uv)" : "BRDF";
-      Progress("woven: %s %s\n", preset.name.c_str(), query.c_str());
-      const PresetResult r = MeasurePreset(rt, {woven, m, pairs, btf ? uv.data() : nullptr}, sizes);
-      std::vector<std::string> row = SpeedRow(preset.name, r);
-      row.insert(row.begin() + 1, query);
-      speed.Add(row);
-      for (auto [impl, a] : {std::pair{"OpenCL fp32", &r.fp32.accuracy}, std::pair{"native fp32", &r.native.accuracy}}) {
-        std::vector<std::string> e = AccuracyRow(preset.name, impl, *a);
-        e.insert(e.begin() + 1, query);
-        error.Add(e);
-      }
-      if (r.fp64) {
-        std::vector<std::string> e = AccuracyRow(preset.name, "OpenCL fp64", r.fp64->accuracy);
-        e.insert(e.begin() + 1, query);
-        error.Add(e);
-      }
-    }
-  }
   const std::string method =
       "Woven cotton presets, the same " + Count(sizes.kernel_queries) + " uniform-hemisphere pairs for every "
       "implementation; the BTF rows add a texture position per pair, uniform over 4 x 4 pattern repeats. Timing and "
       "errors as in section 1 (best of " + std::to_string(sizes.timed_runs) + ", whole launches, errors on the first " +
       Count(sizes.kernel_error_queries) + " pairs against the double reference).";
   const std::string how =
-      "The BRDF costs two analytic ellipse-window areas per query, the BTF one cell-table lookup (a per-lane gather "
-      "in the OpenCL kernel) and two ellipse tests. The BTF is an indicator of the highlight ellipse, so a float "
-      "sample within ~1e-7 of an edge can flip: the max column shows such flips when they occur.";
+      "*How to read:* the BRDF costs two analytic ellipse-window areas per query, the BTF one cell-table lookup (a "
+      "per-lane gather in the OpenCL kernel) and two ellipse tests. The BTF is an indicator of the highlight "
+      "ellipse, so a float sample within ~1e-7 of an edge can flip: the max column shows such flips when they "
+      "occur.\n\n";
   return Section("4. Woven cotton: BRDF and BTF throughput and accuracy", method,
-                 TableBlock(how, speed) + TableBlock("errors against the double reference, as in section 1.", error));
+                 how + VariantTables(rt, sizes, woven, {{"BRDF", {}, false}, {"BTF (uv)", {}, true}}, pairs, uv));
+}
+
+std::string TransmissionSection(runtime::ClRuntime& rt, const Sizes& sizes) {
+  const models::Registry& registry = models::Registry::Global();
+  const Pairs pairs = SpherePairs(sizes.kernel_queries, 2026);
+  const ExtraRows naive_rows = [](const PackedMaterial& m, const std::vector<double>& ref, const Pairs& p,
+                                  std::vector<std::pair<std::string, Accuracy>>* rows) {
+    const std::vector<double> f = naive::ThinLayerFloat(m, p.Head(ref.size() / 3));
+    size_t nonfinite = 0;
+    for (double v : f) nonfinite += !std::isfinite(v);
+    std::vector<double> finite = f;
+    for (size_t i = 0; i < finite.size(); ++i)
+      if (!std::isfinite(finite[i])) finite[i] = ref[i];  // counted apart; the statistics cover the rest
+    rows->push_back({"naive float (" + Count(nonfinite) + " NaN/Inf)", Compare(finite, ref, kErrorFloor, &p)});
+  };
+  const std::string thin = VariantTables(
+      rt, sizes, *registry.FindModel("thin_layer"),
+      {{"single scattering", {{"scattering", {0}}}, false}, {"all orders", {{"scattering", {1}}}, false}}, pairs, {},
+      naive_rows);
+  const std::string fiber = VariantTables(
+      rt, sizes, *registry.FindModel("fiber"),
+      {{"simple (Eq. 5)", {{"mode", {0}}}, false}, {"R + TT (Eq. 6)", {{"mode", {1}}}, false}}, pairs, {});
+  const std::string method =
+      "Thin layer and fiber presets, each in both modes, on the same " + Count(sizes.kernel_queries) +
+      " pairs over the whole sphere (wo below the surface for every other pair; every 50th pair straight through, "
+      "wo = -wi, where |n.wo| = |n.wi|). Timing and errors as in section 1. The thin layer's `naive float` rows "
+      "evaluate the formulas as printed (1 - exp, and (exp(-tau/mu) - exp(-tau/mu0)) / (mu - mu0)) in float on "
+      "the same pairs: the NaN/Inf count is the 0/0 at mu = mu0, the statistics cover the other values.";
+  return Section("6. Thin layer and fiber: throughput and accuracy, stable against naive formulas", method,
+                 "### Thin layer (single scattering closed form; all orders from adding-doubling tables)\n\n" + thin +
+                     "### Fiber (simple model; physically based R + TT)\n\n" + fiber);
 }
 
 std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes) {

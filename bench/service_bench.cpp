@@ -7,13 +7,13 @@
 #include <thread>
 
 #include "bench/bench.h"
+#include "bench/in_process.h"
 #include "bench/report.h"
 #include "bench/stats.h"
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/server.h"
 
 namespace loomlight::bench {
-namespace {
 
 using Stub = v1::Loomlight::Stub;
 
@@ -30,8 +30,6 @@ std::unique_ptr<api::LoomlightServer> StartServer(bool coalesce) {
   return server;
 }
 
-// A stub on its own channel: the local subchannel pool and a distinct argument keep gRPC from sharing
-// one TCP connection between clients.
 std::unique_ptr<Stub> Connect(int port, int client_id) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
@@ -41,6 +39,8 @@ std::unique_ptr<Stub> Connect(int port, int client_id) {
   return v1::Loomlight::NewStub(
       grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(), args));
 }
+
+namespace {
 
 // n random pairs for one of the presets (clients rotate through them; all share the default T, so the
 // batcher may coalesce them into one launch).

@@ -20,5 +20,8 @@ struct Command {
 const Command& models_command();
 const Command& eval_command();
 const Command& plot_command();
+const Command& slice_command();
+const Command& tab_command();
+const Command& render_command();
 
 }  // namespace loomlight::client

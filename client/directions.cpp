@@ -29,6 +29,16 @@ Vec3 direction_from_degrees(double theta_deg, double phi_deg) {
   return {theta.sin * phi.cos + 0.0, theta.sin * phi.sin + 0.0, theta.cos};
 }
 
+Vec3 direction_option(const ParsedOptions::Entry& entry) {
+  const std::string what = "--" + entry.name;
+  if (entry.name.ends_with("-deg")) {
+    const auto angles = parse_numbers(entry.value, what, 2);
+    return direction_from_degrees(angles[0], angles[1]);
+  }
+  const auto xyz = parse_numbers(entry.value, what, 3);
+  return {xyz[0], xyz[1], xyz[2]};
+}
+
 void add_query(loomlight::v1::EvaluateRequest& request, const Vec3& wi, const Vec3& wo) {
   for (double c : wi) request.add_wi(static_cast<float>(c));
   for (double c : wo) request.add_wo(static_cast<float>(c));

@@ -15,17 +15,6 @@
 namespace loomlight::client {
 namespace {
 
-// "--wi x,y,z" or "--wi-deg theta,phi" (and the same for wo).
-Vec3 direction_option(const ParsedOptions::Entry& entry) {
-  const std::string what = "--" + entry.name;
-  if (entry.name.ends_with("-deg")) {
-    const auto angles = parse_numbers(entry.value, what, 2);
-    return direction_from_degrees(angles[0], angles[1]);
-  }
-  const auto xyz = parse_numbers(entry.value, what, 3);
-  return {xyz[0], xyz[1], xyz[2]};
-}
-
 // The n-th wi pairs with the n-th wo, whichever form each was given in.
 void add_option_queries(const ParsedOptions& options, v1::EvaluateRequest& request) {
   const auto wi = options.matching({"wi", "wi-deg"});

@@ -51,6 +51,7 @@ const OptionList& material_options() {
       {"model", "NAME", "a model; with --preset it must be the preset's model"},
       {"param", "NAME=V1[,V2...]", "set a parameter (repeatable); overrides the preset's value"},
       {"param-file", "NAME=PATH", "set a text parameter from a file, e.g. pattern.wif=draft.wif (repeatable)"},
+      {"layer", "PRESET", "a curtain: add this thin_layer preset's transmission to the material"},
       {"fp64", "", "evaluate with the double-precision reference kernels"},
   };
   return options;
@@ -64,6 +65,7 @@ v1::EvaluateRequest material_request(const ParsedOptions& options) {
   if (material.preset().empty() && material.model().empty()) throw UsageError("give --preset NAME or --model NAME");
   for (const auto& entry : options.matching({"param"})) *material.add_params() = parse_param(entry.value);
   for (const auto& entry : options.matching({"param-file"})) *material.add_params() = parse_param_file(entry.value);
+  if (auto layer = options.last("layer")) material.mutable_transmission()->set_preset(*layer);
   request.set_precision(options.has("fp64") ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
   return request;
 }
@@ -73,6 +75,7 @@ std::string material_label(const v1::Material& material) {
   std::string overrides;
   for (const v1::Param& p : material.params())
     overrides += (overrides.empty() ? "" : " ") + p.name() + "=" + join_values(p);
+  if (material.has_transmission()) label.append(" + ").append(material_label(material.transmission()));
   return overrides.empty() ? label : label + " (" + overrides + ")";
 }
 

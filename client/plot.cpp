@@ -10,6 +10,7 @@
 #include "client/commands.h"
 #include "client/directions.h"
 #include "client/material.h"
+#include "client/plot_views.h"
 #include "client/polar_plot.h"
 #include "client/rpc.h"
 
@@ -75,7 +76,6 @@ Color lighten(const Color& c, std::size_t i, std::size_t n) {
   return {c[0] + (1 - c[0]) * t, c[1] + (1 - c[1]) * t, c[2] + (1 - c[2]) * t};
 }
 
-const Color kChannelColors[3] = {{0.85f, 0.10f, 0.10f}, {0.10f, 0.60f, 0.10f}, {0.10f, 0.25f, 0.90f}};
 const Color kMarkerGray = {0.25f, 0.25f, 0.25f};
 
 // Rec. 709 luminance of linear RGB.
@@ -143,6 +143,8 @@ double max_value(const std::vector<PolarCurve>& curves) {
 }
 
 int run_plot(const ParsedOptions& options) {
+  if (const std::string view = options.last("view").value_or("polar"); view != "polar")
+    return run_plot_view(view, options);
   const PlotSettings settings = read_settings(options);
   v1::EvaluateRequest request = material_request(options);
   add_plane_queries(settings, request);
@@ -171,6 +173,8 @@ OptionList plot_options() {
       {"size", "PX", "image width in pixels (default 800)"},
       {"verbose", "", "print the server's timing and batching to stderr"},
   });
+  const OptionList views = plot_view_options();
+  options.insert(options.end(), views.begin(), views.end());
   return options;
 }
 
@@ -181,10 +185,17 @@ const Command& plot_command() {
       "plot",
       "MATERIAL --out FILE.png [options]\n"
       "  MATERIAL: " LOOMLIGHT_MATERIAL_SYNOPSIS,
-      "write a polar plot of the in-plane lobe as a PNG",
-      "For each incidence angle theta_i the light is at -theta_i in the plane (so the mirror direction is at\n"
+      "write a polar plot of the in-plane lobe, or another view (--view), as a PNG",
+      "--view polar (default): for each incidence angle theta_i the light is at -theta_i in the plane (so the mirror direction is at\n"
       "+theta_i) and theta_o sweeps the plane. The radius is proportional to the plotted value, autoscaled\n"
       "to its maximum, which is printed to stdout. All curves come from one Evaluate call.\n"
+      "--view thd: f over theta_h (x, 0-90) and theta_d (y, 0 at the bottom) at one phi_d and phi_h\n"
+      "  (Rusinkiewicz half/difference angles, as in BRDF Explorer's image slice), tone-mapped.\n"
+      "--view albedo: the directional albedo (integral of f cos(theta_o) over the outgoing hemisphere, and\n"
+      "  over the lower one when the material transmits) against theta_i, by 32 Gauss-Legendre nodes in\n"
+      "  cos(theta_o) x 64 midpoints in phi_o; the values are printed as CSV (theta_i, r, g, b[, transmitted]).\n"
+      "--view sphere: the material on a sphere under one directional light, orthographic view from +z;\n"
+      "  at each point the shading normal is the sphere's and thread 1 runs along view x projected onto it.\n"
       "Example: loomlight plot --preset silk_shot --incidence 15,45,75 --plane-phi 90 --out silk.png",
       plot_options(),
       run_plot,

@@ -7,32 +7,11 @@
 #include <optional>
 #include <stdexcept>
 
-#include <OpenImageIO/imagebuf.h>
-#include <OpenImageIO/imagebufalgo.h>
-
 namespace loomlight::client {
 namespace {
 
-namespace algo = OIIO::ImageBufAlgo;
-
-// Drawn at this multiple of the output size, then filtered down: render_line has no anti-aliasing.
-constexpr int kSupersample = 2;
-// Every length below is in "units" of 1/800 of the image width, so the plot looks the same at any --size.
-constexpr double kUnitsPerWidth = 800.0;
+// Lengths in units of 1/800 of the image width (client/canvas.h).
 constexpr double kSideMargin = 50, kTopMargin = 100, kBottomMargin = 40;
-constexpr double kCurveWidth = 2.5, kMarkerWidth = 1.5, kGridWidth = 1.0;
-constexpr double kDash = 10, kGap = 7;
-constexpr int kTitleFont = 20, kLabelFont = 13;
-
-const Color kWhite = {1, 1, 1};
-const Color kGrid = {0.86f, 0.86f, 0.86f};
-const Color kRim = {0.6f, 0.6f, 0.6f};
-const Color kText = {0.1f, 0.1f, 0.1f};
-const Color kFaintText = {0.45f, 0.45f, 0.45f};
-
-struct Point {
-  double x, y;
-};
 
 // Pixel geometry of the supersampled canvas.
 struct Layout {
@@ -56,75 +35,6 @@ Layout make_layout(int size) {
   l.cy = kTopMargin * l.unit + l.radius;
   l.height = static_cast<int>(std::lround(l.cy + kBottomMargin * l.unit)) / kSupersample * kSupersample;
   return l;
-}
-
-// OpenImageIO's default font is often not installed; a few common system fonts are tried after it.
-const std::optional<std::string>& text_font() {
-  static const std::optional<std::string> font = [] () -> std::optional<std::string> {
-    for (const char* name : {"", "DejaVuSans", "LiberationSans-Regular", "FreeSans"}) {
-      if (algo::text_size("0", kLabelFont, name).defined()) return name;
-      OIIO::geterror();  // discard the failure so it is not reported later
-    }
-    return std::nullopt;
-  }();
-  return font;
-}
-
-class Canvas {
- public:
-  explicit Canvas(const Layout& layout)
-      : layout_(layout), image_(OIIO::ImageSpec(layout.width, layout.height, 3, OIIO::TypeDesc::FLOAT)) {
-    algo::fill(image_, kWhite);
-  }
-
-  // render_line draws one pixel wide; a wider line is the union of offset copies within the pen radius.
-  void line(Point a, Point b, const Color& color, double width_units) {
-    const double pen = std::max(0.5, 0.5 * width_units * layout_.unit);
-    const int reach = static_cast<int>(std::floor(pen));
-    for (int dy = -reach; dy <= reach; ++dy)
-      for (int dx = -reach; dx <= reach; ++dx)
-        if (dx * dx + dy * dy <= pen * pen)
-          algo::render_line(image_, px(a.x) + dx, px(a.y) + dy, px(b.x) + dx, px(b.y) + dy, color);
-  }
-
-  void dashed_line(Point a, Point b, const Color& color, double width_units) {
-    const double length = std::hypot(b.x - a.x, b.y - a.y);
-    const double dash = kDash * layout_.unit, period = (kDash + kGap) * layout_.unit;
-    for (double s = 0; s < length; s += period) {
-      const double e = std::min(s + dash, length);
-      line(lerp(a, b, s / length), lerp(a, b, e / length), color, width_units);
-    }
-  }
-
-  // Silently does nothing without a font: labels are a nicety, the curves are the plot.
-  void text(Point p, const std::string& text, int font_units, const Color& color,
-            algo::TextAlignX align_x = algo::TextAlignX::Center, algo::TextAlignY align_y = algo::TextAlignY::Center) {
-    const auto& font = text_font();
-    if (!font || text.empty()) return;
-    const int size = static_cast<int>(std::lround(font_units * layout_.unit));
-    if (!algo::render_text(image_, px(p.x), px(p.y), text, size, *font, color, align_x, align_y)) image_.geterror();
-  }
-
-  // Filters the supersampled canvas down to the output size and writes it as 8-bit.
-  void write(const std::string& path) const {
-    const OIIO::ROI out(0, layout_.width / kSupersample, 0, layout_.height / kSupersample, 0, 1, 0, 3);
-    const OIIO::ImageBuf small = algo::resize(image_, "", 0.0f, out);
-    if (small.has_error() || !small.write(path, OIIO::TypeDesc::UINT8))
-      throw std::runtime_error("cannot write " + path + ": " + small.geterror());
-  }
-
- private:
-  static int px(double v) { return static_cast<int>(std::lround(v)); }
-  static Point lerp(Point a, Point b, double t) { return {a.x + (b.x - a.x) * t, a.y + (b.y - a.y) * t}; }
-
-  Layout layout_;
-  OIIO::ImageBuf image_;
-};
-
-std::string format_value(const char* format, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, format, v);
-  return buf;
 }
 
 void draw_half_circle(Canvas& canvas, const Layout& l, double r, const Color& color) {
@@ -164,36 +74,18 @@ void draw_curve(Canvas& canvas, const Layout& l, const PolarCurve& curve, double
   }
 }
 
-// Title and notes in the top-left corner, the legend in the top-right one: the half disc leaves both free.
-void draw_header(Canvas& canvas, const Layout& l, const PolarPlot& plot) {
-  const double x = 16 * l.unit;
-  canvas.text({x, 28 * l.unit}, plot.title, kTitleFont, kText, algo::TextAlignX::Left);
-  for (std::size_t i = 0; i < plot.notes.size(); ++i)
-    canvas.text({x, (52 + 18 * i) * l.unit}, plot.notes[i], kLabelFont, kFaintText, algo::TextAlignX::Left);
-}
-
-void draw_legend(Canvas& canvas, const Layout& l, const std::vector<LegendEntry>& legend) {
-  if (!text_font()) return;  // swatches without their text would say nothing
-  const double x = l.width - 180 * l.unit;
-  for (std::size_t i = 0; i < legend.size(); ++i) {
-    const double y = (20 + 20 * i) * l.unit;
-    canvas.line({x, y}, {x + 24 * l.unit, y}, legend[i].color, kCurveWidth);
-    canvas.text({x + 32 * l.unit, y}, legend[i].text, kLabelFont, kText, algo::TextAlignX::Left);
-  }
-}
-
 }  // namespace
 
 void write_polar_plot(const PolarPlot& plot, const std::string& path) {
   if (!(plot.scale > 0.0)) throw std::invalid_argument("polar plot scale must be positive");
   const Layout layout = make_layout(plot.size);
-  Canvas canvas(layout);
+  Canvas canvas(plot.size, layout.height / kSupersample);
   draw_grid(canvas, layout, plot.scale);
   for (const PolarMarker& m : plot.markers)
     canvas.dashed_line(layout.at(0, 0), layout.at(m.theta_deg, layout.radius), m.color, kMarkerWidth);
   for (const PolarCurve& curve : plot.curves) draw_curve(canvas, layout, curve, plot.scale);
-  draw_header(canvas, layout, plot);
-  draw_legend(canvas, layout, plot.legend);
+  draw_title(canvas, plot.title, plot.notes);  // the half disc leaves the top corners free
+  draw_legend(canvas, plot.legend);
   canvas.write(path);
 }
 

@@ -1,13 +1,12 @@
 // Drawing of an upper-half-disc polar plot to a PNG with OpenImageIO (used by `loomlight plot`).
 #pragma once
 
-#include <array>
 #include <string>
 #include <vector>
 
-namespace loomlight::client {
+#include "client/canvas.h"
 
-using Color = std::array<float, 3>;  // display RGB in [0, 1]
+namespace loomlight::client {
 
 // A curve r(theta): theta in degrees from the vertical, positive to the right. Non-finite values break it.
 struct PolarCurve {
@@ -20,11 +19,6 @@ struct PolarCurve {
 struct PolarMarker {
   double theta_deg;
   Color color;
-};
-
-struct LegendEntry {
-  Color color;
-  std::string text;
 };
 
 struct PolarPlot {

@@ -108,6 +108,54 @@ v1::EvaluateResponse Client::evaluate(const v1::EvaluateRequest& request) {
   return response;
 }
 
+v1::TextureSliceResponse Client::texture_slice(const v1::TextureSliceRequest& request) {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::TextureSliceResponse response;
+  check(stub_->TextureSlice(&context, request, &response));
+  if (response.image().empty() || response.width() != request.width() || response.height() != request.height())
+    throw std::runtime_error("server returned a " + std::to_string(response.width()) + "x" +
+                             std::to_string(response.height()) + " image of " + std::to_string(response.image().size()) +
+                             " bytes for a " + std::to_string(request.width()) + "x" +
+                             std::to_string(request.height()) + " slice");
+  return response;
+}
+
+namespace {
+
+// Reads a server stream to its end, handing every message to `on_message`; throws RpcError when the call
+// ends with an error, also after some messages arrived.
+template <class Message>
+void read_stream(grpc::ClientContext& context, grpc::ClientReader<Message>& reader,
+                 const std::function<void(const Message&)>& on_message) {
+  Message message;
+  try {
+    while (reader.Read(&message)) on_message(message);
+  } catch (...) {
+    // A stream must be finished before its context goes: cancel it, so the server stops too.
+    context.TryCancel();
+    while (reader.Read(&message)) {}
+    reader.Finish();
+    throw;
+  }
+  check(reader.Finish());
+}
+
+}  // namespace
+
+void Client::tabulate(const v1::TabulateRequest& request,
+                      const std::function<void(const v1::TabulateChunk&)>& on_chunk) {
+  grpc::ClientContext context;
+  prepare(context);
+  read_stream(context, *stub_->Tabulate(&context, request), on_chunk);
+}
+
+void Client::render(const v1::RenderRequest& request, const std::function<void(const v1::RenderUpdate&)>& on_update) {
+  grpc::ClientContext context;
+  prepare(context);
+  read_stream(context, *stub_->Render(&context, request), on_update);
+}
+
 void print_timing(std::ostream& out, const v1::EvaluateResponse& response, int queries) {
   out << "model=" << response.model() << " precision=" << precision_name(response.precision())
       << " queries=" << queries << " queue_seconds=" << response.queue_seconds()

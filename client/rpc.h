@@ -2,6 +2,7 @@
 #pragma once
 
 #include <chrono>
+#include <functional>
 #include <iosfwd>
 #include <memory>
 #include <stdexcept>
@@ -39,6 +40,13 @@ class Client {
   v1::ListModelsResponse list_models();
   // Checks that the response holds one RGB triple per query before returning it.
   v1::EvaluateResponse evaluate(const v1::EvaluateRequest& request);
+  // Checks that an image came back with the size asked for.
+  v1::TextureSliceResponse texture_slice(const v1::TextureSliceRequest& request);
+  // Streams a table: `on_chunk` sees every chunk in order (its data are consecutive pieces of the file).
+  // Throws RpcError when the call ends with an error, also after some chunks arrived.
+  void tabulate(const v1::TabulateRequest& request, const std::function<void(const v1::TabulateChunk&)>& on_chunk);
+  // Streams a render: `on_update` sees every progress update and, last, the one with the image.
+  void render(const v1::RenderRequest& request, const std::function<void(const v1::RenderUpdate&)>& on_update);
 
  private:
   void prepare(grpc::ClientContext& context) const;

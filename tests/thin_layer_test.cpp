@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "server/models/registry.h"
+#include "tests/naive_formulas.h"
 #include "tests/slab_monte_carlo.h"
 #include "tests/testing.h"
 
@@ -57,22 +58,6 @@ std::vector<double> HostFloat(const models::PackedMaterial& m, const Pairs& p) {
     const float* b = &p.wo[3 * q];
     tl_float::tl_eval(mat.data(), a[0], a[1], a[2], b[0], b[1], b[2], out);
     for (int c = 0; c < 3; ++c) f[3 * q + c] = out[c];
-  }
-  return f;
-}
-
-// The formulas as printed (SPEC.md section 4 before its stable rewrite), in float.
-std::vector<double> NaiveFloat(const models::PackedMaterial& m, const Pairs& p) {
-  std::vector<double> f(3 * p.size());
-  const float tau = float(m.data[0]);
-  for (size_t q = 0; q < p.size(); ++q) {
-    const float* a = &p.wi[3 * q];
-    const float* b = &p.wo[3 * q];
-    const float mu0 = std::fabs(a[2]), mu = std::fabs(b[2]);
-    const bool same = (a[2] > 0) == (b[2] > 0);
-    const float s = same ? (1.0f - std::exp(-tau * (mu + mu0) / (mu * mu0))) / (mu + mu0)
-                         : (std::exp(-tau / mu) - std::exp(-tau / mu0)) / (mu - mu0);
-    for (int c = 0; c < 3; ++c) f[3 * q + c] = float(m.data[1 + c]) * s;
   }
   return f;
 }
@@ -187,7 +172,7 @@ TEST(ThinLayer, NaiveFormulasFailTheHardCases) {
   for (double tau : {1e-9, 1e-6, 0.05, 1.0}) {
     const models::PackedMaterial m = Material(tau);
     const std::vector<double> ref = Reference(m, p);
-    const std::vector<double> naive = NaiveFloat(m, p);
+    const std::vector<double> naive = naive::ThinLayerFloat(m, p);
     size_t bad = 0, nonfinite = 0;
     double worst_finite = 0;
     for (size_t i = 0; i < ref.size(); ++i) {

@@ -1,7 +1,7 @@
-// OpenCL entry point for the thin semi-transparent layer (kernels/models/thin_layer.h); no launch-uniform value.
+// OpenCL entry point for the thin semi-transparent layer (kernels/models/thin_layer.h); the launch-uniform value
+// is the scattering mode (TL_SCATTERING_SINGLE or TL_SCATTERING_ALL).
 #include "common/shim.h"
 #include "common/eval_kernel.h"
 #include "models/thin_layer.h"
 
-#define TL_EVAL(mat, uniform, ix, iy, iz, ox, oy, oz, out) tl_eval(mat, ix, iy, iz, ox, oy, oz, out)
-LL_DEFINE_EVAL_KERNEL(thin_layer_eval, TL_EVAL)
+LL_DEFINE_EVAL_KERNEL(thin_layer_eval, tl_eval_scattering)

@@ -42,6 +42,14 @@ Metrics::Metrics()
                    .Name("loomlight_queries_total")
                    .Help("Direction pairs evaluated, by model and precision")
                    .Register(*registry_)),
+      tabulated_cells_(prometheus::BuildCounter()
+                           .Name("loomlight_tabulated_cells_total")
+                           .Help("Table cells evaluated by Tabulate calls, by model and precision")
+                           .Register(*registry_)),
+      rendered_queries_(prometheus::BuildCounter()
+                            .Name("loomlight_rendered_queries_total")
+                            .Help("Shading queries evaluated by Render calls")
+                            .Register(*registry_)),
       launch_queries_(prometheus::BuildHistogram()
                           .Name("loomlight_launch_queries")
                           .Help("Queries in the kernel launch each request rode in")
@@ -91,6 +99,16 @@ void Metrics::Evaluated(const std::string& model, bool fp64, size_t queries, siz
   launch_requests_.Observe(static_cast<double>(launch_requests));
   queue_seconds_.Observe(queue_seconds);
   kernel_seconds_.Observe(kernel_seconds);
+}
+
+void Metrics::Tabulated(const std::string& model, bool fp64, uint64_t cells) {
+  tabulated_cells_.Add({{"model", model}, {"precision", fp64 ? "fp64" : "fp32"}}).Increment(static_cast<double>(cells));
+  tabulated_cells_total_ += cells;
+}
+
+void Metrics::Rendered(uint64_t queries) {
+  rendered_queries_.Add({}).Increment(static_cast<double>(queries));
+  rendered_queries_total_ += queries;
 }
 
 }  // namespace loomlight::api

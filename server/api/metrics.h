@@ -8,6 +8,8 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <atomic>
+#include <cstdint>
 #include <memory>
 #include <string>
 
@@ -25,12 +27,24 @@ class Metrics {
   // Queries evaluated for a model and precision, and the launch the request rode in.
   void Evaluated(const std::string& model, bool fp64, size_t queries, size_t launch_queries,
                  size_t launch_requests, double queue_seconds, double kernel_seconds);
+  // Table cells a Tabulate call finished evaluating (after averaging its queries per cell).
+  void Tabulated(const std::string& model, bool fp64, uint64_t cells);
+  // Every tabulated cell since start, all models: the work tabulations did (tests compare it).
+  uint64_t tabulated_cells() const { return tabulated_cells_total_.load(); }
+  // Kernel queries a Render call finished evaluating.
+  void Rendered(uint64_t queries);
+  // Every rendered query since start: the work renders did (tests compare it).
+  uint64_t rendered_queries() const { return rendered_queries_total_.load(); }
 
  private:
   std::shared_ptr<prometheus::Registry> registry_;
   prometheus::Family<prometheus::Counter>& calls_;
   prometheus::Family<prometheus::Histogram>& call_seconds_;
   prometheus::Family<prometheus::Counter>& queries_;
+  prometheus::Family<prometheus::Counter>& tabulated_cells_;
+  std::atomic<uint64_t> tabulated_cells_total_{0};
+  prometheus::Family<prometheus::Counter>& rendered_queries_;
+  std::atomic<uint64_t> rendered_queries_total_{0};
   prometheus::Histogram& launch_queries_;
   prometheus::Histogram& launch_requests_;
   prometheus::Histogram& queue_seconds_;

@@ -29,6 +29,7 @@ class LoomlightServer {
   void Shutdown();
   int port() const { return port_; }
   int metrics_port() const { return metrics_->port(); }
+  const Metrics& metrics() const { return *metrics_; }
   const runtime::ClRuntime& runtime() const { return *runtime_; }
 
  private:

@@ -6,6 +6,10 @@
 #include <algorithm>
 #include <cmath>
 
+#include "server/api/job_status.h"
+#include "server/api/render_rpc.h"
+#include "server/api/tabulate.h"
+#include "server/api/texture_slice.h"
 #include "server/models/material.h"
 
 namespace loomlight::api {
@@ -30,24 +34,109 @@ void AddParams(const models::ParamValues& values, google::protobuf::RepeatedPtrF
   }
 }
 
-grpc::Status ToStatus(const batching::JobResult& r) {
-  switch (r.status) {
-    case batching::JobStatus::kOk: return grpc::Status::OK;
-    case batching::JobStatus::kDeadlineExceeded: return {grpc::StatusCode::DEADLINE_EXCEEDED, r.message};
-    case batching::JobStatus::kCancelled: return {grpc::StatusCode::CANCELLED, r.message};
-    case batching::JobStatus::kUnavailable: return {grpc::StatusCode::UNAVAILABLE, r.message};
-    case batching::JobStatus::kInternal: return {grpc::StatusCode::INTERNAL, r.message};
-  }
-  return {grpc::StatusCode::INTERNAL, "unknown job status"};
-}
-
 double SecondsSince(batching::Clock::time_point t) {
   return std::chrono::duration<double>(batching::Clock::now() - t).count();
 }
 
 grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
 
+// The kernel work of one Evaluate call: one part per kernel (the material alone, or a curtain's reflection
+// and its layer), joined into the response when the last part is done. Parts complete on the batcher's
+// thread; a part that never reaches a kernel (queue full, no queries) completes at once.
+struct EvaluateCall {
+  struct Part {
+    const MaterialCache::Entry* material = nullptr;  // kept alive by the request's cache entry below
+    std::vector<size_t> index;                      // the part's queries in the request (curtains only)
+    std::vector<float> wi, wo, uv;                  // their directions (curtains only)
+    bool scale_by_interaction = false;              // a curtain's reflection
+  };
+  std::shared_ptr<const MaterialCache::Entry> entry;
+  std::vector<Part> parts;
+  std::vector<double> f;              // 3 per query
+  std::vector<double> transmittance;  // per query, for materials with transmission
+  std::vector<double> interaction;    // curtains: sqrt((1 - T(wi)) (1 - T(wo))) per query
+  std::string approximation;          // what the parts' models approximated (EvaluateResponse.approximation)
+  grpc::ServerUnaryReactor* reactor = nullptr;
+  v1::EvaluateResponse* response = nullptr;
+  Metrics* metrics = nullptr;
+  batching::Clock::time_point received;
+  bool fp64 = false;
+  std::string model;
+  size_t n = 0;
+
+  std::mutex mutex;
+  size_t remaining = 0;
+  batching::JobResult outcome;  // the first failure; the slowest part's timing; the largest launch
+
+  void PartDone(size_t k, batching::JobResult r) {
+    const Part& part = parts[k];
+    if (r.status == batching::JobStatus::kOk) {
+      for (size_t i = 0; i < r.f.size() / 3; ++i) {
+        const size_t q = part.index.empty() ? i : part.index[i];
+        const double scale = part.scale_by_interaction ? interaction[q] : 1.0;
+        for (int c = 0; c < 3; ++c) f[3 * q + c] = scale * r.f[3 * i + c];
+      }
+      if (r.batch_queries > 0)
+        metrics->Evaluated(part.material->model->name(), fp64, r.f.size() / 3, r.batch_queries, r.batch_requests,
+                           r.queue_seconds, r.kernel_seconds);
+    }
+    std::lock_guard<std::mutex> lock(mutex);
+    if (r.status != batching::JobStatus::kOk && outcome.status == batching::JobStatus::kOk) {
+      outcome.status = r.status;
+      outcome.message = r.message;
+    }
+    outcome.queue_seconds = std::max(outcome.queue_seconds, r.queue_seconds);
+    outcome.kernel_seconds = std::max(outcome.kernel_seconds, r.kernel_seconds);
+    if (r.batch_queries > outcome.batch_queries) {
+      outcome.batch_queries = r.batch_queries;
+      outcome.batch_requests = r.batch_requests;
+    }
+    if (--remaining == 0) Finish();
+  }
+
+  void Finish() {
+    if (outcome.status == batching::JobStatus::kOk) {
+      auto* out = response->mutable_f();
+      out->Resize(static_cast<int>(f.size()), 0.0f);
+      std::copy(f.begin(), f.end(), out->mutable_data());  // double to float: rounded once
+      response->mutable_transmittance()->Add(transmittance.begin(), transmittance.end());
+      response->set_model(model);
+      response->set_approximation(approximation);
+      response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
+      response->set_queue_seconds(outcome.queue_seconds);
+      response->set_kernel_seconds(outcome.kernel_seconds);
+      response->set_batch_queries(static_cast<uint32_t>(outcome.batch_queries));
+      response->set_batch_requests(static_cast<uint32_t>(outcome.batch_requests));
+      response->set_total_seconds(SecondsSince(received));
+    }
+    const grpc::Status status = ToStatus(outcome);
+    metrics->Call("Evaluate", status.error_code(), SecondsSince(received));
+    reactor->Finish(status);
+  }
+};
+
 }  // namespace
+
+std::string MaterialCache::Resolve(const v1::Material& material, const models::Registry& registry,
+                                   const std::string& field, Entry* out) {
+  models::ResolvedMaterial resolved;
+  std::string error = models::ResolveMaterial(material, registry, &resolved, field);
+  if (!error.empty()) return error;
+  out->model = resolved.model;
+  out->packed = resolved.model->Pack(resolved.values);
+  if (!material.has_transmission()) return "";
+  const std::string layer_field = field + ".transmission";
+  if (out->model->transmission())
+    return layer_field + ": model '" + out->model->name() + "' already transmits; add a layer to a reflection model";
+  if (material.transmission().has_transmission()) return layer_field + ".transmission: layers do not nest";
+  auto layer = std::make_shared<Entry>();
+  error = Resolve(material.transmission(), registry, layer_field, layer.get());
+  if (!error.empty()) return error;
+  if (!layer->model->transmission())
+    return layer_field + ": model '" + layer->model->name() + "' has no transmission (use a thin_layer material)";
+  out->transmission = std::move(layer);
+  return "";
+}
 
 std::string MaterialCache::Get(const v1::Material& material, const models::Registry& registry,
                                std::shared_ptr<const Entry>* out) {
@@ -67,12 +156,9 @@ std::string MaterialCache::Get(const v1::Material& material, const models::Regis
       return "";
     }
   }
-  models::ResolvedMaterial resolved;
-  std::string error = models::ResolveMaterial(material, registry, &resolved);
-  if (!error.empty()) return error;  // bad materials are not cached: they are cheap to reject again
   auto entry = std::make_shared<Entry>();
-  entry->model = resolved.model;
-  entry->packed = resolved.model->Pack(resolved.values);
+  std::string error = Resolve(material, registry, "material", entry.get());
+  if (!error.empty()) return error;  // bad materials are not cached: they are cheap to reject again
   std::lock_guard<std::mutex> lock(mutex_);
   if (map_.find(key) == map_.end()) {
     order_.push_front(key);
@@ -130,6 +216,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
     info->set_name(model->name());
     info->set_description(model->description());
     info->set_spatially_varying(model->spatially_varying());
+    info->set_transmission(model->transmission());
     for (const models::ParamSpec& p : model->params()) {
       v1::ParamSchema* s = info->add_params();
       s->set_name(p.name);
@@ -177,6 +264,8 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     error = ValidateDirections(*w, field);
     if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
   }
+  if (!std::isfinite(request->error_target()) || request->error_target() < 0)
+    return Reply(context, "Evaluate", received, Invalid("error_target: must be a finite relative error >= 0"));
   if (request->uv_size() > 0) {
     if (!material->model->spatially_varying())
       return Reply(context, "Evaluate", received, Invalid("uv: model '" + material->model->name() +
@@ -185,43 +274,109 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
   }
 
-  auto job = std::make_shared<batching::Job>();
-  job->model = material->model;
-  job->fp64 = fp64;
-  job->material = material->packed;
-  job->wi = request->wi().data();
-  job->wo = request->wo().data();
-  job->uv = request->uv_size() > 0 ? request->uv().data() : nullptr;
-  job->n = n;
-  const auto deadline = context->deadline();
-  if (deadline != std::chrono::system_clock::time_point::max())
-    job->deadline = received + (deadline - std::chrono::system_clock::now());
-  job->cancelled = [context] { return context->IsCancelled(); };
-  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  Metrics* metrics = metrics_;
-  job->done = [reactor, response, received, metrics, n, model = material->model->name(), fp64](batching::JobResult r) {
-    if (r.status == batching::JobStatus::kOk) {
-      auto* f = response->mutable_f();
-      f->Resize(static_cast<int>(r.f.size()), 0.0f);
-      std::copy(r.f.begin(), r.f.end(), f->mutable_data());  // double to float: rounded once
-      response->set_model(model);
-      response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
-      response->set_queue_seconds(r.queue_seconds);
-      response->set_kernel_seconds(r.kernel_seconds);
-      response->set_batch_queries(static_cast<uint32_t>(r.batch_queries));
-      response->set_batch_requests(static_cast<uint32_t>(r.batch_requests));
-      response->set_total_seconds(SecondsSince(received));
-      metrics->Evaluated(model, fp64, n, r.batch_queries, r.batch_requests, r.queue_seconds, r.kernel_seconds);
-    }
-    const grpc::Status status = ToStatus(r);
-    metrics->Call("Evaluate", status.error_code(), SecondsSince(received));
-    reactor->Finish(status);
-  };
-  if (!batcher_->Submit(job)) {
-    return Reply(context, "Evaluate", received,
-                 {grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"});
+  auto call = std::make_shared<EvaluateCall>();
+  call->entry = material;
+  call->f.assign(3 * n, 0.0);
+  const MaterialCache::Entry* layer = material->transmission.get();
+  const float* wi = request->wi().data();
+  const float* wo = request->wo().data();
+  const float* uv = request->uv_size() > 0 ? request->uv().data() : nullptr;
+  if (material->model->transmission()) {
+    call->transmittance.resize(n);
+    material->model->DirectTransmittance(material->packed, wo, n, call->transmittance.data());
   }
-  return reactor;
+  if (!layer) {
+    call->parts.push_back({material.get(), {}, {}, {}, {}, false});  // the request's arrays, all queries
+  } else {
+    // A curtain: pairs on one side go to the reflection model (a pair below the cloth is mirrored to the
+    // front: the cloth is two-sided), pairs on opposite sides to the layer.
+    call->parts.resize(2);
+    EvaluateCall::Part& reflect = call->parts[0];
+    EvaluateCall::Part& transmit = call->parts[1];
+    reflect.material = material.get();
+    reflect.scale_by_interaction = true;
+    transmit.material = layer;
+    for (size_t q = 0; q < n; ++q) {
+      const bool front_i = wi[3 * q + 2] >= 0, front_o = wo[3 * q + 2] >= 0;
+      EvaluateCall::Part& part = front_i == front_o ? reflect : transmit;
+      const float flip = &part == &reflect && !front_i ? -1.0f : 1.0f;
+      part.index.push_back(q);
+      part.wi.insert(part.wi.end(), {wi[3 * q], wi[3 * q + 1], flip * wi[3 * q + 2]});
+      part.wo.insert(part.wo.end(), {wo[3 * q], wo[3 * q + 1], flip * wo[3 * q + 2]});
+      if (uv && &part == &reflect) part.uv.insert(part.uv.end(), {uv[2 * q], uv[2 * q + 1]});
+    }
+    // Light the layer lets straight through cannot be reflected: reflection is scaled by
+    // sqrt((1 - T(wi)) (1 - T(wo))), symmetric so the curtain stays reciprocal (README "Curtains").
+    std::vector<double> ti(n);
+    call->transmittance.resize(n);
+    layer->model->DirectTransmittance(layer->packed, wi, n, ti.data());
+    layer->model->DirectTransmittance(layer->packed, wo, n, call->transmittance.data());
+    call->interaction.resize(n);
+    for (size_t q = 0; q < n; ++q) call->interaction[q] = std::sqrt((1 - ti[q]) * (1 - call->transmittance[q]));
+  }
+
+  call->reactor = context->DefaultReactor();
+  call->response = response;
+  call->metrics = metrics_;
+  call->received = received;
+  call->fp64 = fp64;
+  call->model = material->model->name();
+  call->n = n;
+  call->remaining = call->parts.size();
+  const auto deadline = context->deadline();
+  const batching::Clock::time_point job_deadline =
+      deadline == std::chrono::system_clock::time_point::max()
+          ? batching::Clock::time_point::max()
+          : received + (deadline - std::chrono::system_clock::now());
+  for (size_t k = 0; k < call->parts.size(); ++k) {
+    const EvaluateCall::Part& part = call->parts[k];
+    auto job = std::make_shared<batching::Job>();
+    job->model = part.material->model;
+    job->fp64 = fp64;
+    job->material = part.material->packed;
+    const std::string approximation = job->model->ChooseApproximation(request->error_target(), &job->material);
+    if (!approximation.empty())
+      call->approximation += (call->approximation.empty() ? "" : "; ") + approximation;
+    const bool whole = !layer;
+    job->wi = whole ? wi : part.wi.data();
+    job->wo = whole ? wo : part.wo.data();
+    job->uv = whole ? uv : (uv && part.material->model->spatially_varying() ? part.uv.data() : nullptr);
+    job->n = whole ? n : part.index.size();
+    job->deadline = job_deadline;
+    job->cancelled = [context] { return context->IsCancelled(); };
+    job->done = [call, k](batching::JobResult r) { call->PartDone(k, std::move(r)); };
+    if (job->n == 0) {
+      call->PartDone(k, batching::JobResult{});  // nothing to launch (e.g. a curtain seen only from one side)
+    } else if (!batcher_->Submit(job)) {
+      batching::JobResult full;
+      full.status = batching::JobStatus::kResourceExhausted;
+      full.message = "evaluation queue is full; retry later";
+      call->PartDone(k, std::move(full));
+    }
+  }
+  return call->reactor;
+}
+
+grpc::ServerUnaryReactor* LoomlightService::TextureSlice(grpc::CallbackServerContext* context,
+                                                         const v1::TextureSliceRequest* request,
+                                                         v1::TextureSliceResponse* response) {
+  const TextureSliceDeps deps{.registry = registry_, .batcher = batcher_, .has_fp64 = has_fp64_,
+                              .metrics = metrics_, .materials = &materials_, .worker = &worker_};
+  return HandleTextureSlice(deps, context, request, response);
+}
+
+grpc::ServerWriteReactor<v1::TabulateChunk>* LoomlightService::Tabulate(grpc::CallbackServerContext* context,
+                                                                        const v1::TabulateRequest* request) {
+  const TabulateDeps deps{.registry = registry_, .batcher = batcher_, .has_fp64 = has_fp64_, .metrics = metrics_,
+                          .materials = &materials_, .worker = &worker_};
+  return HandleTabulate(deps, context, request);
+}
+
+grpc::ServerWriteReactor<v1::RenderUpdate>* LoomlightService::Render(grpc::CallbackServerContext* context,
+                                                                    const v1::RenderRequest* request) {
+  const RenderDeps deps{.registry = registry_, .batcher = batcher_, .has_fp64 = has_fp64_, .metrics = metrics_,
+                        .materials = &materials_, .worker = &worker_};
+  return HandleRender(deps, context, request);
 }
 
 }  // namespace loomlight::api

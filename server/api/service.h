@@ -8,6 +8,7 @@
 #include <unordered_map>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/host_worker.h"
 #include "server/api/metrics.h"
 #include "server/batching/batcher.h"
 #include "server/models/registry.h"
@@ -29,6 +30,7 @@ class MaterialCache {
   struct Entry {
     const models::Model* model = nullptr;
     models::PackedMaterial packed;
+    std::shared_ptr<const Entry> transmission;  // the curtain's layer (Material.transmission), or null
   };
   explicit MaterialCache(size_t capacity) : capacity_(capacity) {}
   // The cached entry, or one resolved now ("" on success, else the INVALID_ARGUMENT message).
@@ -36,6 +38,9 @@ class MaterialCache {
                   std::shared_ptr<const Entry>* out);
 
  private:
+  // Resolves and packs one material (and its layer), naming fields under `field`.
+  static std::string Resolve(const v1::Material& material, const models::Registry& registry,
+                             const std::string& field, Entry* out);
   size_t capacity_;
   std::mutex mutex_;
   std::list<std::string> order_;  // most recently used first
@@ -51,6 +56,15 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
                                        v1::ListModelsResponse* response) override;
   grpc::ServerUnaryReactor* Evaluate(grpc::CallbackServerContext* context, const v1::EvaluateRequest* request,
                                      v1::EvaluateResponse* response) override;
+  // Delegates to HandleTextureSlice (server/api/texture_slice.h).
+  grpc::ServerUnaryReactor* TextureSlice(grpc::CallbackServerContext* context, const v1::TextureSliceRequest* request,
+                                         v1::TextureSliceResponse* response) override;
+  // Delegates to HandleTabulate (server/api/tabulate.h).
+  grpc::ServerWriteReactor<v1::TabulateChunk>* Tabulate(grpc::CallbackServerContext* context,
+                                                       const v1::TabulateRequest* request) override;
+  // Delegates to HandleRender (server/api/render_rpc.h).
+  grpc::ServerWriteReactor<v1::RenderUpdate>* Render(grpc::CallbackServerContext* context,
+                                                    const v1::RenderRequest* request) override;
 
  private:
   // Finishes a call on the default reactor and records it.
@@ -62,6 +76,8 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   bool has_fp64_;
   Metrics* metrics_;
   MaterialCache materials_{1024};
+  // Declared last, so destroyed first: its remaining tasks may still use the members above.
+  HostWorker worker_;
 };
 
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or

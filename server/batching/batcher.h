@@ -21,7 +21,8 @@ namespace loomlight::batching {
 
 using Clock = std::chrono::steady_clock;
 
-enum class JobStatus { kOk, kDeadlineExceeded, kCancelled, kInternal, kUnavailable };
+// kResourceExhausted: never set by the batcher; callers use it for a job Submit refused.
+enum class JobStatus { kOk, kDeadlineExceeded, kCancelled, kInternal, kUnavailable, kResourceExhausted };
 
 struct JobResult {
   JobStatus status = JobStatus::kOk;

@@ -2,6 +2,7 @@
 // place (as Mitsuba registers plugins). The API, the batcher, the client and the tests discover models here.
 #pragma once
 
+#include <algorithm>
 #include <map>
 #include <memory>
 #include <string>
@@ -39,6 +40,7 @@ struct PresetSpec {
 struct PackedMaterial {
   std::vector<double> data;
   int uniform = 0;  // launch-uniform integer (e.g. tangent samples); only equal ones share a launch
+  double approximation_error = 0;  // max relative error of a cheaper mode vs the exact one (thin layer: single)
 };
 
 // A model's kernels: the entry file under kernels/ and its kernel functions, all with the signature of
@@ -75,6 +77,19 @@ class Model {
                           float* f) const = 0;
 
   bool spatially_varying() const { return !kernel().uv_function.empty(); }
+  // Models that let light through the cloth (non-zero f with wi and wo on opposite sides) also report the
+  // direct (unscattered) transmittance toward each wo, in [0, 1]; n values into t.
+  virtual bool transmission() const { return false; }
+  // Adapts a packed material to a request's error target (relative error of f; 0 = none given, keep the
+  // material's own choice) and describes the approximation in use with its estimated error, or "" when the
+  // model makes none.
+  virtual std::string ChooseApproximation(double error_target, PackedMaterial* m) const { return ""; }
+  virtual void DirectTransmittance(const PackedMaterial&, const float* wo, size_t n, double* t) const {
+    std::fill(t, t + n, 0.0);
+  }
+  // True when f depends only on the angles between wi, wo and the normal (not on the azimuth of the
+  // pair): Tabulate's MERL grid then needs one half-vector azimuth sample instead of an average.
+  virtual bool isotropic() const { return false; }
 
   const ParamSpec* FindParam(const std::string& name) const;
   // Defaults completed with the preset's values.

@@ -1,15 +1,96 @@
 // Registry entry of the thin semi-transparent layer (Frisvad et al., SPEC.md section 4): schema, presets,
-// packing into kernels/models/thin_layer.h's layout. Single scattering only (issue 4 item 6, the all-orders
-// mode, is not wired in); wi and wo on opposite sides of the layer give its diffuse transmission.
+// packing into kernels/models/thin_layer.h's layout; wi and wo on opposite sides of the layer give its diffuse
+// transmission. `scattering` is the launch-uniform value: 0 the closed-form single scattering, 1 all orders
+// (issue 4 item 6), for which Pack tabulates the adding-doubling solution (server/models/slab) per channel.
+// Pack always builds the tables and the single-scattering error (PackedMaterial::approximation_error), so a
+// service may switch a packed material's mode from a request's error target without packing it again.
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdio>
+#include <future>
+#include <utility>
 
 #include "server/models/host_models.h"
 #include "server/models/registry.h"
+#include "server/models/slab/adding_doubling.h"
 
 namespace loomlight::models {
 namespace {
+// The shared source on the host for the all-orders mode, which reference.cpp and native.cpp do not take a
+// mode for (double: the reference; float: the native baseline, here single-threaded).
+namespace tl_double {
+typedef double real;
+#include "common/shim.h"
+#include "models/thin_layer.h"
+}  // namespace tl_double
+namespace tl_float {
+typedef float real;
+#include "common/shim.h"
+#include "models/thin_layer.h"
+}  // namespace tl_float
 
-constexpr int kMaterialSize = 4;  // TL_MATERIAL_SIZE
+// The single-scattering error estimate covers directions at least this far from the layer's plane.
+constexpr double kErrorMinCosine = 0.1;
+
+// Table cosines: uniform in sqrt(mu), TL_TABLE_NODES of them (kernels/models/thin_layer.h).
+std::vector<double> TableCosines() {
+  std::vector<double> mu(TL_TABLE_NODES);
+  for (int k = 0; k < TL_TABLE_NODES; ++k) mu[k] = std::pow(double(k) / (TL_TABLE_NODES - 1), 2);
+  return mu;
+}
+
+// Writes the multiply scattered f of every channel into the material's tables and returns the largest
+// relative error of single scattering against all orders over the table's nodes with mu, mu0 >= 0.1 (up to
+// 84 degrees from the normal). Closer to the horizon light crossing the layer is nearly all multiply
+// scattered, so including those nodes makes the error ~100% for any tau >= 0.05 and useless for choosing.
+// Channels of equal albedo share one solve; distinct ones are solved in parallel (a few ms each).
+double TabulateAllOrders(double tau, const std::vector<double>& albedo, std::vector<double>* data) {
+  static const std::vector<double> mu = TableCosines();
+  constexpr int n = TL_TABLE_NODES;
+  std::array<int, 3> solved_by;  // the first channel of the same albedo
+  std::array<std::future<slab::SlabFunctions>, 3> solves;
+  for (int c = 0; c < 3; ++c) {
+    solved_by[c] = int(std::find(albedo.begin(), albedo.begin() + c, albedo[c]) - albedo.begin());
+    if (solved_by[c] == c) solves[c] = std::async(std::launch::async, slab::SolveSlab, tau, albedo[c], mu,
+                                                  slab::AddingDoublingOptions{});
+  }
+  double worst = 0;
+  for (int c = 0; c < 3; ++c) {
+    double* reflection = data->data() + TL_MATERIAL_SIZE + 2 * c * TL_TABLE_SIZE;
+    double* transmission = reflection + TL_TABLE_SIZE;
+    if (solved_by[c] < c) {
+      const double* from = data->data() + TL_MATERIAL_SIZE + 2 * solved_by[c] * TL_TABLE_SIZE;
+      std::copy(from, from + 2 * TL_TABLE_SIZE, reflection);
+      continue;
+    }
+    const slab::SlabFunctions s = solves[c].get();
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j) {
+        // Symmetrised (the solver's two halves agree to rounding), so the kernel's lookup is reciprocal.
+        const size_t ij = s.index(i, j), ji = s.index(j, i);
+        reflection[i * n + j] = 0.5 * (s.reflection_multiple[ij] + s.reflection_multiple[ji]);
+        transmission[i * n + j] = 0.5 * (s.transmission_multiple[ij] + s.transmission_multiple[ji]);
+        if (mu[i] < kErrorMinCosine || mu[j] < kErrorMinCosine) continue;
+        for (const auto& [all, multiple] : {std::pair(s.reflection[ij], s.reflection_multiple[ij]),
+                                            std::pair(s.transmission[ij], s.transmission_multiple[ij])})
+          if (all > 0) worst = std::max(worst, std::fabs(multiple) / all);
+      }
+    // At mu = mu0 = 0 the multiply scattered reflection diverges like log(1 / mu): the corner takes its
+    // diagonal neighbour's value (the solver's corner value misses the divergent second order entirely).
+    reflection[0] = reflection[n + 1];
+  }
+  return worst;
+}
+
+template <class Real, class Eval>
+void EvalAllOrders(const Real* material, const float* wi, const float* wo, size_t n, Real* f, Eval eval) {
+  for (size_t q = 0; q < n; ++q) {
+    const float* a = wi + 3 * q;
+    const float* b = wo + 3 * q;
+    eval(material, TL_SCATTERING_ALL, a[0], a[1], a[2], b[0], b[1], b[2], f + 3 * q);
+  }
+}
 
 std::vector<ParamSpec> Schema() {
   return {
@@ -18,6 +99,9 @@ std::vector<ParamSpec> Schema() {
        "in reflection at 0.05, 35% at 0.2)", 1, 1},
       {"albedo", ParamType::kRgb, "1", 0.0, 1.0, {0.8, 0.8, 0.8}, "single-scattering albedo Lambda (linear RGB)",
        3, 3},
+      {"scattering", ParamType::kInt, "1", 0, 1, {TL_SCATTERING_SINGLE},
+       "0: single scattering (closed form); 1: all scattering orders (adding-doubling tables, within 0.5% of "
+       "the exact plane-parallel f)", 1, 1},
   };
 }
 
@@ -54,20 +138,41 @@ class ThinLayerModel : public Model {
 
   PackedMaterial Pack(const ParamValues& v) const override {
     PackedMaterial m;
-    m.data.reserve(kMaterialSize);
-    m.data.push_back(v.at("tau")[0]);
-    for (double a : v.at("albedo")) m.data.push_back(a / (4.0 * M_PI));
+    m.uniform = static_cast<int>(v.at("scattering")[0]);
+    m.data.assign(TL_PACKED_SIZE, 0.0);
+    m.data[0] = v.at("tau")[0];
+    const std::vector<double>& albedo = v.at("albedo");
+    for (int c = 0; c < 3; ++c) m.data[1 + c] = albedo[c] / (4.0 * M_PI);
+    m.approximation_error = TabulateAllOrders(m.data[0], albedo, &m.data);
     return m;
   }
 
   void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
                      double* f) const override {
-    reference::ThinLayerEval(m.data.data(), wi, wo, n, f);
+    if (m.uniform == TL_SCATTERING_SINGLE) return reference::ThinLayerEval(m.data.data(), wi, wo, n, f);
+    EvalAllOrders<tl_double::real>(m.data.data(), wi, wo, n, f, tl_double::tl_eval_scattering);
+  }
+  bool transmission() const override { return true; }
+  bool isotropic() const override { return true; }  // f depends on |n.wi|, |n.wo| and the side only
+  std::string ChooseApproximation(double error_target, PackedMaterial* m) const override {
+    if (error_target > 0) m->uniform = m->approximation_error <= error_target ? TL_SCATTERING_SINGLE : TL_SCATTERING_ALL;
+    char text[160];
+    if (m->uniform == TL_SCATTERING_SINGLE)
+      std::snprintf(text, sizeof text, "thin_layer: single scattering, error up to %.2g%% (directions >= 0.1 from the plane)",
+                    100 * m->approximation_error);
+    else
+      std::snprintf(text, sizeof text, "thin_layer: all scattering orders (tables within 0.5%%; single scattering would err by %.2g%%)",
+                    100 * m->approximation_error);
+    return text;
+  }
+  void DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const override {
+    reference::ThinLayerTransmittance(m.data.data(), wo, n, t);
   }
   void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
                   float* f) const override {
     const std::vector<float> data(m.data.begin(), m.data.end());
-    native::ThinLayerEval(data.data(), wi, wo, n, f);
+    if (m.uniform == TL_SCATTERING_SINGLE) return native::ThinLayerEval(data.data(), wi, wo, n, f);
+    EvalAllOrders<tl_float::real>(data.data(), wi, wo, n, f, tl_float::tl_eval_scattering);
   }
 
  private:

@@ -1,0 +1,75 @@
+// A drawing surface for the client's plots (polar lobes, line charts, image views): lines, dashed lines,
+// text, pixel images, a title block and a legend, written as PNG through OpenImageIO. Lengths are in
+// "units" of 1/800 of the image width, so a plot looks the same at any size.
+#pragma once
+
+#include <array>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace loomlight::client {
+
+using Color = std::array<float, 3>;  // display RGB in [0, 1]
+
+struct Point {
+  double x, y;  // supersampled canvas pixels
+};
+
+struct LegendEntry {
+  Color color;
+  std::string text;
+};
+
+// Drawn at this multiple of the output size, then filtered down: OpenImageIO's render_line has no anti-aliasing.
+constexpr int kSupersample = 2;
+constexpr double kUnitsPerWidth = 800.0;
+constexpr double kCurveWidth = 2.5, kMarkerWidth = 1.5, kGridWidth = 1.0;
+constexpr int kTitleFont = 20, kLabelFont = 13;
+
+inline constexpr Color kWhite = {1, 1, 1};
+inline constexpr Color kGrid = {0.86f, 0.86f, 0.86f};
+inline constexpr Color kRim = {0.6f, 0.6f, 0.6f};
+inline constexpr Color kText = {0.1f, 0.1f, 0.1f};
+inline constexpr Color kFaintText = {0.45f, 0.45f, 0.45f};
+inline constexpr Color kChannelColors[3] = {{0.85f, 0.10f, 0.10f}, {0.10f, 0.60f, 0.10f}, {0.10f, 0.25f, 0.90f}};
+
+enum class Align { kStart, kCenter, kEnd };
+
+class Canvas {
+ public:
+  // An image of width x height output pixels, white.
+  Canvas(int width, int height);
+  ~Canvas();
+  int width() const { return width_; }    // supersampled pixels
+  int height() const { return height_; }
+  double unit() const { return unit_; }   // supersampled pixels per unit
+
+  // render_line draws one pixel wide; a wider line is the union of offset copies within the pen radius.
+  void line(Point a, Point b, const Color& color, double width_units);
+  void dashed_line(Point a, Point b, const Color& color, double width_units);
+  // Silently does nothing without a font: labels are a nicety, the curves are the plot.
+  void text(Point p, const std::string& text, int font_units, const Color& color, Align align_x = Align::kCenter,
+            Align align_y = Align::kCenter);
+  // Paints a w x h image of display RGB (row-major, top row first, values in [0, 1]) into the rectangle
+  // from top_left to bottom_right, each image pixel a block (nearest neighbour).
+  void image(Point top_left, Point bottom_right, int w, int h, const std::vector<float>& rgb);
+  // Filters the supersampled canvas down to the output size and writes it as 8-bit. Throws
+  // std::runtime_error if the file cannot be written.
+  void write(const std::string& path) const;
+
+ private:
+  struct Pixels;
+  int width_, height_;
+  double unit_;
+  std::unique_ptr<Pixels> pixels_;
+};
+
+// Title and notes in the top-left corner.
+void draw_title(Canvas& canvas, const std::string& title, const std::vector<std::string>& notes);
+// Colour swatches with their text in the top-right corner (nothing without a font).
+void draw_legend(Canvas& canvas, const std::vector<LegendEntry>& legend);
+// printf-style formatting of one number, e.g. format_value("%.3g", v).
+std::string format_value(const char* format, double v);
+
+}  // namespace loomlight::client

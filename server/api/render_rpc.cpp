@@ -1,0 +1,569 @@
+#include "server/api/render_rpc.h"
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <vector>
+
+#include "server/api/job_status.h"
+#include "server/imaging/image_encode.h"
+#include "server/models/material.h"
+#include "server/render/fidelity.h"
+#include "server/render/shading.h"
+#include "server/render/tone_map.h"
+
+namespace loomlight::api {
+namespace {
+
+constexpr const char* kRpc = "Render";
+
+using Clock = batching::Clock;
+using render::Rgb;
+using render::Vec3;
+
+double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
+
+std::string Indexed(const std::string& field, int i) { return field + "[" + std::to_string(i) + "]"; }
+
+// Exactly three finite values within +-limit (or `optional` and empty). Returns "" or "field: reason".
+std::string ValidateTriple(const google::protobuf::RepeatedField<double>& v, const std::string& field, double limit,
+                           bool optional = false) {
+  if (optional && v.empty()) return "";
+  if (v.size() != 3) return field + ": needs 3 values (x, y, z), got " + std::to_string(v.size());
+  for (int i = 0; i < 3; ++i)
+    if (!std::isfinite(v[i]) || std::fabs(v[i]) > limit)
+      return Indexed(field, i) + ": " + std::to_string(v[i]) + " is not finite within +-" + std::to_string(limit);
+  return "";
+}
+
+Vec3 ToVec(const google::protobuf::RepeatedField<double>& v) { return {v[0], v[1], v[2]}; }
+
+std::string ValidateLight(const v1::RenderLight& light, const std::string& field) {
+  if (!v1::RenderLight::Type_IsValid(light.type())) return field + ".type: unknown value " + std::to_string(light.type());
+  if (std::string e = ValidateTriple(light.rgb(), field + ".rgb", kMaxLightValue); !e.empty()) return e;
+  for (int c = 0; c < 3; ++c)
+    if (light.rgb(c) < 0) return Indexed(field + ".rgb", c) + ": must be >= 0";
+  if (light.type() == v1::RenderLight::TYPE_DIRECTIONAL) {
+    if (std::string e = ValidateTriple(light.direction(), field + ".direction", kMaxSceneCoordinate); !e.empty()) return e;
+    if (render::Length(ToVec(light.direction())) < 1e-9) return field + ".direction: must not be zero";
+  } else {
+    if (std::string e = ValidateTriple(light.position(), field + ".position", kMaxSceneCoordinate); !e.empty()) return e;
+  }
+  return "";
+}
+
+std::string ValidateCamera(const v1::RenderCamera& camera) {
+  if (std::string e = ValidateTriple(camera.position(), "camera.position", kMaxSceneCoordinate); !e.empty()) return e;
+  if (std::string e = ValidateTriple(camera.look_at(), "camera.look_at", kMaxSceneCoordinate); !e.empty()) return e;
+  if (std::string e = ValidateTriple(camera.up(), "camera.up", kMaxSceneCoordinate, true); !e.empty()) return e;
+  const Vec3 forward = ToVec(camera.look_at()) - ToVec(camera.position());
+  if (render::Length(forward) < 1e-6) return "camera.look_at: must differ from camera.position";
+  const Vec3 up = camera.up().empty() ? Vec3{0, 1, 0} : ToVec(camera.up());
+  if (render::Length(render::Cross(render::Normalize(forward), render::Normalize(up))) < 1e-6)
+    return "camera.up: must not be zero or parallel to the view direction";
+  if (camera.fov_deg() != 0 && !(camera.fov_deg() >= kMinFovDeg && camera.fov_deg() <= kMaxFovDeg))
+    return "camera.fov_deg: " + std::to_string(camera.fov_deg()) + " is outside " + std::to_string(int(kMinFovDeg)) +
+           ".." + std::to_string(int(kMaxFovDeg)) + " degrees (0 = the scene's default)";
+  return "";
+}
+
+uint32_t SamplesPerPixel(const v1::RenderRequest& r) {
+  return r.samples_per_pixel() > 0 ? r.samples_per_pixel() : kDefaultRenderSamplesPerPixel;
+}
+
+render::SceneKind ToSceneKind(v1::ScenePreset scene) {
+  switch (scene) {
+    case v1::SCENE_CYLINDERS: return render::SceneKind::kCylinders;
+    case v1::SCENE_SWATCH: return render::SceneKind::kSwatch;
+    case v1::SCENE_CURTAIN: return render::SceneKind::kCurtain;
+    default: return render::SceneKind::kSphere;
+  }
+}
+
+// The request's reflection material with parameters overridden, packed through the service's cache (which
+// validates and keeps them); the variants stay alive as long as this object.
+class CachedVariants final : public render::MaterialVariants {
+ public:
+  CachedVariants(const v1::Material& material, const models::Registry& registry, MaterialCache& cache)
+      : registry_(registry), cache_(cache), base_(material) {
+    base_.clear_transmission();  // the layer is packed once, with the request's material
+  }
+  const models::PackedMaterial* Requested() override { return Get(base_); }
+  const models::PackedMaterial* WithParam(const std::string& name, double value) override {
+    v1::Material variant = base_;
+    v1::Param* param = nullptr;
+    for (v1::Param& p : *variant.mutable_params())
+      if (p.name() == name) param = &p;
+    if (!param) param = variant.add_params();
+    param->set_name(name);
+    param->clear_values();
+    param->add_values(value);
+    return Get(variant);
+  }
+
+ private:
+  const models::PackedMaterial* Get(const v1::Material& material) {
+    std::shared_ptr<const MaterialCache::Entry> entry;
+    if (!cache_.Get(material, registry_, &entry).empty()) return nullptr;
+    kept_.push_back(entry);
+    return &entry->packed;
+  }
+  const models::Registry& registry_;
+  MaterialCache& cache_;
+  v1::Material base_;
+  std::vector<std::shared_ptr<const MaterialCache::Entry>> kept_;
+};
+
+// Finishes a call that never started streaming (a rejected request).
+class RejectedRender final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
+ public:
+  explicit RejectedRender(grpc::Status status) { Finish(std::move(status)); }
+  void OnDone() override { delete this; }
+};
+
+// One Render call in flight. As in Tabulate, every member is touched only on the HostWorker's thread: gRPC
+// reactions and batcher completions post there, so the state needs no lock, and `delete this` (posted by
+// OnDone, the last reaction) runs after every task posted before it. The call is finished only when no
+// batcher job and no write is outstanding.
+//
+// Pixels are rendered in chunks of whole pixels; two chunk buffers alternate: while one chunk's jobs are
+// on the device, the worker accumulates the previous chunk and traces the next. Every pixel's sum is taken
+// in a fixed order (evaluators in order, then queries in sample order), so the image does not depend on
+// timing or on how launches were batched.
+class RenderCall final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
+ public:
+  RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
+             std::shared_ptr<const MaterialCache::Entry> material, Clock::time_point received)
+      : deps_(deps), context_(context), request_(request), material_(std::move(material)), received_(received),
+        fp64_(request.precision() == v1::PRECISION_FP64) {
+    const auto deadline = context->deadline();
+    if (deadline != std::chrono::system_clock::time_point::max())
+      deadline_ = received + (deadline - std::chrono::system_clock::now());
+    deps_.worker->Post([this] {
+      SetUp();
+      Pump();
+    });
+  }
+
+  void OnWriteDone(bool ok) override {
+    deps_.worker->Post([this, ok] {
+      write_in_flight_ = false;
+      if (!ok) stream_broken_ = true;
+      Pump();
+    });
+  }
+  void OnCancel() override {
+    deps_.worker->Post([this] { Pump(); });
+  }
+  void OnDone() override {
+    deps_.worker->Post([this] { delete this; });
+  }
+
+ private:
+  struct Chunk {
+    uint64_t first_pixel = 0, pixels = 0;     // pixels 0: nothing prepared
+    std::vector<render::QueryBucket> buckets;  // per evaluator; tag = pixel within the chunk
+    std::vector<Rgb> direct;                   // per pixel: radiance summed without a query
+    std::vector<std::vector<double>> f;        // per evaluator: the kernel's results
+    size_t jobs_in_flight = 0;
+    uint64_t queries = 0;
+  };
+
+  // Scene, camera, lights, environment and the fidelity choice; on failure status_ says why.
+  void SetUp() {
+    const v1::RenderRequest& r = request_;
+    render::RenderSetup& s = setup_;
+    s.scene = render::MakeScene(ToSceneKind(r.scene()));
+    render::CameraSpec camera = s.scene.default_camera;
+    if (r.has_camera()) {
+      camera.position = ToVec(r.camera().position());
+      camera.look_at = ToVec(r.camera().look_at());
+      camera.up = r.camera().up().empty() ? Vec3{0, 1, 0} : ToVec(r.camera().up());
+      if (r.camera().fov_deg() > 0) camera.fov_deg = r.camera().fov_deg();
+    }
+    s.width = static_cast<int>(r.width());
+    s.height = static_cast<int>(r.height());
+    s.samples_per_pixel = SamplesPerPixel(r);
+    s.seed = r.seed();
+    s.camera = render::PinholeCamera(camera, s.width, s.height);
+    s.texture_scale = r.texture_scale() > 0 ? r.texture_scale() : s.scene.default_texture_scale;
+    s.texture_rotation_deg = r.texture_rotation_deg();
+    for (const v1::RenderLight& light : r.lights()) {
+      render::Light l;
+      l.rgb = ToVec(light.rgb());
+      if (light.type() == v1::RenderLight::TYPE_POINT) {
+        l.type = render::Light::Type::kPoint;
+        l.position = ToVec(light.position());
+      } else {
+        l.direction = render::Normalize(ToVec(light.direction()));
+      }
+      s.lights.push_back(l);
+    }
+    const bool default_lighting = r.lights().empty() && !r.has_environment();
+    if (default_lighting) s.lights = s.scene.default_lights;
+    if (default_lighting || r.has_environment()) {
+      auto environment = std::make_shared<render::Environment>();
+      if (r.has_environment() && !r.environment().path().empty()) {
+        if (std::string e = render::Environment::Load(r.environment().path(), environment.get()); !e.empty()) {
+          status_ = Invalid("environment.path: " + e);
+          return;
+        }
+      } else {
+        *environment = render::Environment::Builtin();
+      }
+      const double intensity = default_lighting ? s.scene.default_environment_intensity
+                               : r.environment().intensity() > 0 ? r.environment().intensity() : 1.0;
+      environment->SetTransform(intensity, r.has_environment() ? r.environment().rotation_deg() : 0.0);
+      s.environment = std::move(environment);
+    }
+
+    render::MaterialInfo info;
+    models::ResolvedMaterial resolved;
+    if (std::string e = models::ResolveMaterial(r.material(), *deps_.registry, &resolved); !e.empty()) {
+      status_ = Invalid(e);  // cannot happen: the cache resolved it already
+      return;
+    }
+    info.model = material_->model;
+    info.values = std::move(resolved.values);
+    if (material_->transmission) {
+      info.layer_model = material_->transmission->model;
+      info.layer = &material_->transmission->packed;
+    }
+    s.object_transmits.assign(s.scene.objects.size(), render::Transmits(info));
+    variants_ = std::make_unique<CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
+    error_target_ = r.error_target() > 0 ? r.error_target() : render::kDefaultErrorTarget;
+    if (std::string e = render::ChooseFidelity(s, info, *variants_, error_target_, r.force_full_fidelity(), &plan_);
+        !e.empty()) {
+      status_ = {grpc::StatusCode::INTERNAL, e};
+      return;
+    }
+
+    total_pixels_ = uint64_t(s.width) * s.height;
+    const size_t per_pixel = std::max<size_t>(1, render::MaxQueriesPerSample(s)) * s.samples_per_pixel;
+    chunk_pixels_ = std::max<uint64_t>(1, kRenderChunkQueries / per_pixel);
+    sums_.assign(total_pixels_, Rgb{});
+    setup_seconds_ = SecondsSince(received_);
+    for (Chunk& c : chunks_) Prepare(c);
+  }
+
+  // The one step of the state machine (as Tabulate's): notice a stop, keep one chunk in flight, keep one
+  // write in flight while there is news, finish when nothing is outstanding.
+  void Pump() {
+    if (finished_) return;
+    NoticeStop();
+    MaybeSubmit();  // does nothing once stopping
+    if (!status_.ok()) {
+      if (!JobsInFlight() && !write_in_flight_) FinishCall(status_);
+      return;
+    }
+    if (write_in_flight_) return;
+    if (complete_ && !final_sent_) return WriteUpdate(true);
+    if (final_sent_) return FinishCall(grpc::Status::OK);
+    if (!sent_first_ || pixels_done_ > pixels_sent_) WriteUpdate(false);
+  }
+
+  bool JobsInFlight() const { return chunks_[0].jobs_in_flight + chunks_[1].jobs_in_flight > 0; }
+
+  // Records why the work should stop: the client cancelled or vanished, or the deadline passed.
+  void NoticeStop() {
+    if (!status_.ok()) return;
+    if (stream_broken_ || context_->IsCancelled())
+      status_ = {grpc::StatusCode::CANCELLED, "call cancelled"};
+    else if (Clock::now() >= deadline_)
+      status_ = {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
+  }
+
+  // Traces the next pixels into a free chunk buffer (none left: pixels = 0).
+  void Prepare(Chunk& chunk) {
+    chunk.first_pixel = next_pixel_;
+    chunk.pixels = std::min(chunk_pixels_, total_pixels_ - next_pixel_);
+    next_pixel_ += chunk.pixels;
+    chunk.buckets.resize(plan_.evaluators.size());
+    for (render::QueryBucket& b : chunk.buckets) b.Clear();
+    chunk.direct.assign(chunk.pixels, Rgb{});
+    chunk.queries = 0;
+    render::ShadingPoint point;
+    for (uint64_t p = 0; p < chunk.pixels; ++p) {
+      const uint64_t pixel = chunk.first_pixel + p;
+      Rgb direct;
+      for (uint32_t s = 0; s < setup_.samples_per_pixel; ++s) {
+        render::TracePixelSample(setup_, pixel, s, &point);
+        if (point.object < 0)
+          direct = direct + point.background;
+        else
+          direct = direct + render::AppendQueries(point, plan_.objects[point.object], plan_.evaluators,
+                                                  static_cast<uint32_t>(p), &chunk.buckets);
+      }
+      chunk.direct[p] = direct;
+    }
+    for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
+  }
+
+  // Sends the next chunk's jobs when none is in flight.
+  void MaybeSubmit() {
+    Chunk& chunk = chunks_[next_chunk_];
+    if (!status_.ok() || JobsInFlight() || chunk.pixels == 0 || submitted_[next_chunk_]) return;
+    submitted_[next_chunk_] = true;
+    const int index = next_chunk_;
+    chunk.f.assign(plan_.evaluators.size(), {});
+    std::vector<std::shared_ptr<batching::Job>> jobs;
+    for (size_t e = 0; e < plan_.evaluators.size(); ++e) {
+      const render::QueryBucket& b = chunk.buckets[e];
+      if (b.size() == 0) continue;
+      const render::Evaluator& evaluator = plan_.evaluators[e];
+      auto job = std::make_shared<batching::Job>();
+      job->model = evaluator.model;
+      job->fp64 = fp64_;
+      job->material = *evaluator.material;
+      job->wi = b.wi.data();
+      job->wo = b.wo.data();
+      job->uv = evaluator.with_uv ? b.uv.data() : nullptr;
+      job->n = b.size();
+      job->deadline = deadline_;
+      job->cancelled = [context = context_] { return context->IsCancelled(); };
+      job->done = [this, index, e](batching::JobResult result) {
+        deps_.worker->Post([this, index, e, result = std::move(result)] { OnJobDone(index, e, result); });
+      };
+      jobs.push_back(std::move(job));
+    }
+    if (jobs.empty()) {  // nothing to evaluate (e.g. only background): the chunk is done at once
+      deps_.worker->Post([this, index] { OnChunkDone(index); });
+      chunk.jobs_in_flight = 1;  // held until OnChunkDone, so the call does not finish under it
+      return;
+    }
+    for (auto& job : jobs) {
+      if (!deps_.batcher->Submit(job)) {
+        status_ = {grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"};
+        return;
+      }
+      ++chunk.jobs_in_flight;
+    }
+  }
+
+  void OnJobDone(int index, size_t evaluator, const batching::JobResult& result) {
+    Chunk& chunk = chunks_[index];
+    if (result.status != batching::JobStatus::kOk) {
+      if (status_.ok()) status_ = ToStatus(result);
+    } else {
+      const size_t n = chunk.buckets[evaluator].size();
+      deps_.metrics->Evaluated(plan_.evaluators[evaluator].model->name(), fp64_, n, result.batch_queries,
+                               result.batch_requests, result.queue_seconds, result.kernel_seconds);
+      deps_.metrics->Rendered(n);
+      queries_ += n;
+      kernel_seconds_ += result.kernel_seconds;
+      chunk.f[evaluator] = result.f;
+      if (chunk.f[evaluator].size() != 3 * n && status_.ok())
+        status_ = {grpc::StatusCode::INTERNAL, "kernel returned " + std::to_string(chunk.f[evaluator].size()) +
+                                                   " values for " + std::to_string(n) + " queries"};
+    }
+    if (--chunk.jobs_in_flight == 0) return OnChunkDone(index);
+    Pump();
+  }
+
+  // The next chunk goes to the device first; this one is then accumulated and its buffer refilled.
+  void OnChunkDone(int index) {
+    Chunk& chunk = chunks_[index];
+    chunk.jobs_in_flight = 0;
+    submitted_[index] = false;
+    next_chunk_ = 1 - index;
+    NoticeStop();
+    if (status_.ok()) {
+      MaybeSubmit();
+      Accumulate(chunk);
+      Prepare(chunk);
+      if (pixels_done_ == total_pixels_) Encode();
+    }
+    Pump();
+  }
+
+  void Accumulate(const Chunk& chunk) {
+    for (size_t e = 0; e < chunk.buckets.size(); ++e) {
+      const render::QueryBucket& b = chunk.buckets[e];
+      const std::vector<double>& f = chunk.f[e];
+      for (size_t q = 0; q < b.size(); ++q) {
+        Rgb& sum = sums_[chunk.first_pixel + b.tag[q]];
+        for (int c = 0; c < 3; ++c) {
+          const double value = double(b.weight[3 * q + c]) * f[3 * q + c];
+          if (std::isfinite(value)) (c == 0 ? sum.x : c == 1 ? sum.y : sum.z) += value;
+        }
+      }
+    }
+    for (uint64_t p = 0; p < chunk.pixels; ++p) {
+      Rgb& sum = sums_[chunk.first_pixel + p];
+      sum = sum + chunk.direct[p];
+    }
+    pixels_done_ += chunk.pixels;
+  }
+
+  void Encode() {
+    imaging::LinearRgbImage image;
+    image.width = setup_.width;
+    image.height = setup_.height;
+    image.rgb.resize(3 * total_pixels_);
+    double mean[3] = {0, 0, 0};
+    for (uint64_t p = 0; p < total_pixels_; ++p)
+      for (int c = 0; c < 3; ++c) {
+        double v = sums_[p][c] / setup_.samples_per_pixel;
+        if (!std::isfinite(v) || v < 0) v = 0;  // never NaN or Inf in an image
+        image.rgb[3 * p + c] = static_cast<float>(v);
+        mean[c] += v / total_pixels_;
+      }
+    double exposure = 1;
+    std::string bytes, error;
+    if (request_.format() == v1::RENDER_FORMAT_EXR) {
+      error = imaging::EncodeImage(image, imaging::ImageFormat::kExr, 1.0, &bytes);
+    } else {
+      exposure = request_.exposure() > 0 ? request_.exposure() : render::AutomaticExposure(image);
+      const imaging::ImageFormat format =
+          request_.format() == v1::RENDER_FORMAT_JPEG ? imaging::ImageFormat::kJpeg : imaging::ImageFormat::kPng;
+      error = imaging::EncodeImage(render::ToneMap(image, exposure), format, 1.0, &bytes);
+    }
+    if (!error.empty()) {
+      status_ = {grpc::StatusCode::INTERNAL, "cannot encode the image: " + error};
+      return;
+    }
+    final_.set_image(std::move(bytes));
+    final_.set_format(request_.format());
+    final_.set_width(request_.width());
+    final_.set_height(request_.height());
+    final_.set_exposure(exposure);
+    for (double m : mean) final_.add_mean(m);
+    complete_ = true;
+  }
+
+  void AddFidelity(v1::RenderUpdate* update) const {
+    update->set_error_target(error_target_);
+    for (const render::ObjectFidelity& of : plan_.fidelity) {
+      v1::ObjectFidelity* out = update->add_fidelity();
+      out->set_object(of.object);
+      out->set_model(of.model);
+      out->set_estimated_error(of.estimated_error);
+      out->set_pixels_per_thread(of.pixels_per_thread);
+      for (const render::FidelityChoice& c : of.choices) {
+        v1::FidelityChoice* choice = out->add_choices();
+        choice->set_aspect(c.aspect);
+        choice->set_chosen(c.chosen);
+        choice->set_full(c.full);
+        choice->set_estimated_error(c.estimated_error);
+        choice->set_reason(c.reason);
+      }
+    }
+  }
+
+  // One write in flight at a time: progress (the first also with the fidelity), or the final message.
+  void WriteUpdate(bool last) {
+    if (last) {
+      update_ = std::move(final_);
+      final_sent_ = true;
+    } else {
+      update_.Clear();
+    }
+    if (last || !sent_first_) AddFidelity(&update_);
+    sent_first_ = true;
+    update_.set_samples_done(pixels_done_ * setup_.samples_per_pixel);
+    update_.set_samples_total(total_pixels_ * setup_.samples_per_pixel);
+    pixels_sent_ = pixels_done_;
+    if (last) {
+      update_.set_queries(queries_);
+      update_.set_setup_seconds(setup_seconds_);
+      update_.set_kernel_seconds(kernel_seconds_);
+      update_.set_total_seconds(SecondsSince(received_));
+    }
+    write_in_flight_ = true;
+    StartWrite(&update_);
+  }
+
+  void FinishCall(const grpc::Status& status) {
+    finished_ = true;
+    deps_.metrics->Call(kRpc, status.error_code(), SecondsSince(received_));
+    Finish(status);
+  }
+
+  const RenderDeps deps_;
+  grpc::CallbackServerContext* const context_;
+  const v1::RenderRequest request_;
+  const std::shared_ptr<const MaterialCache::Entry> material_;
+  const Clock::time_point received_;
+  Clock::time_point deadline_ = Clock::time_point::max();
+  const bool fp64_;
+
+  render::RenderSetup setup_;
+  std::unique_ptr<CachedVariants> variants_;  // owns the packed variants the plan points at
+  render::FidelityPlan plan_;
+  double error_target_ = render::kDefaultErrorTarget;
+  Chunk chunks_[2];
+  bool submitted_[2] = {false, false};
+  int next_chunk_ = 0;  // the chunk to submit next (chunks alternate)
+  uint64_t total_pixels_ = 0, chunk_pixels_ = 1, next_pixel_ = 0, pixels_done_ = 0, pixels_sent_ = 0;
+  std::vector<Rgb> sums_;  // per pixel: the sum over its samples
+  uint64_t queries_ = 0;
+  double setup_seconds_ = 0, kernel_seconds_ = 0;
+  v1::RenderUpdate update_;  // the write in flight
+  v1::RenderUpdate final_;   // the image and its summary, once encoded
+  bool write_in_flight_ = false, sent_first_ = false, complete_ = false, final_sent_ = false;
+  bool stream_broken_ = false, finished_ = false;
+  grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
+};
+
+}  // namespace
+
+std::string ValidateRenderRequest(const v1::RenderRequest& r) {
+  if (!v1::ScenePreset_IsValid(r.scene())) return "scene: unknown value " + std::to_string(r.scene());
+  if (!std::isfinite(r.texture_scale()) || r.texture_scale() < 0 || r.texture_scale() > kMaxTextureScale)
+    return "texture_scale: " + std::to_string(r.texture_scale()) + " is outside 0.." + std::to_string(int(kMaxTextureScale)) +
+           " pattern repeats per unit (0 = the scene's default)";
+  if (!std::isfinite(r.texture_rotation_deg()) || std::fabs(r.texture_rotation_deg()) > 360)
+    return "texture_rotation_deg: " + std::to_string(r.texture_rotation_deg()) + " is not finite within +-360";
+  if (r.lights_size() > kMaxRenderLights)
+    return "lights: " + std::to_string(r.lights_size()) + " lights exceed the limit of " + std::to_string(kMaxRenderLights);
+  for (int i = 0; i < r.lights_size(); ++i)
+    if (std::string e = ValidateLight(r.lights(i), Indexed("lights", i)); !e.empty()) return e;
+  if (r.has_environment()) {
+    const v1::RenderEnvironment& env = r.environment();
+    if (env.path().size() > kMaxEnvironmentPathBytes) return "environment.path: longer than 4096 bytes";
+    if (!std::isfinite(env.intensity()) || env.intensity() < 0 || env.intensity() > kMaxLightValue)
+      return "environment.intensity: " + std::to_string(env.intensity()) + " must be finite and >= 0 (0 = 1)";
+    if (!std::isfinite(env.rotation_deg()) || std::fabs(env.rotation_deg()) > 360)
+      return "environment.rotation_deg: " + std::to_string(env.rotation_deg()) + " is not finite within +-360";
+  }
+  if (r.has_camera())
+    if (std::string e = ValidateCamera(r.camera()); !e.empty()) return e;
+  for (const auto& [field, side] : {std::pair{"width", r.width()}, std::pair{"height", r.height()}})
+    if (side < 1 || side > kMaxRenderSide)
+      return std::string(field) + ": " + std::to_string(side) + " pixels is outside 1.." + std::to_string(kMaxRenderSide);
+  if (r.samples_per_pixel() > kMaxRenderSamplesPerPixel)
+    return "samples_per_pixel: " + std::to_string(r.samples_per_pixel()) + " is outside 0.." +
+           std::to_string(kMaxRenderSamplesPerPixel) + " (0 = " + std::to_string(kDefaultRenderSamplesPerPixel) + ")";
+  const uint64_t samples = uint64_t{r.width()} * r.height() * SamplesPerPixel(r);
+  if (samples > kMaxRenderSamples)
+    return "samples_per_pixel: width x height x samples_per_pixel = " + std::to_string(samples) +
+           " exceeds the limit of " + std::to_string(kMaxRenderSamples) + " per call";
+  if (!v1::RenderFormat_IsValid(r.format())) return "format: unknown value " + std::to_string(r.format());
+  if (!std::isfinite(r.exposure()) || r.exposure() < 0)
+    return "exposure: " + std::to_string(r.exposure()) + " must be finite and >= 0 (0 = automatic)";
+  if (!std::isfinite(r.error_target()) || r.error_target() < 0 || r.error_target() > 1)
+    return "error_target: " + std::to_string(r.error_target()) + " is outside 0..1 (relative; 0 = the default " +
+           std::to_string(render::kDefaultErrorTarget) + ")";
+  if (!v1::Precision_IsValid(r.precision())) return "precision: unknown value " + std::to_string(r.precision());
+  return "";
+}
+
+grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps, grpc::CallbackServerContext* context,
+                                                         const v1::RenderRequest* request) {
+  const auto received = Clock::now();
+  const auto reject = [&](grpc::Status status) {
+    deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
+    return new RejectedRender(std::move(status));
+  };
+  std::shared_ptr<const MaterialCache::Entry> material;
+  if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
+    return reject(Invalid(error));
+  if (std::string error = ValidateRenderRequest(*request); !error.empty()) return reject(Invalid(error));
+  if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
+    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+  return new RenderCall(deps, context, *request, std::move(material), received);
+}
+
+}  // namespace loomlight::api

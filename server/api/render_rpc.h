@@ -1,0 +1,53 @@
+// The Render RPC: a thumbnail of a material on a preset scene. The renderer is a client of the evaluator:
+// pixel samples become shading queries (server/render/) that go through the batcher as Evaluate-style
+// jobs, at most kRenderChunkQueries per chunk and one chunk in flight per call, so concurrent clients' work
+// interleaves with a render. Scene set-up, the fidelity choice, query generation, accumulation and
+// encoding run on the service's HostWorker, never on the batcher's thread or a gRPC callback thread.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/host_worker.h"
+#include "server/api/metrics.h"
+#include "server/api/service.h"
+#include "server/batching/batcher.h"
+#include "server/models/registry.h"
+
+namespace loomlight::api {
+
+// Documented limits (README "Render").
+constexpr uint32_t kMaxRenderSide = 2048;                      // width and height, pixels
+constexpr uint32_t kMaxRenderSamplesPerPixel = 1024;
+constexpr uint32_t kDefaultRenderSamplesPerPixel = 16;          // samples_per_pixel 0
+constexpr uint64_t kMaxRenderSamples = uint64_t{1} << 26;      // width x height x samples per pixel
+constexpr int kMaxRenderLights = 16;
+constexpr double kMaxSceneCoordinate = 1e4;                    // |x|, |y|, |z| of cameras and point lights
+constexpr double kMaxLightValue = 1e9;                         // per RGB channel
+constexpr double kMaxTextureScale = 1e5;                       // pattern repeats per unit
+constexpr double kMinFovDeg = 1, kMaxFovDeg = 150;
+constexpr size_t kMaxEnvironmentPathBytes = 4096;
+// Queries per chunk (whole pixels): a quarter of one Evaluate call, so that a render takes turns with
+// other clients' launches often and its host work (ray casting, accumulation) overlaps the kernels.
+constexpr size_t kRenderChunkQueries = kMaxQueriesPerCall / 4;
+
+// What the handler needs from the service (all owned by it and outliving every call).
+struct RenderDeps {
+  const models::Registry* registry = nullptr;
+  batching::Batcher* batcher = nullptr;
+  bool has_fp64 = false;
+  Metrics* metrics = nullptr;
+  MaterialCache* materials = nullptr;
+  HostWorker* worker = nullptr;
+};
+
+// Checks every field except the material, the environment file and device support. Returns "" or
+// "field: reason".
+std::string ValidateRenderRequest(const v1::RenderRequest& request);
+
+// Serves one call: validation errors finish at once; otherwise the reactor streams progress and the image.
+grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps, grpc::CallbackServerContext* context,
+                                                         const v1::RenderRequest* request);
+
+}  // namespace loomlight::api

@@ -1,0 +1,567 @@
+#include "server/api/tabulate.h"
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstdio>
+#include <initializer_list>
+
+#include "server/api/job_status.h"
+#include "server/imaging/image_encode.h"
+
+namespace loomlight::api {
+namespace {
+
+constexpr const char* kRpc = "Tabulate";
+constexpr uint32_t kMaxPhiHSamples = 1024;  // the cell limit binds first (23 for the MERL grid)
+
+using Clock = batching::Clock;
+using tabulation::CosSin;
+
+double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
+
+// "1,048,576": limits in messages are read by people.
+std::string Grouped(uint64_t n) {
+  std::string digits = std::to_string(n), out;
+  for (size_t i = 0; i < digits.size(); ++i) {
+    if (i > 0 && (digits.size() - i) % 3 == 0) out += ',';
+    out += digits[i];
+  }
+  return out;
+}
+
+// The product, or UINT64_MAX when it would overflow (only compared against limits).
+uint64_t SaturatingProduct(std::initializer_list<uint64_t> factors) {
+  uint64_t p = 1;
+  for (uint64_t f : factors) {
+    if (f != 0 && p > UINT64_MAX / f) return UINT64_MAX;
+    p *= f;
+  }
+  return p;
+}
+
+std::string CheckCount(uint32_t count, const std::string& field) {
+  if (count < 1) return field + ": must be at least 1";
+  return "";
+}
+
+// The evaluation limit, counting every query of every cell.
+std::string CheckQueries(uint64_t cells, uint32_t per_cell, const std::string& field, const std::string& shape) {
+  const uint64_t queries = SaturatingProduct({cells, per_cell});
+  if (queries <= kMaxTabulateQueries) return "";
+  std::string what = shape + (cells == UINT64_MAX ? "" : " = " + Grouped(cells)) + " cells";
+  if (per_cell > 1) what += " x " + std::to_string(per_cell) + " queries per cell";
+  return field + ": " + what + " exceed the limit of " + Grouped(kMaxTabulateQueries) + " evaluations per call";
+}
+
+// Little-endian whatever the host's byte order.
+void AppendLe32(uint32_t v, std::string* out) {
+  for (int b = 0; b < 4; ++b) out->push_back(static_cast<char>((v >> (8 * b)) & 0xffu));
+}
+void AppendLe64(uint64_t v, std::string* out) {
+  for (int b = 0; b < 8; ++b) out->push_back(static_cast<char>((v >> (8 * b)) & 0xffu));
+}
+void AppendFloat(float v, std::string* out) { AppendLe32(std::bit_cast<uint32_t>(v), out); }
+void AppendDouble(double v, std::string* out) { AppendLe64(std::bit_cast<uint64_t>(v), out); }
+
+// RAW: the "LLTB" header (README "Tabulate"), then float32 R, G, B per cell in grid order.
+class RawEncoder final : public TableEncoder {
+ public:
+  explicit RawEncoder(const TabulationGrid& grid) : grid_(grid) {}
+  void Begin(std::string* out) override {
+    out->append("LLTB", 4);
+    AppendLe32(kRawVersion, out);
+    AppendLe32(kRawHeaderBytes, out);
+    AppendLe32(static_cast<uint32_t>(grid_.kind()), out);
+    AppendLe32(static_cast<uint32_t>(grid_.dims().size()), out);
+    for (size_t d = 0; d < 4; ++d) AppendLe32(d < grid_.dims().size() ? grid_.dims()[d] : 1, out);
+    AppendLe32(3, out);  // channels
+  }
+  void AddCells(uint64_t, const double* rgb, size_t count, std::string* out) override {
+    out->reserve(out->size() + 12 * count);
+    for (size_t i = 0; i < 3 * count; ++i) AppendFloat(static_cast<float>(rgb[i]), out);
+  }
+
+ private:
+  const TabulationGrid& grid_;
+};
+
+// MERL .binary: int32 dims (90, 90, 180), then all R, all G, all B as float64 f / scale. R streams as it is
+// computed; G and B wait for the last cell.
+class MerlEncoder final : public TableEncoder {
+ public:
+  explicit MerlEncoder(const TabulationGrid& grid) : green_(grid.cells()), blue_(grid.cells()) {}
+  void Begin(std::string* out) override {
+    for (int d : {tabulation::kMerlThetaH, tabulation::kMerlThetaD, tabulation::kMerlPhiD})
+      AppendLe32(static_cast<uint32_t>(d), out);
+  }
+  void AddCells(uint64_t first, const double* rgb, size_t count, std::string* out) override {
+    out->reserve(out->size() + 8 * count);
+    for (size_t i = 0; i < count; ++i) {
+      AppendDouble(rgb[3 * i] / tabulation::kMerlScale[0], out);
+      green_[first + i] = rgb[3 * i + 1] / tabulation::kMerlScale[1];
+      blue_[first + i] = rgb[3 * i + 2] / tabulation::kMerlScale[2];
+    }
+  }
+  std::string End(std::string* out) override {
+    out->reserve(out->size() + 16 * green_.size());
+    for (const std::vector<double>* block : {&green_, &blue_})
+      for (double v : *block) AppendDouble(v, out);
+    return "";
+  }
+
+ private:
+  std::vector<double> green_, blue_;
+};
+
+// EXR: the table as an image, one row per incoming cell, one column per outgoing cell, encoded at the end.
+class ExrEncoder final : public TableEncoder {
+ public:
+  explicit ExrEncoder(const TabulationGrid& grid) {
+    image_.width = static_cast<int>(grid.row_cells());
+    image_.height = static_cast<int>(grid.cells() / grid.row_cells());
+    image_.rgb.resize(3 * grid.cells());
+  }
+  void AddCells(uint64_t first, const double* rgb, size_t count, std::string*) override {
+    std::transform(rgb, rgb + 3 * count, image_.rgb.begin() + 3 * first, [](double v) { return static_cast<float>(v); });
+  }
+  std::string End(std::string* out) override {
+    std::string bytes;
+    if (std::string error = imaging::EncodeImage(image_, imaging::ImageFormat::kExr, 1.0, &bytes); !error.empty())
+      return error;
+    out->append(bytes);
+    return "";
+  }
+
+ private:
+  imaging::LinearRgbImage image_;
+};
+
+// CSV: a header row, then per cell its grid angles (degrees) and r, g, b.
+class CsvEncoder final : public TableEncoder {
+ public:
+  CsvEncoder(const TabulationGrid& grid, bool fp64) : grid_(grid), value_format_(fp64 ? "%.17g" : "%.9g") {}
+  void Begin(std::string* out) override {
+    for (const std::string& name : grid_.angle_names()) out->append(name + ",");
+    out->append("r,g,b\n");
+  }
+  void AddCells(uint64_t first, const double* rgb, size_t count, std::string* out) override {
+    char buf[64];
+    for (size_t i = 0; i < count; ++i) {
+      for (double angle : grid_.CellAngles(first + i)) {
+        std::snprintf(buf, sizeof buf, "%.10g,", angle);
+        out->append(buf);
+      }
+      for (int c = 0; c < 3; ++c) {
+        std::snprintf(buf, sizeof buf, value_format_, rgb[3 * i + c]);
+        out->append(buf);
+        out->push_back(c < 2 ? ',' : '\n');
+      }
+    }
+  }
+
+ private:
+  const TabulationGrid& grid_;
+  const char* value_format_;
+};
+
+// Finishes a call that never started streaming (a rejected request).
+class RejectedTabulate final : public grpc::ServerWriteReactor<v1::TabulateChunk> {
+ public:
+  explicit RejectedTabulate(grpc::Status status) { Finish(std::move(status)); }
+  void OnDone() override { delete this; }
+};
+
+// One Tabulate call in flight. Every member is touched only on the HostWorker's thread: gRPC reactions and
+// batcher completions post there, so the state needs no lock, and `delete this` (posted by OnDone, the
+// last reaction) runs after every task posted before it. The call is finished only when neither a batcher
+// job nor a write is outstanding, so nothing refers to it after OnDone.
+class TabulateCall final : public grpc::ServerWriteReactor<v1::TabulateChunk> {
+ public:
+  TabulateCall(const TabulateDeps& deps, grpc::CallbackServerContext* context, const v1::TabulateRequest& request,
+               std::shared_ptr<const MaterialCache::Entry> material, TabulationGrid grid, Clock::time_point received)
+      : deps_(deps),
+        context_(context),
+        material_(std::move(material)),
+        grid_(std::move(grid)),
+        received_(received),
+        fp64_(request.precision() == v1::PRECISION_FP64),
+        encoder_(MakeTableEncoder(request.format(), grid_, fp64_)),
+        // Whole cells per job, so each cell's mean comes from one job.
+        chunk_queries_(std::min<uint64_t>(kTabulateChunkQueries / grid_.queries_per_cell() * grid_.queries_per_cell(),
+                                          grid_.queries())) {
+    const auto deadline = context->deadline();
+    if (deadline != std::chrono::system_clock::time_point::max())
+      deadline_ = received + (deadline - std::chrono::system_clock::now());
+    deps_.worker->Post([this] {
+      encoder_->Begin(&pending_);
+      Pump();
+    });
+  }
+
+  void OnWriteDone(bool ok) override {
+    deps_.worker->Post([this, ok] {
+      write_in_flight_ = false;
+      if (!ok) stream_broken_ = true;  // the client went away
+      Pump();
+    });
+  }
+  void OnCancel() override {
+    deps_.worker->Post([this] { Pump(); });
+  }
+  void OnDone() override {
+    deps_.worker->Post([this] { delete this; });
+  }
+
+ private:
+  // The one step of the state machine: notice cancellation, keep one job in flight while the output
+  // buffer allows, keep one write in flight while there is something to say, finish when all is done.
+  void Pump() {
+    if (finished_) return;
+    NoticeStop();
+    MaybeSubmit();  // does nothing once stopping
+    if (!status_.ok()) {
+      if (!job_in_flight_ && !write_in_flight_) FinishCall(status_);
+      return;
+    }
+    if (write_in_flight_) return;
+    if (Unsent() > 0 || cells_done_ > cells_sent_ || !sent_first_)
+      WriteChunk();
+    else if (complete_)
+      FinishCall(grpc::Status::OK);
+  }
+
+  // Records why the work should stop: the client cancelled or vanished, or the deadline passed.
+  void NoticeStop() {
+    if (!status_.ok()) return;
+    if (stream_broken_ || context_->IsCancelled())
+      status_ = {grpc::StatusCode::CANCELLED, "call cancelled"};
+    else if (Clock::now() >= deadline_)
+      status_ = {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
+  }
+
+  size_t Unsent() const { return pending_.size() - pending_begin_; }
+
+  void MaybeSubmit() {
+    if (!status_.ok() || job_in_flight_ || next_query_ >= grid_.queries() || Unsent() > kMaxBufferedBytes) return;
+    const uint64_t first = next_query_;
+    const size_t count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, grid_.queries() - first));
+    wi_.resize(3 * count);
+    wo_.resize(3 * count);
+    for (size_t i = 0; i < count; ++i) grid_.Directions(first + i, &wi_[3 * i], &wo_[3 * i]);
+
+    auto job = std::make_shared<batching::Job>();
+    job->model = material_->model;
+    job->fp64 = fp64_;
+    job->material = material_->packed;
+    job->wi = wi_.data();
+    job->wo = wo_.data();
+    job->n = count;
+    job->deadline = deadline_;
+    job->cancelled = [context = context_] { return context->IsCancelled(); };
+    job->done = [this, first, count](batching::JobResult result) {
+      deps_.worker->Post([this, first, count, result = std::move(result)] { OnJobDone(first, count, result); });
+    };
+    if (!deps_.batcher->Submit(std::move(job))) {
+      status_ = {grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"};
+      return;
+    }
+    job_in_flight_ = true;
+    next_query_ += count;
+  }
+
+  // The next job goes to the device first, then this one is averaged and encoded while it runs.
+  void OnJobDone(uint64_t first, size_t count, const batching::JobResult& result) {
+    job_in_flight_ = false;
+    if (result.status != batching::JobStatus::kOk) {
+      if (status_.ok()) status_ = ToStatus(result);
+      return Pump();
+    }
+    deps_.metrics->Evaluated(material_->model->name(), fp64_, count, result.batch_queries, result.batch_requests,
+                             result.queue_seconds, result.kernel_seconds);
+    kernel_seconds_ += result.kernel_seconds;
+    NoticeStop();
+    MaybeSubmit();
+    if (status_.ok()) {
+      if (std::string error = AddCells(first, count, result.f); !error.empty())
+        status_ = {grpc::StatusCode::INTERNAL, error};
+    }
+    Pump();
+  }
+
+  // Means over each cell's queries, encoded. Returns "" or what is wrong with the kernel's output.
+  std::string AddCells(uint64_t first_query, size_t count, const std::vector<double>& f) {
+    if (f.size() != 3 * count)
+      return "kernel returned " + std::to_string(f.size()) + " values for " + std::to_string(count) + " queries";
+    const uint32_t per_cell = grid_.queries_per_cell();
+    const uint64_t first_cell = first_query / per_cell;
+    const size_t cells = count / per_cell;
+    cell_rgb_.assign(3 * cells, 0.0);
+    for (size_t q = 0; q < count; ++q)
+      for (int c = 0; c < 3; ++c) cell_rgb_[3 * (q / per_cell) + c] += f[3 * q + c];
+    for (size_t i = 0; i < cell_rgb_.size(); ++i) {
+      cell_rgb_[i] /= per_cell;
+      if (!std::isfinite(cell_rgb_[i]))
+        return "model '" + material_->model->name() + "' returned a non-finite value in cell " +
+               std::to_string(first_cell + i / 3);
+    }
+    encoder_->AddCells(first_cell, cell_rgb_.data(), cells, &pending_);
+    cells_done_ += cells;
+    deps_.metrics->Tabulated(material_->model->name(), fp64_, cells);
+    if (cells_done_ == grid_.cells()) {
+      if (std::string error = encoder_->End(&pending_); !error.empty()) return "cannot encode the table: " + error;
+      complete_ = true;
+    }
+    return "";
+  }
+
+  // One write in flight at a time (gRPC flow control): the next waits for OnWriteDone.
+  void WriteChunk() {
+    chunk_.Clear();
+    if (!sent_first_) {
+      sent_first_ = true;
+      chunk_.mutable_dims()->Add(grid_.dims().begin(), grid_.dims().end());
+      chunk_.set_queries_per_cell(grid_.queries_per_cell());
+      chunk_.set_model(material_->model->name());
+    }
+    const size_t n = std::min(Unsent(), kMaxChunkDataBytes);
+    chunk_.set_data(pending_.data() + pending_begin_, n);
+    pending_begin_ += n;
+    if (pending_begin_ == pending_.size()) {
+      pending_.clear();
+      pending_begin_ = 0;
+    } else if (pending_begin_ > kMaxChunkDataBytes && pending_begin_ > pending_.size() / 2) {
+      pending_.erase(0, pending_begin_);  // amortised: each byte moves at most once per halving
+      pending_begin_ = 0;
+    }
+    chunk_.set_cells_done(cells_done_);
+    chunk_.set_cells_total(grid_.cells());
+    cells_sent_ = cells_done_;
+    if (complete_ && Unsent() == 0) {
+      chunk_.set_kernel_seconds(kernel_seconds_);
+      chunk_.set_total_seconds(SecondsSince(received_));
+    }
+    write_in_flight_ = true;
+    StartWrite(&chunk_);
+  }
+
+  void FinishCall(const grpc::Status& status) {
+    finished_ = true;
+    deps_.metrics->Call(kRpc, status.error_code(), SecondsSince(received_));
+    Finish(status);
+  }
+
+  const TabulateDeps deps_;
+  grpc::CallbackServerContext* const context_;
+  const std::shared_ptr<const MaterialCache::Entry> material_;
+  const TabulationGrid grid_;
+  const Clock::time_point received_;
+  Clock::time_point deadline_ = Clock::time_point::max();
+  const bool fp64_;
+  const std::unique_ptr<TableEncoder> encoder_;
+  const uint64_t chunk_queries_;
+
+  std::vector<float> wi_, wo_;  // the job in flight (the batcher reads them until its done callback)
+  std::vector<double> cell_rgb_;
+  uint64_t next_query_ = 0, cells_done_ = 0, cells_sent_ = 0;
+  std::string pending_;  // encoded bytes; those from pending_begin_ on are not sent yet
+  size_t pending_begin_ = 0;
+  v1::TabulateChunk chunk_;  // the write in flight
+  double kernel_seconds_ = 0;
+  bool job_in_flight_ = false, write_in_flight_ = false, sent_first_ = false;
+  bool complete_ = false;       // every cell encoded, the file's end in pending_
+  bool stream_broken_ = false;  // a write failed
+  bool finished_ = false;
+  grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
+};
+
+}  // namespace
+
+void TabulationGrid::Axis::Add(double deg, double direction_deg) {
+  this->deg.push_back(deg);
+  trig.push_back(CosSin::Degrees(direction_deg));
+}
+
+std::string TabulationGrid::Resolve(const v1::TabulateRequest& request, const models::Model& model,
+                                    TabulationGrid* out) {
+  TabulationGrid g;
+  using tabulation::BinCentreDeg;
+  switch (request.grid_case()) {
+    case v1::TabulateRequest::kInPlane: {
+      const v1::InPlaneGrid& p = request.in_plane();
+      g.kind_ = GridKind::kInPlane;
+      if (p.theta_i_deg_size() > 0 && p.theta_i_count() > 0)
+        return "in_plane.theta_i_count: give incidence angles (theta_i_deg) or a count, not both";
+      if (p.theta_i_deg_size() == 0 && p.theta_i_count() == 0)
+        return "in_plane.theta_i_count: give incidence angles (theta_i_deg) or a count of at least 1";
+      for (int i = 0; i < p.theta_i_deg_size(); ++i)
+        if (!std::isfinite(p.theta_i_deg(i)) || std::fabs(p.theta_i_deg(i)) > 180.0)
+          return "in_plane.theta_i_deg[" + std::to_string(i) + "]: " + std::to_string(p.theta_i_deg(i)) +
+                 " is not finite within [-180, 180] degrees";
+      if (std::string e = CheckCount(p.theta_o_count(), "in_plane.theta_o_count"); !e.empty()) return e;
+      if (!std::isfinite(p.phi_plane_deg()) || std::fabs(p.phi_plane_deg()) > kMaxAngleDeg)
+        return "in_plane.phi_plane_deg: " + std::to_string(p.phi_plane_deg()) + " is not finite within [-360, 360]";
+      const uint32_t incidences = p.theta_i_deg_size() > 0 ? p.theta_i_deg_size() : p.theta_i_count();
+      g.dims_ = {incidences, p.theta_o_count()};
+      if (std::string e = CheckQueries(SaturatingProduct({incidences, p.theta_o_count()}), 1, "in_plane",
+                                       std::to_string(incidences) + " x " + std::to_string(p.theta_o_count()));
+          !e.empty())
+        return e;
+      g.axes_.resize(2);
+      for (uint32_t k = 0; k < incidences; ++k) {
+        const double theta_i = p.theta_i_deg_size() > 0 ? p.theta_i_deg(k) : BinCentreDeg(k, incidences, 90.0);
+        g.axes_[0].Add(theta_i, -theta_i);  // the light at -theta_i: the mirror direction at +theta_i
+      }
+      const double range = p.full_circle() ? 360.0 : 180.0;
+      for (uint32_t k = 0; k < p.theta_o_count(); ++k) {
+        const double theta_o = -range / 2 + BinCentreDeg(k, p.theta_o_count(), range);
+        g.axes_[1].Add(theta_o, theta_o);
+      }
+      g.phi_plane_ = CosSin::Degrees(p.phi_plane_deg());
+      break;
+    }
+    case v1::TabulateRequest::kAnisotropic: {
+      const v1::AnisotropicGrid& a = request.anisotropic();
+      g.kind_ = GridKind::kAnisotropic;
+      g.dims_ = {a.theta_i_count(), a.phi_i_count(), a.theta_o_count(), a.phi_o_count()};
+      const char* names[4] = {"theta_i_count", "phi_i_count", "theta_o_count", "phi_o_count"};
+      for (int d = 0; d < 4; ++d)
+        if (std::string e = CheckCount(g.dims_[d], std::string("anisotropic.") + names[d]); !e.empty()) return e;
+      const uint64_t cells = SaturatingProduct({g.dims_[0], g.dims_[1], g.dims_[2], g.dims_[3]});
+      if (std::string e = CheckQueries(cells, 1, "anisotropic",
+                                       std::to_string(g.dims_[0]) + " x " + std::to_string(g.dims_[1]) + " x " +
+                                           std::to_string(g.dims_[2]) + " x " + std::to_string(g.dims_[3]));
+          !e.empty())
+        return e;
+      g.axes_.resize(4);
+      for (int d = 0; d < 4; ++d) {
+        const double range = d % 2 == 0 ? 90.0 : 360.0;  // theta, phi, theta, phi
+        for (uint32_t k = 0; k < g.dims_[d]; ++k) {
+          const double angle = BinCentreDeg(k, g.dims_[d], range);
+          g.axes_[d].Add(angle, angle);
+        }
+      }
+      break;
+    }
+    case v1::TabulateRequest::kMerl: {
+      g.kind_ = GridKind::kMerl;
+      const uint32_t requested = request.merl().phi_h_samples();
+      if (requested > kMaxPhiHSamples)
+        return "merl.phi_h_samples: " + std::to_string(requested) + " is outside 0.." + std::to_string(kMaxPhiHSamples);
+      const uint32_t samples = requested > 0 ? requested : model.isotropic() ? 1 : kDefaultAnisotropicPhiHSamples;
+      if (std::string e = CheckQueries(tabulation::kMerlCells, samples, "merl.phi_h_samples", "90 x 90 x 180");
+          !e.empty())
+        return e;
+      g.dims_ = {tabulation::kMerlThetaH, tabulation::kMerlThetaD, tabulation::kMerlPhiD};
+      g.queries_per_cell_ = samples;
+      g.axes_.resize(4);
+      for (int i = 0; i < tabulation::kMerlThetaH; ++i)
+        g.axes_[0].Add(tabulation::MerlThetaHDeg(i), tabulation::MerlThetaHDeg(i));
+      for (int j = 0; j < tabulation::kMerlThetaD; ++j)
+        g.axes_[1].Add(tabulation::MerlThetaDDeg(j), tabulation::MerlThetaDDeg(j));
+      for (int k = 0; k < tabulation::kMerlPhiD; ++k)
+        g.axes_[2].Add(tabulation::MerlPhiDDeg(k), tabulation::MerlPhiDDeg(k));
+      for (uint32_t s = 0; s < samples; ++s) g.axes_[3].Add(s * 360.0 / samples, s * 360.0 / samples);
+      break;
+    }
+    default:
+      return "grid: set one of in_plane, anisotropic, merl";
+  }
+  g.cells_ = 1;
+  for (uint32_t d : g.dims_) g.cells_ *= d;
+  g.row_cells_ = g.kind_ == GridKind::kAnisotropic ? uint64_t{g.dims_[2]} * g.dims_[3] : g.dims_.back();
+  *out = std::move(g);
+  return "";
+}
+
+uint32_t TabulationGrid::Index(uint64_t cell, size_t dim) const {
+  for (size_t d = dims_.size() - 1; d > dim; --d) cell /= dims_[d];
+  return static_cast<uint32_t>(cell % dims_[dim]);
+}
+
+void TabulationGrid::Directions(uint64_t query, float* wi, float* wo) const {
+  const uint64_t cell = query / queries_per_cell_;
+  tabulation::Direction i, o;
+  switch (kind_) {
+    case GridKind::kInPlane:
+      i = tabulation::InPlane(axes_[0].trig[Index(cell, 0)], phi_plane_);
+      o = tabulation::InPlane(axes_[1].trig[Index(cell, 1)], phi_plane_);
+      break;
+    case GridKind::kAnisotropic:
+      i = tabulation::Spherical(axes_[0].trig[Index(cell, 0)], axes_[1].trig[Index(cell, 1)]);
+      o = tabulation::Spherical(axes_[2].trig[Index(cell, 2)], axes_[3].trig[Index(cell, 3)]);
+      break;
+    case GridKind::kMerl:
+      tabulation::HalfDiffDirections(axes_[0].trig[Index(cell, 0)], axes_[3].trig[query % queries_per_cell_],
+                                     axes_[1].trig[Index(cell, 1)], axes_[2].trig[Index(cell, 2)], &i, &o);
+      break;
+  }
+  for (int c = 0; c < 3; ++c) {
+    wi[c] = static_cast<float>(i[c]);
+    wo[c] = static_cast<float>(o[c]);
+  }
+}
+
+std::vector<double> TabulationGrid::CellAngles(uint64_t cell) const {
+  std::vector<double> angles;
+  for (size_t d = 0; d < dims_.size(); ++d) angles.push_back(axes_[d].deg[Index(cell, d)]);
+  return angles;
+}
+
+std::vector<std::string> TabulationGrid::angle_names() const {
+  switch (kind_) {
+    case GridKind::kInPlane: return {"theta_i_deg", "theta_o_deg"};
+    case GridKind::kAnisotropic: return {"theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg"};
+    case GridKind::kMerl: return {"theta_h_deg", "theta_d_deg", "phi_d_deg"};
+  }
+  return {};
+}
+
+std::unique_ptr<TableEncoder> MakeTableEncoder(v1::TableFormat format, const TabulationGrid& grid, bool fp64) {
+  switch (format) {
+    case v1::TABLE_FORMAT_EXR: return std::make_unique<ExrEncoder>(grid);
+    case v1::TABLE_FORMAT_MERL: return std::make_unique<MerlEncoder>(grid);
+    case v1::TABLE_FORMAT_CSV: return std::make_unique<CsvEncoder>(grid, fp64);
+    default: return std::make_unique<RawEncoder>(grid);
+  }
+}
+
+std::string ValidateTabulateRequest(const v1::TabulateRequest& request, const TabulationGrid& grid) {
+  if (!v1::Precision_IsValid(request.precision()))
+    return "precision: unknown value " + std::to_string(request.precision());
+  if (!v1::TableFormat_IsValid(request.format())) return "format: unknown value " + std::to_string(request.format());
+  if (request.format() == v1::TABLE_FORMAT_MERL && grid.kind() != GridKind::kMerl)
+    return "format: MERL .binary needs the merl grid";
+  const auto limit = [&](uint64_t max_cells, const char* name) -> std::string {
+    if (grid.cells() <= max_cells) return "";
+    return std::string("format: ") + name + " tables are limited to " + Grouped(max_cells) + " cells; this grid has " +
+           Grouped(grid.cells()) + " (use TABLE_FORMAT_RAW)";
+  };
+  if (request.format() == v1::TABLE_FORMAT_EXR) return limit(kMaxExrCells, "EXR");
+  if (request.format() == v1::TABLE_FORMAT_CSV) return limit(kMaxCsvCells, "CSV");
+  return "";
+}
+
+grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& deps,
+                                                            grpc::CallbackServerContext* context,
+                                                            const v1::TabulateRequest* request) {
+  const auto received = Clock::now();
+  const auto reject = [&](grpc::Status status) {
+    deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
+    return new RejectedTabulate(std::move(status));
+  };
+  std::shared_ptr<const MaterialCache::Entry> material;
+  if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
+    return reject(Invalid(error));
+  TabulationGrid grid;
+  if (std::string error = TabulationGrid::Resolve(*request, *material->model, &grid); !error.empty())
+    return reject(Invalid(error));
+  if (std::string error = ValidateTabulateRequest(*request, grid); !error.empty()) return reject(Invalid(error));
+  if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
+    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+  return new TabulateCall(deps, context, *request, std::move(material), std::move(grid), received);
+}
+
+}  // namespace loomlight::api

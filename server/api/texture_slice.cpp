@@ -1,0 +1,370 @@
+#include "server/api/texture_slice.h"
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <vector>
+
+#include "server/api/job_status.h"
+#include "server/imaging/image_encode.h"
+
+namespace loomlight::api {
+namespace {
+
+constexpr const char* kRpc = "TextureSlice";
+// The R2 sequence's generators: 1/phi2 and 1/phi2^2, phi2 the plastic number (Roberts 2018).
+constexpr double kR2[2] = {0.7548776662, 0.5698402910};
+
+using Clock = batching::Clock;
+
+double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
+
+// splitmix64's finaliser: a fixed, well-mixed hash of the pixel index.
+uint64_t MixBits(uint64_t x) {
+  x += 0x9e3779b97f4a7c15ull;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+  return x ^ (x >> 31);
+}
+
+double Fraction(double t) { return t - std::floor(t); }  // exact, so always < 1
+
+imaging::ImageFormat ToImaging(v1::ImageFormat format) {
+  switch (format) {
+    case v1::IMAGE_FORMAT_EXR: return imaging::ImageFormat::kExr;
+    case v1::IMAGE_FORMAT_RAW: return imaging::ImageFormat::kRaw;
+    default: return imaging::ImageFormat::kPng;
+  }
+}
+
+std::string ValidateOneDirection(const google::protobuf::RepeatedField<float>& w, const std::string& field) {
+  if (w.size() != 3)
+    return field + ": needs exactly one xyz direction (3 values), got " + std::to_string(w.size()) + " values";
+  return ValidateDirections(w, field);
+}
+
+std::string ValidateRegion(const v1::TextureRegion& region) {
+  const std::pair<const char*, double> coords[] = {{"region.u_min", region.u_min()}, {"region.v_min", region.v_min()},
+                                                   {"region.u_max", region.u_max()}, {"region.v_max", region.v_max()}};
+  for (const auto& [field, value] : coords)
+    if (!std::isfinite(value) || std::fabs(value) > kMaxTextureCoordinate)
+      return std::string(field) + ": " + std::to_string(value) + " is not finite within +-" +
+             std::to_string(static_cast<int>(kMaxTextureCoordinate)) + " pattern repeats";
+  if (!(region.u_max() > region.u_min()))
+    return "region.u_max: " + std::to_string(region.u_max()) + " must exceed region.u_min " +
+           std::to_string(region.u_min());
+  if (!(region.v_max() > region.v_min()))
+    return "region.v_max: " + std::to_string(region.v_max()) + " must exceed region.v_min " +
+           std::to_string(region.v_min());
+  return "";
+}
+
+std::string ValidateSide(uint32_t pixels, const char* field) {
+  if (pixels < 1 || pixels > kMaxSliceSide)
+    return std::string(field) + ": " + std::to_string(pixels) + " pixels is outside 1.." + std::to_string(kMaxSliceSide);
+  return "";
+}
+
+// The region to render: the request's, or one pattern repeat when unset.
+v1::TextureRegion RegionOf(const v1::TextureSliceRequest& request) {
+  if (request.has_region()) return request.region();
+  v1::TextureRegion unit;
+  unit.set_u_max(1.0);
+  unit.set_v_max(1.0);
+  return unit;
+}
+
+uint32_t SamplesPerPixel(const v1::TextureSliceRequest& request) {
+  return std::max<uint32_t>(request.samples_per_pixel(), 1);
+}
+
+// The Cranley-Patterson rotation of a pixel's sample set: two numbers in [0, 1) from a hash of its index.
+std::array<double, 2> PixelRotation(uint64_t pixel) {
+  const uint64_t h = MixBits(pixel);
+  return {static_cast<double>(h >> 40) * 0x1p-24, static_cast<double>((h >> 16) & 0xffffff) * 0x1p-24};
+}
+
+std::array<double, 2> RotatedR2(uint32_t sample, const std::array<double, 2>& rotation) {
+  const double i = sample + 0.5;
+  return {Fraction(i * kR2[0] + rotation[0]), Fraction(i * kR2[1] + rotation[1])};
+}
+
+// One TextureSlice call in flight: its inputs, two chunk buffers and the image accumulated so far.
+// While one chunk is on the device the worker accumulates the previous one and fills the next, so the
+// device does not wait for host work. Shared by the batcher job in flight and the worker tasks; the
+// reactor is finished exactly once, never while a chunk is in flight (the batcher polls the context until
+// its done callback), and nothing here is touched after that.
+class SliceCall : public std::enable_shared_from_this<SliceCall> {
+ public:
+  SliceCall(const TextureSliceDeps& deps, grpc::CallbackServerContext* context,
+            const v1::TextureSliceRequest& request, v1::TextureSliceResponse* response,
+            std::shared_ptr<const MaterialCache::Entry> material, Clock::time_point received)
+      : deps_(deps),
+        context_(context),
+        reactor_(context->DefaultReactor()),
+        response_(response),
+        material_(std::move(material)),
+        received_(received),
+        fp64_(request.precision() == v1::PRECISION_FP64),
+        width_(request.width()),
+        height_(request.height()),
+        samples_(SamplesPerPixel(request)),
+        region_(RegionOf(request)),
+        format_(request.format()),
+        exposure_(request.exposure()),
+        total_queries_(uint64_t{width_} * height_ * samples_),
+        // Whole pixels per chunk, so each pixel's mean comes from one chunk.
+        chunk_queries_(std::min<uint64_t>(kSliceChunkQueries / samples_ * samples_, total_queries_)) {
+    const auto deadline = context->deadline();
+    if (deadline != std::chrono::system_clock::time_point::max())
+      deadline_ = received + (deadline - std::chrono::system_clock::now());
+    // The kernel takes a direction per query: the one wi and wo, repeated, shared by both chunk buffers.
+    wi_.resize(3 * chunk_queries_);
+    wo_.resize(3 * chunk_queries_);
+    for (size_t q = 0; q < chunk_queries_; ++q)
+      for (int c = 0; c < 3; ++c) {
+        wi_[3 * q + c] = request.wi(c);
+        wo_[3 * q + c] = request.wo(c);
+      }
+    image_.width = static_cast<int>(width_);
+    image_.height = static_cast<int>(height_);
+    image_.rgb.resize(size_t{3} * width_ * height_);
+  }
+
+  grpc::ServerUnaryReactor* reactor() const { return reactor_; }
+
+  // On the gRPC thread: fills both chunk buffers, then submits the first (nothing else touches them yet).
+  void Start() {
+    Prepare(chunks_[0]);
+    Prepare(chunks_[1]);
+    Submit(0);
+  }
+
+ private:
+  // A range of queries [first, first + count) of whole pixels and their texture coordinates; count 0: none
+  // prepared. At most one chunk is in flight; the other is prepared (the next) or empty (no more).
+  struct Chunk {
+    uint64_t first = 0;
+    size_t count = 0;
+    std::vector<float> uv;
+  };
+
+  // Takes the next queries into the chunk (a free buffer) and computes their sample positions.
+  void Prepare(Chunk& chunk) {
+    chunk.first = next_query_;
+    chunk.count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, total_queries_ - next_query_));
+    next_query_ += chunk.count;
+    chunk.uv.resize(2 * chunk.count);
+    const double du = region_.u_max() - region_.u_min(), dv = region_.v_max() - region_.v_min();
+    uint64_t pixel = chunk.first / samples_;
+    uint32_t x = static_cast<uint32_t>(pixel % width_), y = static_cast<uint32_t>(pixel / width_);
+    float* uv = chunk.uv.data();
+    for (size_t p = 0; p < chunk.count / samples_; ++p, ++pixel) {
+      const std::array<double, 2> rotation = samples_ > 1 ? PixelRotation(pixel) : std::array<double, 2>{};
+      for (uint32_t s = 0; s < samples_; ++s) {
+        const auto [sx, sy] = samples_ > 1 ? RotatedR2(s, rotation) : std::array<double, 2>{0.5, 0.5};
+        *uv++ = static_cast<float>(region_.u_min() + (x + sx) / width_ * du);
+        *uv++ = static_cast<float>(region_.v_max() - (y + sy) / height_ * dv);  // y = 0 is the top row
+      }
+      if (++x == width_) {
+        x = 0;
+        ++y;
+      }
+    }
+  }
+
+  // Sends a prepared chunk to the batcher; finishes the call and returns false when that is not possible.
+  bool Submit(int index) {
+    if (!StillWanted()) return false;
+    const Chunk& chunk = chunks_[index];
+    auto job = std::make_shared<batching::Job>();
+    job->model = material_->model;
+    job->fp64 = fp64_;
+    job->material = material_->packed;
+    job->wi = wi_.data();
+    job->wo = wo_.data();
+    job->uv = chunk.uv.data();
+    job->n = chunk.count;
+    job->deadline = deadline_;
+    job->cancelled = [context = context_] { return context->IsCancelled(); };
+    job->done = [self = shared_from_this(), index](batching::JobResult result) {
+      self->deps_.worker->Post([self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
+    };
+    if (!deps_.batcher->Submit(std::move(job))) {
+      Finish({grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"});
+      return false;
+    }
+    return true;
+  }
+
+  // On the worker: the next chunk goes to the device first; this one is then accumulated and its buffer
+  // refilled with the chunk after next.
+  void OnChunkDone(int index, const batching::JobResult& result) {
+    if (!failure_.ok()) return Finish(failure_);
+    if (result.status != batching::JobStatus::kOk) return Finish(ToStatus(result));
+    Chunk& chunk = chunks_[index];
+    deps_.metrics->Evaluated(material_->model->name(), fp64_, chunk.count, result.batch_queries,
+                             result.batch_requests, result.queue_seconds, result.kernel_seconds);
+    kernel_seconds_ += result.kernel_seconds;
+    const bool last = chunks_[1 - index].count == 0;
+    if (!last && !Submit(1 - index)) return;
+    if (std::string error = Accumulate(chunk, result.f); !error.empty()) {
+      failure_ = {grpc::StatusCode::INTERNAL, error};
+      if (last) Finish(failure_);
+      return;
+    }
+    Prepare(chunk);  // empty when no queries are left
+    if (last) EncodeAndFinish();
+  }
+
+  // Per-pixel means (in double, rounded once to the image's float) of a chunk of whole pixels. Returns ""
+  // or what is wrong with the kernel's output.
+  std::string Accumulate(const Chunk& chunk, const std::vector<double>& f) {
+    if (f.size() != 3 * chunk.count)
+      return "kernel returned " + std::to_string(f.size()) + " values for " + std::to_string(chunk.count) + " queries";
+    const uint64_t first_pixel = chunk.first / samples_;
+    for (size_t p = 0; p < chunk.count / samples_; ++p) {
+      double sum[3] = {0, 0, 0};
+      for (uint32_t s = 0; s < samples_; ++s)
+        for (int c = 0; c < 3; ++c) sum[c] += f[3 * (p * samples_ + s) + c];
+      for (int c = 0; c < 3; ++c) {
+        const double mean = sum[c] / samples_;
+        if (!std::isfinite(mean)) return "the BTF kernel returned a non-finite value";
+        image_.rgb[3 * (first_pixel + p) + c] = static_cast<float>(mean);
+        image_sum_[c] += mean;
+      }
+    }
+    return "";
+  }
+
+  void EncodeAndFinish() {
+    if (!StillWanted()) return;
+    const imaging::ImageFormat format = ToImaging(format_);
+    // The exposure scales the PNG only; EXR and RAW carry f unscaled (reported as 1).
+    double exposure = 1.0;
+    if (format == imaging::ImageFormat::kPng) exposure = exposure_ > 0 ? exposure_ : imaging::AutomaticExposure(image_);
+    std::string bytes;
+    const std::string error = imaging::EncodeImage(image_, format, exposure, &bytes);
+    if (!error.empty()) return Finish({grpc::StatusCode::INTERNAL, error});
+    response_->set_image(std::move(bytes));
+    response_->set_format(format_);
+    response_->set_width(width_);
+    response_->set_height(height_);
+    const double pixels = static_cast<double>(width_) * height_;
+    for (double sum : image_sum_) response_->add_mean(sum / pixels);
+    response_->set_exposure(exposure);
+    response_->set_queries(total_queries_);
+    response_->set_kernel_seconds(kernel_seconds_);
+    response_->set_total_seconds(SecondsSince(received_));
+    Finish(grpc::Status::OK);
+  }
+
+  // False (and the call finished) once the client went away or the deadline passed: no further work.
+  bool StillWanted() {
+    if (context_->IsCancelled()) {
+      Finish({grpc::StatusCode::CANCELLED, "call cancelled"});
+      return false;
+    }
+    if (Clock::now() >= deadline_) {
+      Finish({grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"});
+      return false;
+    }
+    return true;
+  }
+
+  void Finish(const grpc::Status& status) {
+    deps_.metrics->Call(kRpc, status.error_code(), SecondsSince(received_));
+    reactor_->Finish(status);
+  }
+
+  const TextureSliceDeps deps_;
+  grpc::CallbackServerContext* const context_;
+  grpc::ServerUnaryReactor* const reactor_;
+  v1::TextureSliceResponse* const response_;
+  const std::shared_ptr<const MaterialCache::Entry> material_;
+  const Clock::time_point received_;
+  Clock::time_point deadline_ = Clock::time_point::max();
+  const bool fp64_;
+  const uint32_t width_, height_, samples_;
+  const v1::TextureRegion region_;
+  const v1::ImageFormat format_;
+  const double exposure_;
+  const uint64_t total_queries_;
+  const uint64_t chunk_queries_;
+
+  std::vector<float> wi_, wo_;  // read by the batcher for every chunk
+  Chunk chunks_[2];
+  uint64_t next_query_ = 0;     // the first query not yet in a chunk
+  imaging::LinearRgbImage image_;
+  double image_sum_[3] = {0, 0, 0};
+  double kernel_seconds_ = 0;
+  grpc::Status failure_;  // a chunk's output was unusable; reported when the chunk in flight returns
+};
+
+grpc::ServerUnaryReactor* Reject(const TextureSliceDeps& deps, grpc::CallbackServerContext* context,
+                                 Clock::time_point received, const grpc::Status& status) {
+  deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
+  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  reactor->Finish(status);
+  return reactor;
+}
+
+}  // namespace
+
+std::array<double, 2> PixelSampleOffset(uint64_t pixel, uint32_t sample, uint32_t samples) {
+  if (samples <= 1) return {0.5, 0.5};
+  return RotatedR2(sample, PixelRotation(pixel));
+}
+
+std::string ValidateTextureSliceRequest(const v1::TextureSliceRequest& request) {
+  for (const auto& [field, w] : {std::pair{"wi", &request.wi()}, std::pair{"wo", &request.wo()}})
+    if (std::string error = ValidateOneDirection(*w, field); !error.empty()) return error;
+  if (request.has_region())
+    if (std::string error = ValidateRegion(request.region()); !error.empty()) return error;
+  if (std::string error = ValidateSide(request.width(), "width"); !error.empty()) return error;
+  if (std::string error = ValidateSide(request.height(), "height"); !error.empty()) return error;
+  if (request.samples_per_pixel() > kMaxSamplesPerPixel)
+    return "samples_per_pixel: " + std::to_string(request.samples_per_pixel()) + " is outside 0.." +
+           std::to_string(kMaxSamplesPerPixel);
+  const uint64_t samples = uint64_t{request.width()} * request.height() * SamplesPerPixel(request);
+  if (samples > kMaxSliceSamples)
+    return "samples_per_pixel: width x height x samples_per_pixel = " + std::to_string(samples) +
+           " exceeds the limit of " + std::to_string(kMaxSliceSamples) + " per call";
+  if (!v1::ImageFormat_IsValid(request.format()))
+    return "format: unknown value " + std::to_string(request.format());
+  if (!v1::Precision_IsValid(request.precision()))
+    return "precision: unknown value " + std::to_string(request.precision());
+  if (!std::isfinite(request.exposure()) || request.exposure() < 0)
+    return "exposure: " + std::to_string(request.exposure()) + " must be finite and >= 0 (0 = automatic)";
+  return "";
+}
+
+grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc::CallbackServerContext* context,
+                                             const v1::TextureSliceRequest* request,
+                                             v1::TextureSliceResponse* response) {
+  const auto received = Clock::now();
+  std::shared_ptr<const MaterialCache::Entry> material;
+  if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
+    return Reject(deps, context, received, Invalid(error));
+  if (!material->model->spatially_varying())
+    return Reject(deps, context, received,
+                  Invalid("material: model '" + material->model->name() +
+                          "' is not spatially varying (no BTF); a texture slice needs one, e.g. preset cotton_twill"));
+  // A slice images the reflection BTF; a curtain's transmission layer would be silently ignored, so say so.
+  if (request->material().has_transmission())
+    return Reject(deps, context, received,
+                  Invalid("material.transmission: a texture slice shows the BTF only; send no transmission layer"));
+  if (std::string error = ValidateTextureSliceRequest(*request); !error.empty())
+    return Reject(deps, context, received, Invalid(error));
+  if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
+    return Reject(deps, context, received, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+
+  auto call = std::make_shared<SliceCall>(deps, context, *request, response, std::move(material), received);
+  grpc::ServerUnaryReactor* reactor = call->reactor();
+  call->Start();  // on failure it has finished the call itself
+  return reactor;
+}
+
+}  // namespace loomlight::api

@@ -1,0 +1,163 @@
+#include "server/render/environment.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+namespace loomlight::render {
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kDegree = kPi / 180;
+
+double Luminance(Rgb c) { return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z; }
+
+double SmoothStep(double edge0, double edge1, double x) {
+  const double t = std::clamp((x - edge0) / (edge1 - edge0), 0.0, 1.0);
+  return t * t * (3 - 2 * t);
+}
+
+Rgb Mix(Rgb a, Rgb b, double t) { return (1 - t) * a + t * b; }
+
+// The built-in sky's radiance toward `d` (unit, world space).
+Rgb SkyRadiance(Vec3 d) {
+  const Rgb horizon{0.95, 0.97, 1.0}, zenith{0.22, 0.38, 0.85}, ground{0.10, 0.095, 0.085};
+  const Rgb sky = Mix(horizon, zenith, std::pow(std::max(d.y, 0.0), 0.4));
+  Rgb radiance = Mix(ground, sky, SmoothStep(-0.02, 0.02, d.y));
+  // The sun: 2 degrees in radius, irradiance about 3 at normal incidence, with a soft edge.
+  const double elevation = 35 * kDegree, azimuth = -40 * kDegree;
+  const Vec3 sun{std::cos(elevation) * std::sin(azimuth), std::sin(elevation), std::cos(elevation) * std::cos(azimuth)};
+  const double angle = std::acos(std::clamp(Dot(d, sun), -1.0, 1.0));
+  const double radius = 2 * kDegree;
+  const double disk = 1 - SmoothStep(radius - 0.3 * kDegree, radius + 0.3 * kDegree, angle);
+  if (disk > 0) radiance = radiance + (disk * 780.0) * Rgb{1.0, 0.92, 0.80};
+  return radiance;
+}
+
+}  // namespace
+
+Environment Environment::Builtin() {
+  static const Environment prototype = [] {
+    Environment env;
+    env.width_ = 512;
+    env.height_ = 256;
+    env.rgb_.resize(size_t{3} * env.width_ * env.height_);
+    constexpr int kSuper = 4;  // 4 x 4 samples per pixel: the small sun gets smooth pixel values
+    for (int y = 0; y < env.height_; ++y)
+      for (int x = 0; x < env.width_; ++x) {
+        Rgb sum;
+        for (int j = 0; j < kSuper; ++j)
+          for (int i = 0; i < kSuper; ++i)
+            sum = sum + SkyRadiance(env.FromImage(x + (i + 0.5) / kSuper, y + (j + 0.5) / kSuper));
+        for (int c = 0; c < 3; ++c)
+          env.rgb_[3 * (size_t(y) * env.width_ + x) + c] = static_cast<float>(sum[c] / (kSuper * kSuper));
+      }
+    env.BuildDistribution();
+    return env;
+  }();
+  return prototype;
+}
+
+std::string Environment::Load(const std::string& path, Environment* out) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) return "cannot read '" + path + "': " + OIIO::geterror();
+  const OIIO::ImageSpec& spec = in->spec();
+  if (spec.width < 2 || spec.height < 1 || spec.nchannels < 1)
+    return "'" + path + "' is not an image of at least 2 x 1 pixels";
+  if (static_cast<long long>(spec.width) * spec.height > kMaxPixels)
+    return "'" + path + "' has " + std::to_string(static_cast<long long>(spec.width) * spec.height) +
+           " pixels, more than the limit of " + std::to_string(kMaxPixels);
+  const int channels = std::min(spec.nchannels, 3);
+  std::vector<float> pixels(size_t(spec.width) * spec.height * channels);
+  if (!in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, pixels.data()))
+    return "cannot decode '" + path + "': " + in->geterror();
+  Environment env;
+  env.width_ = spec.width;
+  env.height_ = spec.height;
+  env.rgb_.resize(size_t{3} * env.width_ * env.height_);
+  for (size_t p = 0; p < size_t(env.width_) * env.height_; ++p)
+    for (int c = 0; c < 3; ++c) {
+      const float v = pixels[p * channels + std::min(c, channels - 1)];  // grey maps replicate their channel
+      env.rgb_[3 * p + c] = std::isfinite(v) && v > 0 ? v : 0.0f;
+    }
+  env.BuildDistribution();
+  *out = std::move(env);
+  return "";
+}
+
+void Environment::SetTransform(double intensity, double rotation_deg) {
+  intensity_ = intensity;
+  cos_rotation_ = std::cos(rotation_deg * kDegree);
+  sin_rotation_ = std::sin(rotation_deg * kDegree);
+}
+
+void Environment::ToImage(Vec3 d, double* x, double* y) const {
+  // World to map: rotate by -rotation about +y.
+  const Vec3 m{d.x * cos_rotation_ - d.z * sin_rotation_, d.y, d.x * sin_rotation_ + d.z * cos_rotation_};
+  const double u = 0.5 + std::atan2(m.x, -m.z) / (2 * kPi);
+  const double v = std::acos(std::clamp(m.y, -1.0, 1.0)) / kPi;
+  *x = std::clamp(u * width_, 0.0, std::nextafter(double(width_), 0.0));
+  *y = std::clamp(v * height_, 0.0, std::nextafter(double(height_), 0.0));
+}
+
+Vec3 Environment::FromImage(double x, double y) const {
+  const double phi = (x / width_ - 0.5) * 2 * kPi, theta = y / height_ * kPi;
+  const Vec3 m{std::sin(theta) * std::sin(phi), std::cos(theta), -std::sin(theta) * std::cos(phi)};
+  // Map to world: rotate by +rotation about +y.
+  return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
+}
+
+Rgb Environment::Pixel(int x, int y) const {
+  const float* p = &rgb_[3 * (size_t(y) * width_ + x)];
+  return intensity_ * Rgb{p[0], p[1], p[2]};
+}
+
+Rgb Environment::Radiance(Vec3 direction) const {
+  double x, y;
+  ToImage(direction, &x, &y);
+  return Pixel(static_cast<int>(x), static_cast<int>(y));
+}
+
+void Environment::BuildDistribution() {
+  row_cdf_.assign(height_ + 1, 0.0);
+  column_cdf_.assign(size_t(height_) * (width_ + 1), 0.0);
+  for (int y = 0; y < height_; ++y) {
+    const double sin_theta = std::sin((y + 0.5) / height_ * kPi);
+    double* cdf = &column_cdf_[size_t(y) * (width_ + 1)];
+    for (int x = 0; x < width_; ++x) {
+      const float* p = &rgb_[3 * (size_t(y) * width_ + x)];
+      cdf[x + 1] = cdf[x] + Luminance({p[0], p[1], p[2]}) * sin_theta;
+    }
+    row_cdf_[y + 1] = row_cdf_[y] + cdf[width_];
+  }
+  total_weight_ = row_cdf_[height_];
+}
+
+Environment::Sample Environment::Draw(double u1, double u2, double u3) const {
+  Sample sample;
+  if (black() || intensity_ <= 0) return sample;
+  // The row, then the column within it; the remainder of u2 places the point inside the pixel.
+  const double row_target = u1 * total_weight_;
+  const int y = std::clamp(int(std::upper_bound(row_cdf_.begin(), row_cdf_.end(), row_target) - row_cdf_.begin()) - 1,
+                           0, height_ - 1);
+  const double* cdf = &column_cdf_[size_t(y) * (width_ + 1)];
+  const double row_weight = cdf[width_];
+  if (row_weight <= 0) return sample;
+  const double column_target = u2 * row_weight;
+  const int x = std::clamp(int(std::upper_bound(cdf, cdf + width_ + 1, column_target) - cdf) - 1, 0, width_ - 1);
+  const double pixel_weight = cdf[x + 1] - cdf[x];
+  if (pixel_weight <= 0) return sample;
+  const double fx = std::clamp((column_target - cdf[x]) / pixel_weight, 0.0, 1.0);
+  const double py = y + u3;
+  sample.direction = FromImage(x + fx, py);
+  const double sin_theta = std::sin(py / height_ * kPi);
+  if (sin_theta < 1e-6) return sample;  // at a pole: the density is singular, drop the sample
+  // pdf(pixel) W H over the pixel's (u, v) area, divided by the Jacobian 2 pi^2 sin(theta) to steradians.
+  const double pdf = pixel_weight / total_weight_ * width_ * height_ / (2 * kPi * kPi * sin_theta);
+  sample.radiance_over_pdf = (1.0 / pdf) * Pixel(x, y);
+  return sample;
+}
+
+}  // namespace loomlight::render

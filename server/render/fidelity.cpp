@@ -1,0 +1,288 @@
+#include "server/render/fidelity.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <numbers>
+
+namespace loomlight::render {
+namespace {
+
+// ---- The model-specific knobs, in one table, found by parameter name (a new model with such a parameter
+// gets the knob without a change here). ----
+// An accuracy parameter: full fidelity is the schema's maximum; the cheaper candidates are `cheapest`,
+// 2 x cheapest, ... below it.
+struct AccuracyParam {
+  const char* name;
+  double cheapest;
+};
+constexpr AccuracyParam kAccuracyParams[] = {
+    {"tangent_samples", 8},  // microcylinder: tangent curve samples per thread (README: 9% at 16, 1% at 32)
+};
+// A weave pattern's threads per repeat: pattern.warps along u, the picks (cells / warps) along v.
+constexpr const char* kWarpsParam = "pattern.warps";
+constexpr const char* kCellsParam = "pattern.cells";
+
+std::string Format(const char* format, ...) __attribute__((format(printf, 1, 2)));
+std::string Format(const char* format, ...) {
+  char buffer[256];
+  va_list args;
+  va_start(args, format);
+  std::vsnprintf(buffer, sizeof buffer, format, args);
+  va_end(args);
+  return buffer;
+}
+
+struct Knob {
+  std::string name;
+  std::vector<double> candidates;  // ascending, all below full
+  double full = 0;
+};
+
+// The model's accuracy knob, or a knob with an empty name.
+Knob FindKnob(const models::Model& model) {
+  for (const AccuracyParam& p : kAccuracyParams)
+    if (const models::ParamSpec* spec = model.FindParam(p.name)) {
+      Knob knob{p.name, {}, spec->max};
+      for (double v = std::max(p.cheapest, spec->min); v < spec->max; v *= 2) knob.candidates.push_back(v);
+      return knob;
+    }
+  return {};
+}
+
+// Threads per pattern repeat (the larger of the two directions); 1 when the model has no weave pattern.
+double ThreadsPerRepeat(const models::ParamValues& values) {
+  const auto warps = values.find(kWarpsParam), cells = values.find(kCellsParam);
+  if (warps == values.end() || cells == values.end() || warps->second.empty() || warps->second[0] < 1) return 1;
+  const double w = warps->second[0];
+  return std::max(w, std::floor(cells->second.size() / w));
+}
+
+// One object's modelling choice during the search.
+struct Config {
+  bool btf = false;
+  double knob = 0;
+  bool transmission = false;
+};
+
+int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e) {
+  for (size_t i = 0; i < evaluators->size(); ++i) {
+    const Evaluator& x = (*evaluators)[i];
+    if (x.model == e.model && x.material == e.material && x.with_uv == e.with_uv) return static_cast<int>(i);
+  }
+  evaluators->push_back(e);
+  return static_cast<int>(evaluators->size() - 1);
+}
+
+// The evaluators and shading of one object under `config`; false when a variant cannot be packed.
+bool MakeShading(const MaterialInfo& m, MaterialVariants& variants, const Knob& knob, const Config& config,
+                 std::vector<Evaluator>* evaluators, ObjectShading* out) {
+  const models::PackedMaterial* packed = knob.name.empty() ? variants.Requested() : variants.WithParam(knob.name, config.knob);
+  if (!packed) return false;
+  ObjectShading s;
+  s.reflection = EvaluatorIndex(evaluators, {m.model, packed, config.btf && m.model->spatially_varying()});
+  if (m.layer) {
+    s.layer_model = m.layer_model;
+    s.layer = m.layer;
+    s.see_through_model = m.layer_model;
+    s.see_through = m.layer;
+    if (config.transmission) s.transmission = EvaluatorIndex(evaluators, {m.layer_model, m.layer, false});
+  } else if (m.model->transmission()) {
+    s.see_through_model = m.model;
+    s.see_through = packed;
+    if (config.transmission) s.transmission = s.reflection;
+  }
+  *out = s;
+  return true;
+}
+
+// The pilot: a grid of pixel centres traced once, grouped by the object they hit.
+class Pilot {
+ public:
+  explicit Pilot(const RenderSetup& setup) : by_object_(setup.scene.objects.size()) {
+    const int nx = std::min(kPilotGrid, setup.width), ny = std::min(kPilotGrid, setup.height);
+    ShadingPoint point;
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i) {
+        // Its own random stream (environment samples), apart from every pixel sample's.
+        const CounterRng rng(setup.seed ^ 0x70696c6f74ull, uint64_t(j) * nx + i);
+        TraceSample(setup, (i + 0.5) * setup.width / nx, (j + 0.5) * setup.height / ny, rng, &point);
+        if (point.object >= 0) by_object_[point.object].push_back(point);
+      }
+  }
+  const std::vector<ShadingPoint>& points(int object) const { return by_object_[object]; }
+
+ private:
+  std::vector<std::vector<ShadingPoint>> by_object_;
+};
+
+// Radiance (R + G + B) of each pilot point of one object under `config`, evaluated on the host.
+bool PilotRadiance(const std::vector<ShadingPoint>& points, const MaterialInfo& m, MaterialVariants& variants,
+                   const Knob& knob, const Config& config, std::vector<double>* radiance) {
+  std::vector<Evaluator> evaluators;
+  ObjectShading shading;
+  if (!MakeShading(m, variants, knob, config, &evaluators, &shading)) return false;
+  std::vector<QueryBucket> buckets(evaluators.size());
+  radiance->assign(points.size(), 0.0);
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Rgb direct = AppendQueries(points[i], shading, evaluators, static_cast<uint32_t>(i), &buckets);
+    (*radiance)[i] = direct.x + direct.y + direct.z;
+  }
+  std::vector<float> f;
+  for (size_t e = 0; e < evaluators.size(); ++e) {
+    const QueryBucket& b = buckets[e];
+    if (b.size() == 0) continue;
+    f.assign(3 * b.size(), 0.0f);
+    evaluators[e].model->NativeEval(*evaluators[e].material, b.wi.data(), b.wo.data(),
+                                    evaluators[e].with_uv ? b.uv.data() : nullptr, b.size(), f.data());
+    for (size_t q = 0; q < b.size(); ++q)
+      for (int c = 0; c < 3; ++c) {
+        const double value = double(b.weight[3 * q + c]) * f[3 * q + c];
+        if (std::isfinite(value)) (*radiance)[b.tag[q]] += value;
+      }
+  }
+  return true;
+}
+
+// sum |a - b| w / sum |b| (weights w default 1): the relative L1 difference of two pilot renders.
+double RelativeL1(const std::vector<double>& a, const std::vector<double>& b, const std::vector<double>* w = nullptr) {
+  double diff = 0, total = 0;
+  for (size_t i = 0; i < b.size(); ++i) {
+    diff += std::fabs(a[i] - b[i]) * (w ? (*w)[i] : 1.0);
+    total += std::fabs(b[i]);
+  }
+  return total > 0 ? diff / total : 0.0;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+std::string KnobText(double v) { return Format("%g", v); }
+
+}  // namespace
+
+std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, MaterialVariants& variants,
+                           double target, bool force_full, FidelityPlan* plan) {
+  const Knob knob = FindKnob(*m.model);
+  const bool varying = m.model->spatially_varying(), transmits = Transmits(m);
+  const Config full{varying, knob.full, transmits};
+  const double segment = 1.0 / (setup.texture_scale * ThreadsPerRepeat(m.values));  // scene units
+  const Pilot pilot(setup);
+  const std::string failed = "cannot pack a variant of the material for the fidelity choice";
+
+  plan->evaluators.clear();
+  plan->objects.clear();
+  plan->fidelity.clear();
+  for (size_t o = 0; o < setup.scene.objects.size(); ++o) {
+    ObjectFidelity out{setup.scene.objects[o].name, m.model->name(), {}, 0, 0};
+    const std::vector<ShadingPoint>& points = pilot.points(static_cast<int>(o));
+    Config chosen = full;
+    FidelityChoice path{"path", varying ? "BTF" : "BRDF", varying ? "BTF" : "BRDF", 0,
+                        varying ? "" : "not spatially varying: the BRDF is the model's only path"};
+    FidelityChoice accuracy{knob.name, KnobText(knob.full), KnobText(knob.full), 0, ""};
+    FidelityChoice transmission{"transmission", transmits ? "on" : "off", transmits ? "on" : "off", 0,
+                                transmits ? "" : "the material does not transmit"};
+    std::string common;  // a reason shared by every choice
+    if (force_full) {
+      common = "force_full_fidelity";
+    } else if (points.empty()) {
+      common = "not hit by the pilot rays (too small or out of view): full fidelity";
+    } else {
+      std::vector<double> reference, candidate;
+      if (varying) {
+        std::vector<double> filtered;  // per pilot point: the share of the texture a pixel keeps, min(1, r / pi)
+        std::vector<double> pixels_per_thread;
+        for (const ShadingPoint& p : points) {
+          const double r = p.footprint > 0 ? segment / p.footprint : 1e9;
+          pixels_per_thread.push_back(r);
+          // A box filter over the pixel keeps at most 1 / (pi r') of a texture of period r' pixels (the
+          // sinc's envelope, r' = 1 / r threads per pixel): the part the BRDF misses.
+          filtered.push_back(std::min(1.0, r / std::numbers::pi));
+        }
+        out.pixels_per_thread = Median(pixels_per_thread);
+        if (out.pixels_per_thread > 1) {
+          path.reason = Format("threads span %.3g pixels (> 1): the BTF resolves them", out.pixels_per_thread);
+        } else {
+          Config brdf = full;
+          brdf.btf = false;
+          if (!PilotRadiance(points, m, variants, knob, full, &reference) ||
+              !PilotRadiance(points, m, variants, knob, brdf, &candidate))
+            return failed;
+          path.estimated_error = RelativeL1(candidate, reference, &filtered);
+          if (path.estimated_error <= target) {
+            chosen.btf = false;
+            path.chosen = "BRDF";
+            path.reason = Format("threads span %.3g pixels (< 1): a pixel averages them, so the BRDF (the BTF's "
+                                 "mean) is within %.2g of the BTF", out.pixels_per_thread, path.estimated_error);
+          } else {
+            path.reason = Format("threads span %.3g pixels, but the texture a pixel keeps differs from the BRDF "
+                                 "by %.2g > target: BTF", out.pixels_per_thread, path.estimated_error);
+            path.estimated_error = 0;
+          }
+        }
+      }
+      if (!knob.name.empty()) {
+        if (!PilotRadiance(points, m, variants, knob, chosen, &reference)) return failed;
+        accuracy.reason = Format("no smaller %s is within the target of %g", knob.name.c_str(), knob.full);
+        for (double value : knob.candidates) {
+          Config cheaper = chosen;
+          cheaper.knob = value;
+          if (!PilotRadiance(points, m, variants, knob, cheaper, &candidate)) return failed;
+          const double error = RelativeL1(candidate, reference);
+          if (error <= target) {
+            chosen.knob = value;
+            accuracy.chosen = KnobText(value);
+            accuracy.estimated_error = error;
+            accuracy.reason = Format("%s %g: pilot radiance within %.2g of %g (relative L1)", knob.name.c_str(), value,
+                                     error, knob.full);
+            break;
+          }
+        }
+      }
+      if (transmits) {
+        bool back_lit = false;
+        for (const ShadingPoint& p : points) {
+          back_lit = back_lit || p.background.x + p.background.y + p.background.z > 0;
+          for (const LightSample& l : p.lights) back_lit = back_lit || l.wi.z < 0;
+        }
+        if (!back_lit) {
+          chosen.transmission = false;
+          transmission.chosen = "off";
+          transmission.reason = "no light reaches the back of the cloth";
+        } else {
+          Config off = chosen;
+          off.transmission = false;
+          if (!PilotRadiance(points, m, variants, knob, chosen, &reference) ||
+              !PilotRadiance(points, m, variants, knob, off, &candidate))
+            return failed;
+          const double error = RelativeL1(candidate, reference);
+          if (error <= target) {
+            chosen.transmission = false;
+            transmission.chosen = "off";
+            transmission.estimated_error = error;
+            transmission.reason = Format("light through the cloth adds only %.2g of the radiance", error);
+          } else {
+            transmission.reason = Format("light through the cloth adds %.2g of the radiance", error);
+          }
+        }
+      }
+    }
+    for (FidelityChoice* c : {&path, &accuracy, &transmission}) {
+      if (c->aspect.empty()) continue;  // the model has no accuracy knob
+      if (c->reason.empty()) c->reason = common;
+      out.estimated_error += c->estimated_error;
+      out.choices.push_back(*c);
+    }
+    ObjectShading shading;
+    if (!MakeShading(m, variants, knob, chosen, &plan->evaluators, &shading)) return failed;
+    plan->objects.push_back(shading);
+    plan->fidelity.push_back(std::move(out));
+  }
+  return "";
+}
+
+}  // namespace loomlight::render

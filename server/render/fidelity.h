@@ -1,0 +1,69 @@
+// The Render RPC's fidelity chooser: per object, the cheapest model path whose estimated error stays within
+// the request's target (README "Render: fidelity"). Three decisions, each measured on a pilot (a sparse grid
+// of pixel centres traced with the render's own code and evaluated on the host with the native build of the
+// kernels' source):
+// - path: a spatially varying model's BTF where its threads span more than a pixel, else its analytic BRDF
+//   (the BTF's mean) when the texture the pixel would average away is within the target;
+// - an accuracy parameter of the model (a small table by parameter name, e.g. microcylinder tangent
+//   samples): the smallest value whose pilot radiance is within the target of the schema's maximum;
+// - transmission: evaluated only when the light reaching the back of the cloth matters.
+// Models are told apart by their properties (spatially_varying(), transmission()) and parameter names,
+// never by model name.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "server/models/registry.h"
+#include "server/render/shading.h"
+
+namespace loomlight::render {
+
+constexpr double kDefaultErrorTarget = 0.02;  // when a request gives none
+constexpr int kPilotGrid = 24;                // pilot rays: 24 x 24 pixel centres
+
+struct FidelityChoice {
+  std::string aspect;  // "path", an accuracy parameter's name, "transmission"
+  std::string chosen, full;
+  double estimated_error = 0;
+  std::string reason;
+};
+
+struct ObjectFidelity {
+  std::string object, model;
+  std::vector<FidelityChoice> choices;
+  double estimated_error = 0;     // sum over the choices
+  double pixels_per_thread = 0;   // median over the pilot hits; 0 when not spatially varying or not seen
+};
+
+// The request's material: the reflection model with its resolved parameters, and a curtain's layer.
+struct MaterialInfo {
+  const models::Model* model = nullptr;
+  models::ParamValues values;
+  const models::Model* layer_model = nullptr;
+  const models::PackedMaterial* layer = nullptr;
+};
+
+// Packs the reflection material with one parameter overridden; made by the caller (through its material
+// cache, which keeps the result alive for the call). Returns null when that is not possible.
+class MaterialVariants {
+ public:
+  virtual ~MaterialVariants() = default;
+  virtual const models::PackedMaterial* WithParam(const std::string& name, double value) = 0;
+  virtual const models::PackedMaterial* Requested() = 0;  // as the request gave it
+};
+
+struct FidelityPlan {
+  std::vector<Evaluator> evaluators;   // distinct kernel paths; one batcher job each per chunk
+  std::vector<ObjectShading> objects;  // per scene object
+  std::vector<ObjectFidelity> fidelity;
+};
+
+// Fills *plan for every object of setup.scene. Returns "" or why a variant could not be made (internal).
+std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& material, MaterialVariants& variants,
+                           double error_target, bool force_full, FidelityPlan* plan);
+
+// True when the material lets light through the cloth (a layer, or a transmitting model).
+inline bool Transmits(const MaterialInfo& m) { return m.layer != nullptr || (m.model && m.model->transmission()); }
+
+}  // namespace loomlight::render

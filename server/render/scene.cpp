@@ -1,0 +1,181 @@
+#include "server/render/scene.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <utility>
+
+namespace loomlight::render {
+namespace {
+
+constexpr double kDegree = std::numbers::pi / 180;
+
+// Smallest root of a x^2 + 2 b x + c = 0 in (lo, hi) that passes `accept`, by the stable quadratic formula.
+template <class Accept>
+bool NearestRoot(double a, double b, double c, double lo, double hi, Accept accept, double* t) {
+  const double disc = b * b - a * c;
+  if (a == 0 || disc < 0) return false;
+  const double q = -(b + std::copysign(std::sqrt(disc), b));
+  double r0 = q / a, r1 = q != 0 ? c / q : r0;
+  if (r0 > r1) std::swap(r0, r1);
+  for (double r : {r0, r1})
+    if (r > lo && r < hi && accept(r)) {
+      *t = r;
+      return true;
+    }
+  return false;
+}
+
+bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hit* hit) {
+  switch (shape.kind) {
+    case Shape::Kind::kSphere: {
+      const Vec3 oc = o - shape.centre;
+      double t;
+      if (!NearestRoot(Dot(d, d), Dot(oc, d), Dot(oc, oc) - shape.radius * shape.radius, lo, hi,
+                       [](double) { return true; }, &t))
+        return false;
+      hit->distance = t;
+      hit->position = o + t * d;
+      hit->normal = Normalize(hit->position - shape.centre);
+      const Vec3 n = hit->normal;
+      Vec3 around = Cross({0, 1, 0}, n);  // east; undefined at the poles
+      if (Length(around) < 1e-9) around = {1, 0, 0};
+      hit->tangent_s = Normalize(around);
+      hit->tangent_t = Cross(n, hit->tangent_s);
+      hit->s = shape.radius * std::atan2(n.x, n.z);
+      hit->t = shape.radius * std::asin(std::clamp(n.y, -1.0, 1.0));
+      return true;
+    }
+    case Shape::Kind::kCylinder: {
+      const Vec3 oc = o - shape.centre;
+      double t;
+      const auto within = [&](double r) { return std::fabs(oc.y + r * d.y) <= shape.half_height; };
+      if (!NearestRoot(d.x * d.x + d.z * d.z, oc.x * d.x + oc.z * d.z, oc.x * oc.x + oc.z * oc.z - shape.radius * shape.radius,
+                       lo, hi, within, &t))
+        return false;
+      hit->distance = t;
+      hit->position = o + t * d;
+      const Vec3 radial = hit->position - shape.centre;
+      hit->normal = Normalize({radial.x, 0, radial.z});
+      hit->tangent_s = {hit->normal.z, 0, -hit->normal.x};  // (+y) x n: around the axis
+      hit->tangent_t = {0, 1, 0};
+      hit->s = shape.radius * std::atan2(hit->normal.x, hit->normal.z);
+      hit->t = radial.y;
+      return true;
+    }
+    case Shape::Kind::kQuad: {
+      const Vec3 n = Cross(shape.axis_s, shape.axis_t);
+      const double denom = Dot(d, n);
+      if (std::fabs(denom) < 1e-12) return false;
+      const double t = Dot(shape.centre - o, n) / denom;
+      if (!(t > lo && t < hi)) return false;
+      const Vec3 p = o + t * d;
+      const double s = Dot(p - shape.centre, shape.axis_s), v = Dot(p - shape.centre, shape.axis_t);
+      if (std::fabs(s) > shape.half_width || std::fabs(v) > shape.half_height) return false;
+      hit->distance = t;
+      hit->position = p;
+      hit->normal = n;
+      hit->tangent_s = shape.axis_s;
+      hit->tangent_t = shape.axis_t;
+      hit->s = s;
+      hit->t = v;
+      return true;
+    }
+  }
+  return false;
+}
+
+Shape Cylinder(double x) {
+  Shape s;
+  s.kind = Shape::Kind::kCylinder;
+  s.centre = {x, 0, 0};
+  s.radius = 0.4;
+  s.half_height = 0.8;
+  return s;
+}
+
+Shape Quad(Vec3 centre, Vec3 axis_s, Vec3 axis_t, double half_width, double half_height) {
+  Shape s;
+  s.kind = Shape::Kind::kQuad;
+  s.centre = centre;
+  s.axis_s = Normalize(axis_s);
+  s.axis_t = Normalize(axis_t);
+  s.half_width = half_width;
+  s.half_height = half_height;
+  return s;
+}
+
+}  // namespace
+
+PinholeCamera::PinholeCamera(const CameraSpec& spec, int width, int height)
+    : position_(spec.position), width_(width), height_(height) {
+  forward_ = Normalize(spec.look_at - spec.position);
+  right_ = Normalize(Cross(forward_, spec.up));
+  up_ = Cross(right_, forward_);
+  pixel_angle_ = 2 * std::tan(0.5 * spec.fov_deg * kDegree) / height;
+}
+
+Vec3 PinholeCamera::Direction(double px, double py) const {
+  const double x = (px - 0.5 * width_) * pixel_angle_, y = (0.5 * height_ - py) * pixel_angle_;
+  return Normalize(forward_ + x * right_ + y * up_);
+}
+
+bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const {
+  bool found = false;
+  for (size_t i = 0; i < objects.size(); ++i) {
+    Hit candidate;
+    if (IntersectShape(objects[i].shape, origin, direction, min_distance, max_distance, &candidate)) {
+      max_distance = candidate.distance;
+      candidate.object = static_cast<int>(i);
+      *hit = candidate;
+      found = true;
+    }
+  }
+  return found;
+}
+
+bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance) const {
+  Hit ignored;
+  for (const SceneObject& object : objects)
+    if (IntersectShape(object.shape, origin, direction, 0.0, max_distance, &ignored)) return true;
+  return false;
+}
+
+Scene MakeScene(SceneKind kind) {
+  Scene scene;
+  switch (kind) {
+    case SceneKind::kSphere:
+      scene.objects.push_back({"sphere", Shape{}, 0});
+      scene.default_camera = {{0, 0.5, 3.2}, {0, 0, 0}, {0, 1, 0}, 40};
+      scene.default_texture_scale = 8;
+      break;
+    case SceneKind::kCylinders:
+      // Sadeghi et al. Fig. 12: the same cloth wrapped three ways. The camera stays between the cylinders'
+      // ends, so their open ends never show their inside.
+      scene.objects.push_back({"cylinder 1 (threads vertical)", Cylinder(-1.1), 90});
+      scene.objects.push_back({"cylinder 2 (threads horizontal)", Cylinder(0), 0});
+      scene.objects.push_back({"cylinder 3 (threads diagonal)", Cylinder(1.1), 45});
+      scene.default_camera = {{0, 0.25, 5}, {0, 0, 0}, {0, 1, 0}, 36};
+      scene.default_texture_scale = 10;
+      break;
+    case SceneKind::kSwatch: {
+      // A 1 x 1 swatch whose normal leans 50 degrees from +y toward the camera.
+      const double a = 50 * kDegree;
+      scene.objects.push_back({"swatch", Quad({0, 0, 0}, {1, 0, 0}, {0, std::sin(a), -std::cos(a)}, 0.5, 0.5), 0});
+      scene.default_camera = {{0, 1.4, 1.6}, {0, 0, 0}, {0, 1, 0}, 40};
+      scene.default_texture_scale = 8;
+      break;
+    }
+    case SceneKind::kCurtain:
+      // A 2 x 2.4 curtain in the plane z = 0 facing the camera, and a low sun behind it ("window light").
+      scene.objects.push_back({"curtain", Quad({0, 0, 0}, {1, 0, 0}, {0, 1, 0}, 1.0, 1.2), 90});
+      scene.default_camera = {{0, 0, 3.6}, {0, 0, 0}, {0, 1, 0}, 42};
+      scene.default_texture_scale = 8;
+      scene.default_lights.push_back({Light::Type::kDirectional, Normalize({0.3, 0.35, -1}), {}, {4, 3.8, 3.4}});
+      scene.default_environment_intensity = 0.4;
+      break;
+  }
+  return scene;
+}
+
+}  // namespace loomlight::render

@@ -1,0 +1,84 @@
+// The Render RPC's scenes: analytic shapes (sphere, y-axis cylinders, quads) with texture coordinates whose
+// axes are the thread directions, a pinhole camera and analytic lights; ray casting on the host. World
+// space is right-handed, +y up, lengths in scene units (README "Render").
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "server/render/vec.h"
+
+namespace loomlight::render {
+
+enum class SceneKind { kSphere, kCylinders, kSwatch, kCurtain };
+
+struct CameraSpec {
+  Vec3 position, look_at;
+  Vec3 up{0, 1, 0};
+  double fov_deg = 40;  // vertical field of view
+};
+
+// Rays through the image plane; pixel (0, 0) is the top-left corner, x grows right, y down.
+class PinholeCamera {
+ public:
+  PinholeCamera(const CameraSpec& spec, int width, int height);
+  Vec3 position() const { return position_; }
+  // The unit direction through image position (px, py) in pixels.
+  Vec3 Direction(double px, double py) const;
+  // The world size of one pixel at unit distance along the view axis (2 tan(fov/2) / height).
+  double pixel_angle() const { return pixel_angle_; }
+
+ private:
+  Vec3 position_, forward_, right_, up_;
+  double pixel_angle_;
+  int width_, height_;
+};
+
+struct Light {
+  enum class Type { kDirectional, kPoint };
+  Type type = Type::kDirectional;
+  Vec3 direction;  // directional: unit, toward the light
+  Vec3 position;   // point
+  Rgb rgb;         // directional: irradiance perpendicular to the beam; point: radiant intensity
+};
+
+struct Shape {
+  enum class Kind { kSphere, kCylinder, kQuad };
+  Kind kind = Kind::kSphere;
+  Vec3 centre;
+  double radius = 1;       // sphere, cylinder
+  double half_height = 1;  // cylinder (along +y); quad: half extent along axis_t
+  double half_width = 1;   // quad: half extent along axis_s
+  Vec3 axis_s{1, 0, 0}, axis_t{0, 1, 0};  // quad; its front normal is axis_s x axis_t
+};
+
+struct SceneObject {
+  std::string name;
+  Shape shape;
+  double thread_angle_deg = 0;  // the object's thread 1 direction, from the surface's s axis toward t
+};
+
+// A ray-surface intersection. (tangent_s, tangent_t, normal) is right-handed and orthonormal; s and t are
+// surface coordinates in scene units along the tangents (arc lengths on curved shapes).
+struct Hit {
+  double distance = 0;
+  int object = -1;
+  Vec3 position, normal, tangent_s, tangent_t;
+  double s = 0, t = 0;
+};
+
+struct Scene {
+  std::vector<SceneObject> objects;
+  CameraSpec default_camera;
+  double default_texture_scale = 8;      // pattern repeats per unit
+  std::vector<Light> default_lights;     // used, with the built-in sky, when a request gives no lighting
+  double default_environment_intensity = 1;
+
+  // The nearest hit with distance in (min_distance, max_distance); false when there is none.
+  bool Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;
+  bool Occluded(Vec3 origin, Vec3 direction, double max_distance) const;
+};
+
+Scene MakeScene(SceneKind kind);
+
+}  // namespace loomlight::render

@@ -1,0 +1,136 @@
+#include "server/render/shading.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+namespace loomlight::render {
+namespace {
+
+constexpr double kDegree = std::numbers::pi / 180;
+// Shadow rays start this far off the surface (scene units ~1), on the light's side.
+constexpr double kRayOffset = 1e-6;
+// Light samples this close to the surface plane carry no light (f is 0 there for every model).
+constexpr double kMinCosine = 1e-6;
+
+struct Frame {
+  Vec3 x, y, n;
+  Vec3 ToLocal(Vec3 w) const { return {Dot(w, x), Dot(w, y), Dot(w, n)}; }
+};
+
+float WrapUnit(double t) {
+  const float f = static_cast<float>(t - std::floor(t));
+  return f < 1.0f ? f : 0.0f;  // rounding up to 1 wraps to 0
+}
+
+double SingleTransmittance(const models::Model& model, const models::PackedMaterial& material, const Vec3& w) {
+  const float dir[3] = {float(w.x), float(w.y), float(w.z)};
+  double t = 0;
+  model.DirectTransmittance(material, dir, 1, &t);
+  return std::isfinite(t) ? std::clamp(t, 0.0, 1.0) : 0.0;
+}
+
+}  // namespace
+
+void TraceSample(const RenderSetup& setup, double px, double py, const CounterRng& rng, ShadingPoint* point) {
+  point->object = -1;
+  point->background = {};
+  point->lights.clear();
+  const Vec3 origin = setup.camera.position();
+  const Vec3 direction = setup.camera.Direction(px, py);
+  Hit hit;
+  if (!setup.scene.Intersect(origin, direction, 0.0, INFINITY, &hit)) {
+    if (setup.environment) point->background = setup.environment->Radiance(direction);
+    return;
+  }
+  point->object = hit.object;
+  const SceneObject& object = setup.scene.objects[hit.object];
+  const double angle = (object.thread_angle_deg + setup.texture_rotation_deg) * kDegree;
+  const double c = std::cos(angle), s = std::sin(angle);
+  const Frame frame{c * hit.tangent_s + s * hit.tangent_t, -s * hit.tangent_s + c * hit.tangent_t, hit.normal};
+  point->u = WrapUnit(setup.texture_scale * (c * hit.s + s * hit.t));
+  point->v = WrapUnit(setup.texture_scale * (-s * hit.s + c * hit.t));
+  point->footprint = hit.distance * setup.camera.pixel_angle();
+
+  // The cloth is two-sided: seen from behind, both directions are mirrored through the surface (as
+  // Evaluate does for a curtain's back), so wo is always in the upper hemisphere.
+  Vec3 wo = frame.ToLocal(-direction);
+  const double mirror = wo.z < 0 ? -1.0 : 1.0;
+  wo.z *= mirror;
+  point->wo = wo;
+
+  if (hit.object < static_cast<int>(setup.object_transmits.size()) && setup.object_transmits[hit.object]) {
+    Hit behind;  // what the camera sees through the cloth: the environment, or nothing past another object
+    if (setup.environment && !setup.scene.Intersect(hit.position + kRayOffset * direction, direction, 0.0, INFINITY, &behind))
+      point->background = setup.environment->Radiance(direction);
+  }
+
+  const auto add = [&](Vec3 wi_world, double max_distance, Rgb incident) {
+    const double side = Dot(wi_world, hit.normal) >= 0 ? 1.0 : -1.0;
+    Vec3 wi = frame.ToLocal(wi_world);
+    wi.z *= mirror;
+    if (std::fabs(wi.z) < kMinCosine) return;
+    if (setup.scene.Occluded(hit.position + (side * kRayOffset) * hit.normal, wi_world, max_distance)) return;
+    point->lights.push_back({wi, std::fabs(wi.z) * incident});
+  };
+  for (const Light& light : setup.lights) {
+    if (light.type == Light::Type::kDirectional) {
+      add(light.direction, INFINITY, light.rgb);
+    } else {
+      const Vec3 to_light = light.position - hit.position;
+      const double d2 = Dot(to_light, to_light);
+      if (d2 < 1e-12) continue;  // a light on the surface itself: no defined direction
+      const double d = std::sqrt(d2);
+      add((1.0 / d) * to_light, d, (1.0 / d2) * light.rgb);
+    }
+  }
+  if (setup.environment) {
+    const Environment::Sample sample = setup.environment->Draw(rng.Uniform(2), rng.Uniform(3), rng.Uniform(4));
+    if (sample.radiance_over_pdf.x > 0 || sample.radiance_over_pdf.y > 0 || sample.radiance_over_pdf.z > 0)
+      add(sample.direction, INFINITY, sample.radiance_over_pdf);
+  }
+}
+
+void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample, ShadingPoint* point) {
+  const CounterRng rng(setup.seed, pixel * setup.samples_per_pixel + sample);
+  const double x = static_cast<double>(pixel % setup.width), y = static_cast<double>(pixel / setup.width);
+  TraceSample(setup, x + rng.Uniform(0), y + rng.Uniform(1), rng, point);
+}
+
+void QueryBucket::Clear() {
+  wi.clear();
+  wo.clear();
+  uv.clear();
+  weight.clear();
+  tag.clear();
+}
+
+Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const std::vector<Evaluator>& evaluators,
+                  uint32_t tag, std::vector<QueryBucket>* buckets) {
+  const double wo_transmittance =
+      shading.layer ? SingleTransmittance(*shading.layer_model, *shading.layer, point.wo) : 0.0;
+  for (const LightSample& light : point.lights) {
+    const bool behind = light.wi.z < 0;
+    const int index = behind ? shading.transmission : shading.reflection;
+    if (index < 0) continue;
+    Rgb weight = light.weight;
+    if (!behind && shading.layer) {
+      const double wi_transmittance = SingleTransmittance(*shading.layer_model, *shading.layer, light.wi);
+      weight = std::sqrt((1 - wi_transmittance) * (1 - wo_transmittance)) * weight;
+    }
+    QueryBucket& bucket = (*buckets)[index];
+    bucket.wi.insert(bucket.wi.end(), {float(light.wi.x), float(light.wi.y), float(light.wi.z)});
+    bucket.wo.insert(bucket.wo.end(), {float(point.wo.x), float(point.wo.y), float(point.wo.z)});
+    if (evaluators[index].with_uv) bucket.uv.insert(bucket.uv.end(), {point.u, point.v});
+    bucket.weight.insert(bucket.weight.end(), {float(weight.x), float(weight.y), float(weight.z)});
+    bucket.tag.push_back(tag);
+  }
+  if (shading.transmission < 0 || !shading.see_through) return {};
+  return SingleTransmittance(*shading.see_through_model, *shading.see_through, point.wo) * point.background;
+}
+
+size_t MaxQueriesPerSample(const RenderSetup& setup) {
+  return setup.lights.size() + (setup.environment ? 1 : 0);
+}
+
+}  // namespace loomlight::render

@@ -1,0 +1,91 @@
+// From pixel samples to shading queries. TraceSample casts a camera ray, samples every light and the
+// environment (shadow rays included) and expresses the directions in the hit's shading frame (SPEC.md
+// section 1: x = thread 1 = texture u, y = thread 2 = texture v, z = the normal facing the viewer). The
+// fidelity chosen per object then decides which kernel path (Evaluator) each light sample goes to:
+// AppendQueries. The render and the fidelity pilot share both, so they shade identically.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "server/models/registry.h"
+#include "server/render/environment.h"
+#include "server/render/rng.h"
+#include "server/render/scene.h"
+
+namespace loomlight::render {
+
+// Everything a render needs that does not change while it runs.
+struct RenderSetup {
+  Scene scene;
+  PinholeCamera camera{CameraSpec{{0, 0, 1}, {0, 0, 0}}, 1, 1};
+  std::vector<Light> lights;
+  std::shared_ptr<const Environment> environment;  // null: no environment (black background)
+  std::vector<bool> object_transmits;              // per object: light can pass through its cloth
+  double texture_scale = 1;                        // pattern repeats per unit
+  double texture_rotation_deg = 0;
+  uint64_t seed = 0;
+  int width = 1, height = 1;
+  uint32_t samples_per_pixel = 1;
+};
+
+struct LightSample {
+  Vec3 wi;     // toward the light, shading frame (z < 0: behind the cloth)
+  Rgb weight;  // L_o = f(wi, wo) * weight: incident radiance (or irradiance) x |cos theta_i| / pdf
+};
+
+struct ShadingPoint {
+  int object = -1;       // the object hit; -1 when the ray missed
+  Rgb background;        // a miss: the environment; a hit on transmitting cloth: the radiance behind it
+  Vec3 wo;               // toward the camera, shading frame, z >= 0 (the cloth is two-sided)
+  float u = 0, v = 0;    // texture coordinates in pattern repeats, wrapped into [0, 1) (the pattern tiles)
+  double footprint = 0;  // world size of the pixel at the hit (its shorter axis)
+  std::vector<LightSample> lights;
+};
+
+// Casts the ray through image position (px, py) and samples the lights; `rng` supplies the environment
+// sample (dimensions 2..4).
+void TraceSample(const RenderSetup& setup, double px, double py, const CounterRng& rng, ShadingPoint* point);
+
+// The pixel sample `sample` of pixel `pixel` (index y * width + x): jittered position and its own random
+// stream, a pure function of (seed, pixel, sample).
+void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample, ShadingPoint* point);
+
+// One kernel path: a packed material, evaluated with texture coordinates (a BTF) or without.
+struct Evaluator {
+  const models::Model* model = nullptr;
+  const models::PackedMaterial* material = nullptr;
+  bool with_uv = false;
+};
+
+// How one object's light samples are evaluated.
+struct ObjectShading {
+  int reflection = -1;    // evaluator of pairs on the viewer's side
+  int transmission = -1;  // evaluator of pairs on opposite sides; -1: transmission not modelled (dropped)
+  // A curtain's layer: reflection is scaled by sqrt((1 - T(wi)) (1 - T(wo))) as Evaluate does (README
+  // "Curtains"); null without a layer.
+  const models::Model* layer_model = nullptr;
+  const models::PackedMaterial* layer = nullptr;
+  // What lets light straight through toward the viewer (the layer, or a transmitting model), or null.
+  const models::Model* see_through_model = nullptr;
+  const models::PackedMaterial* see_through = nullptr;
+};
+
+// Queries of one evaluator, structure of arrays; `tag` says whose radiance each query adds to.
+struct QueryBucket {
+  std::vector<float> wi, wo, uv, weight;  // 3, 3, 2 (with_uv only), 3 per query
+  std::vector<uint32_t> tag;
+  size_t size() const { return tag.size(); }
+  void Clear();
+};
+
+// Appends the queries of a shading point on an object to buckets[evaluator]; returns the radiance that
+// needs no query (the background seen straight through transmitting cloth).
+Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const std::vector<Evaluator>& evaluators,
+                  uint32_t tag, std::vector<QueryBucket>* buckets);
+
+// The most queries one pixel sample can produce: one per light and one for the environment.
+size_t MaxQueriesPerSample(const RenderSetup& setup);
+
+}  // namespace loomlight::render

@@ -1,0 +1,486 @@
+// Render end to end against an in-process server: images decode at the requested size in every format,
+// the same seed gives the same bytes, the error against a many-sample reference falls with samples, a
+// back-lit curtain is brighter with transmission, the fidelity chooser picks the BRDF far away and the
+// BTF close up (and fewer tangent samples within the target), cancellation stops the work, concurrent
+// Evaluate calls are served during a render, every bad field is named; and `loomlight render`.
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <future>
+#include <thread>
+#include <type_traits>
+
+#include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/render_rpc.h"
+#include "server/api/server.h"
+
+// After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+
+namespace loomlight {
+namespace {
+
+using v1::RenderRequest;
+using v1::RenderUpdate;
+
+std::unique_ptr<v1::Loomlight::Stub> Connect(int port) {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
+  return v1::Loomlight::NewStub(
+      grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(), args));
+}
+
+// Appends values to a repeated field (this protobuf has no initializer-list Add).
+template <class T>
+void Append(google::protobuf::RepeatedField<T>* field, std::type_identity_t<std::initializer_list<T>> values) {
+  for (T v : values) field->Add(v);
+}
+
+RenderRequest Request(const std::string& preset, v1::ScenePreset scene, uint32_t width, uint32_t height, uint32_t spp,
+                      v1::RenderFormat format = v1::RENDER_FORMAT_EXR) {
+  RenderRequest r;
+  r.mutable_material()->set_preset(preset);
+  r.set_scene(scene);
+  r.set_width(width);
+  r.set_height(height);
+  r.set_samples_per_pixel(spp);
+  r.set_format(format);
+  r.set_seed(7);
+  return r;
+}
+
+struct Rendered {
+  grpc::Status status;
+  std::vector<RenderUpdate> updates;  // without the image bytes, except the last
+  const RenderUpdate& last() const { return updates.back(); }
+};
+
+// Streams a render; `on_update` may cancel the call (it sees every update as it arrives).
+Rendered Render(v1::Loomlight::Stub& stub, const RenderRequest& request,
+                std::chrono::milliseconds timeout = std::chrono::seconds(300),
+                std::function<void(grpc::ClientContext&, const RenderUpdate&)> on_update = {}) {
+  Rendered out;
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + timeout);
+  auto reader = stub.Render(&ctx, request);
+  RenderUpdate update;
+  while (reader->Read(&update)) {
+    if (on_update) on_update(ctx, update);
+    out.updates.push_back(update);
+  }
+  out.status = reader->Finish();
+  return out;
+}
+
+struct Decoded {
+  int width = 0, height = 0, channels = 0;
+  std::vector<float> pixels;
+};
+
+Decoded Decode(const std::string& bytes, const char* name) {
+  Decoded d;
+  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
+  auto in = OIIO::ImageInput::open(name, nullptr, &reader);
+  EXPECT_TRUE(in) << OIIO::geterror();
+  if (!in) return d;
+  d.width = in->spec().width;
+  d.height = in->spec().height;
+  d.channels = in->spec().nchannels;
+  d.pixels.resize(size_t(d.width) * d.height * d.channels);
+  EXPECT_TRUE(in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::FLOAT, d.pixels.data())) << in->geterror();
+  return d;
+}
+
+// The linear image of an EXR render.
+std::vector<float> Linear(v1::Loomlight::Stub& stub, const RenderRequest& request) {
+  const Rendered r = Render(stub, request);
+  EXPECT_TRUE(r.status.ok()) << r.status.error_message();
+  if (!r.status.ok()) return {};
+  return Decode(r.last().image(), "render.exr").pixels;
+}
+
+double RelativeRmse(const std::vector<float>& image, const std::vector<float>& reference) {
+  double diff = 0, total = 0;
+  for (size_t i = 0; i < reference.size(); ++i) {
+    diff += (image[i] - reference[i]) * double(image[i] - reference[i]);
+    total += reference[i] * double(reference[i]);
+  }
+  return std::sqrt(diff / total);
+}
+
+const v1::FidelityChoice* Choice(const v1::ObjectFidelity& object, const std::string& aspect) {
+  for (const v1::FidelityChoice& c : object.choices())
+    if (c.aspect() == aspect) return &c;
+  return nullptr;
+}
+
+class RenderTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    api::ServerOptions options;
+    options.address = "127.0.0.1:0";
+    std::string error;
+    server_ = api::LoomlightServer::Start(options, &error).release();
+    ASSERT_NE(server_, nullptr) << error;
+  }
+  static void TearDownTestSuite() {
+    delete server_;
+    server_ = nullptr;
+  }
+  static api::LoomlightServer* server_;
+  std::unique_ptr<v1::Loomlight::Stub> stub_ = Connect(server_->port());
+};
+api::LoomlightServer* RenderTest::server_ = nullptr;
+
+TEST_F(RenderTest, ImagesDecodeAtTheRequestedSizeWithProgress) {
+  const std::pair<v1::RenderFormat, const char*> formats[] = {
+      {v1::RENDER_FORMAT_PNG, "r.png"}, {v1::RENDER_FORMAT_JPEG, "r.jpg"}, {v1::RENDER_FORMAT_EXR, "r.exr"}};
+  for (const auto& [format, name] : formats) {
+    const Rendered r = Render(*stub_, Request("silk_shot", v1::SCENE_SPHERE, 40, 28, 2, format));
+    ASSERT_TRUE(r.status.ok()) << name << ": " << r.status.error_message();
+    const RenderUpdate& last = r.last();
+    const Decoded image = Decode(last.image(), name);
+    EXPECT_EQ(image.width, 40) << name;
+    EXPECT_EQ(image.height, 28) << name;
+    EXPECT_EQ(image.channels, 3) << name;
+    EXPECT_EQ(last.samples_total(), 40u * 28 * 2);
+    EXPECT_EQ(last.samples_done(), last.samples_total());
+    uint64_t previous = 0;
+    for (const RenderUpdate& u : r.updates) {
+      EXPECT_GE(u.samples_done(), previous);
+      previous = u.samples_done();
+    }
+    EXPECT_EQ(r.updates.front().fidelity_size(), 1);  // the sphere
+    EXPECT_EQ(last.fidelity_size(), 1);
+    EXPECT_GT(last.queries(), 0u);
+    EXPECT_GT(last.total_seconds(), 0);
+    ASSERT_EQ(last.mean_size(), 3);
+    for (double m : last.mean()) EXPECT_TRUE(std::isfinite(m) && m > 0) << m;
+    if (format == v1::RENDER_FORMAT_EXR) {
+      for (float v : image.pixels) ASSERT_TRUE(std::isfinite(v) && v >= 0) << v;
+      EXPECT_EQ(last.exposure(), 1.0);
+    } else {
+      EXPECT_GT(last.exposure(), 0);
+    }
+  }
+}
+
+TEST_F(RenderTest, SameSeedGivesIdenticalBytesAndAnotherSeedDoesNot) {
+  RenderRequest request = Request("polyester_satin_charmeuse_front", v1::SCENE_CYLINDERS, 48, 32, 3, v1::RENDER_FORMAT_PNG);
+  const Rendered a = Render(*stub_, request), b = Render(*stub_, request);
+  ASSERT_TRUE(a.status.ok() && b.status.ok()) << a.status.error_message() << b.status.error_message();
+  EXPECT_EQ(a.last().image(), b.last().image());
+  request.set_seed(8);
+  const Rendered c = Render(*stub_, request);
+  ASSERT_TRUE(c.status.ok());
+  EXPECT_NE(a.last().image(), c.last().image());
+}
+
+TEST_F(RenderTest, ErrorAgainstAReferenceFallsAsSamplesGrow) {
+  // The swatch under the built-in sky (environment importance sampling and pixel jitter are the noise).
+  RenderRequest request = Request("linen_plain", v1::SCENE_SWATCH, 32, 32, 256);
+  const std::vector<float> reference = Linear(*stub_, request);
+  ASSERT_FALSE(reference.empty());
+  double errors[3];
+  const uint32_t samples[3] = {4, 16, 64};
+  for (int i = 0; i < 3; ++i) {
+    request.set_samples_per_pixel(samples[i]);
+    request.set_seed(100 + i);  // independent of the reference's samples
+    const std::vector<float> image = Linear(*stub_, request);
+    ASSERT_EQ(image.size(), reference.size());
+    errors[i] = RelativeRmse(image, reference);
+    std::printf("%u samples per pixel: relative RMSE %.4f against 256\n", samples[i], errors[i]);
+  }
+  EXPECT_LT(errors[1], errors[0]);
+  EXPECT_LT(errors[2], errors[1]);
+  // Monte Carlo: the error of N samples against an independent reference of 256 falls like
+  // sqrt(1/N + 1/256); from 4 to 64 samples that is a factor of about 3.5. Ask for 2.
+  EXPECT_LT(errors[2], errors[0] / 2);
+}
+
+TEST_F(RenderTest, BackLitCurtainIsBrighterWithTransmission) {
+  RenderRequest with_layer = Request("linen_plain", v1::SCENE_CURTAIN, 32, 40, 4);
+  with_layer.mutable_material()->mutable_transmission()->set_preset("cotton_curtain");
+  const Rendered lit = Render(*stub_, with_layer);
+  ASSERT_TRUE(lit.status.ok()) << lit.status.error_message();
+  RenderRequest without = with_layer;
+  without.mutable_material()->clear_transmission();
+  const Rendered unlit = Render(*stub_, without);
+  ASSERT_TRUE(unlit.status.ok()) << unlit.status.error_message();
+  const v1::FidelityChoice* transmission = Choice(lit.last().fidelity(0), "transmission");
+  ASSERT_NE(transmission, nullptr);
+  EXPECT_EQ(transmission->chosen(), "on") << transmission->reason();
+  double brighter = 0, darker = 0;
+  for (int c = 0; c < 3; ++c) {
+    brighter += lit.last().mean(c);
+    darker += unlit.last().mean(c);
+  }
+  std::printf("curtain mean radiance: %.4f with transmission, %.4f without\n", brighter, darker);
+  EXPECT_GT(brighter, 1.5 * darker);
+
+  // Lit only from the front, the chooser leaves the transmission out and says why.
+  RenderRequest front = with_layer;
+  v1::RenderLight* light = front.add_lights();
+  light->add_direction(0.2);
+  light->add_direction(0.3);
+  light->add_direction(1);
+  for (int c = 0; c < 3; ++c) light->add_rgb(3);
+  const Rendered front_lit = Render(*stub_, front);
+  ASSERT_TRUE(front_lit.status.ok()) << front_lit.status.error_message();
+  const v1::FidelityChoice* off = Choice(front_lit.last().fidelity(0), "transmission");
+  ASSERT_NE(off, nullptr);
+  EXPECT_EQ(off->chosen(), "off");
+  EXPECT_EQ(off->estimated_error(), 0);
+  EXPECT_NE(off->reason().find("back"), std::string::npos) << off->reason();
+}
+
+TEST_F(RenderTest, ChooserPicksTheBrdfForADistantSwatchAndTheBtfForACloseUp) {
+  RenderRequest distant = Request("cotton_twill", v1::SCENE_SWATCH, 64, 64, 1);
+  distant.set_texture_scale(40);  // 160 threads per unit; the swatch covers about 40 pixels
+  Append(distant.mutable_camera()->mutable_position(), {0, 3.5, 4});
+  Append(distant.mutable_camera()->mutable_look_at(), {0, 0, 0});
+  const Rendered far = Render(*stub_, distant);
+  ASSERT_TRUE(far.status.ok()) << far.status.error_message();
+  const v1::ObjectFidelity& far_fidelity = far.last().fidelity(0);
+  std::printf("distant: %.3g pixels per thread, %s\n", far_fidelity.pixels_per_thread(),
+              Choice(far_fidelity, "path")->reason().c_str());
+  EXPECT_LT(far_fidelity.pixels_per_thread(), 1);
+  EXPECT_EQ(Choice(far_fidelity, "path")->chosen(), "BRDF");
+  EXPECT_LE(far_fidelity.estimated_error(), far.last().error_target());
+
+  RenderRequest close = Request("cotton_twill", v1::SCENE_SWATCH, 64, 64, 1);
+  close.set_texture_scale(2);
+  Append(close.mutable_camera()->mutable_position(), {0, 0.5, 0.6});
+  Append(close.mutable_camera()->mutable_look_at(), {0, 0, 0});
+  const Rendered near = Render(*stub_, close);
+  ASSERT_TRUE(near.status.ok()) << near.status.error_message();
+  const v1::ObjectFidelity& near_fidelity = near.last().fidelity(0);
+  std::printf("close-up: %.3g pixels per thread, %s\n", near_fidelity.pixels_per_thread(),
+              Choice(near_fidelity, "path")->reason().c_str());
+  EXPECT_GT(near_fidelity.pixels_per_thread(), 1);
+  EXPECT_EQ(Choice(near_fidelity, "path")->chosen(), "BTF");
+
+  // Forcing full fidelity renders the far swatch with the BTF as well, and costs BTF queries.
+  distant.set_force_full_fidelity(true);
+  const Rendered forced = Render(*stub_, distant);
+  ASSERT_TRUE(forced.status.ok());
+  EXPECT_EQ(Choice(forced.last().fidelity(0), "path")->chosen(), "BTF");
+  EXPECT_EQ(forced.last().fidelity(0).estimated_error(), 0);
+}
+
+TEST_F(RenderTest, ChooserUsesFewerTangentSamplesWithinTheTarget) {
+  RenderRequest request = Request("polyester_satin_charmeuse_front", v1::SCENE_CYLINDERS, 64, 48, 1);
+  const Rendered chosen = Render(*stub_, request);
+  ASSERT_TRUE(chosen.status.ok()) << chosen.status.error_message();
+  ASSERT_EQ(chosen.last().fidelity_size(), 3);  // three cylinders
+  for (const v1::ObjectFidelity& object : chosen.last().fidelity()) {
+    const v1::FidelityChoice* t = Choice(object, "tangent_samples");
+    ASSERT_NE(t, nullptr) << object.object();
+    std::printf("%s: tangent samples %s (%s)\n", object.object().c_str(), t->chosen().c_str(), t->reason().c_str());
+    EXPECT_EQ(t->full(), "256");
+    EXPECT_LT(std::stoi(t->chosen()), 256);
+    EXPECT_LE(t->estimated_error(), chosen.last().error_target());
+    EXPECT_GT(t->estimated_error(), 0);
+  }
+  // A tighter target takes more samples; force_full_fidelity takes the schema's maximum.
+  request.set_error_target(0.002);
+  const Rendered tight = Render(*stub_, request);
+  ASSERT_TRUE(tight.status.ok());
+  EXPECT_GT(std::stoi(Choice(tight.last().fidelity(0), "tangent_samples")->chosen()),
+            std::stoi(Choice(chosen.last().fidelity(0), "tangent_samples")->chosen()));
+  request.set_force_full_fidelity(true);
+  const Rendered full = Render(*stub_, request);
+  ASSERT_TRUE(full.status.ok());
+  for (const v1::ObjectFidelity& object : full.last().fidelity())
+    EXPECT_EQ(Choice(object, "tangent_samples")->chosen(), "256");
+}
+
+TEST_F(RenderTest, CancelledRenderStopsEarly) {
+  // 512 x 512 x 64 samples, at most one query each (the default lighting is the sky alone), cancelled once
+  // a fifth of the samples are done (the top rows are background, which needs no queries).
+  const RenderRequest big = Request("linen_plain", v1::SCENE_CYLINDERS, 512, 512, 64);
+  const uint64_t before = server_->metrics().rendered_queries();
+  // Cancelled at the first update past a fifth that follows some shading work (the first fifth may be all
+  // background, which the server skips without queries).
+  const Rendered r = Render(*stub_, big, std::chrono::seconds(300), [&](grpc::ClientContext& ctx, const RenderUpdate& u) {
+    if (u.samples_done() * 5 >= u.samples_total() && server_->metrics().rendered_queries() > before) ctx.TryCancel();
+  });
+  EXPECT_EQ(r.status.error_code(), grpc::StatusCode::CANCELLED) << r.status.error_message();
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));  // let the chunk in flight return
+  const uint64_t done = server_->metrics().rendered_queries() - before;
+  const uint64_t total = uint64_t{512} * 512 * 64;
+  std::printf("cancelled render: %llu queries for %llu samples\n", (unsigned long long)done, (unsigned long long)total);
+  EXPECT_GT(done, 0u);
+  EXPECT_LT(done, total / 3);  // a fifth, plus the chunk in flight (1/64 of the samples) at most
+
+  // A short deadline ends a render too, and the server keeps serving.
+  const Rendered late = Render(*stub_, big, std::chrono::milliseconds(300));
+  EXPECT_EQ(late.status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << late.status.error_message();
+  EXPECT_TRUE(Render(*stub_, Request("velvet", v1::SCENE_SPHERE, 8, 8, 1)).status.ok());
+}
+
+TEST_F(RenderTest, EvaluateIsServedWhileARenderRuns) {
+  std::atomic<bool> stop{false};
+  auto render = std::async(std::launch::async, [&] {
+    return Render(*stub_, Request("linen_plain", v1::SCENE_CYLINDERS, 512, 512, 64), std::chrono::seconds(300),
+                  [&](grpc::ClientContext& ctx, const RenderUpdate&) {
+                    if (stop) ctx.TryCancel();
+                  });
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  v1::EvaluateRequest e;
+  e.mutable_material()->set_preset("silk_shot");
+  for (int q = 0; q < 64; ++q) Append(e.mutable_wi(), {0, 0, 1}), Append(e.mutable_wo(), {0.6f, 0, 0.8f});
+  double slowest = 0;
+  for (int i = 0; i < 10; ++i) {
+    grpc::ClientContext ctx;
+    v1::EvaluateResponse response;
+    const auto start = std::chrono::steady_clock::now();
+    ASSERT_TRUE(Connect(server_->port())->Evaluate(&ctx, e, &response).ok());
+    slowest = std::max(slowest, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  }
+  stop = true;
+  const Rendered r = render.get();
+  std::printf("slowest of 10 Evaluate calls during a render: %.3f s\n", slowest);
+  // One render chunk (at most 262,144 queries, ~0.1 s on this machine) runs ahead of a call at most.
+  EXPECT_LT(slowest, 1.0);
+  EXPECT_NE(r.status.error_code(), grpc::StatusCode::INTERNAL);
+}
+
+TEST_F(RenderTest, EveryInvalidFieldIsNamed) {
+  struct Case {
+    const char* field;
+    std::function<void(RenderRequest&)> change;
+  };
+  const Case cases[] = {
+      {"material.preset", [](auto& r) { r.mutable_material()->set_preset("no_such_cloth"); }},
+      {"material.transmission", [](auto& r) { r.mutable_material()->mutable_transmission()->set_preset("velvet"); }},
+      {"scene", [](auto& r) { r.set_scene(static_cast<v1::ScenePreset>(9)); }},
+      {"texture_scale", [](auto& r) { r.set_texture_scale(-1); }},
+      {"texture_scale", [](auto& r) { r.set_texture_scale(NAN); }},
+      {"texture_rotation_deg", [](auto& r) { r.set_texture_rotation_deg(INFINITY); }},
+      {"lights", [](auto& r) { for (int i = 0; i < 17; ++i) Append(r.add_lights()->mutable_rgb(), {1, 1, 1}); }},
+      {"lights[0].rgb", [](auto& r) { Append(r.add_lights()->mutable_rgb(), {1, 1}); }},
+      {"lights[0].rgb[1]", [](auto& r) { Append(r.add_lights()->mutable_rgb(), {1, -1, 1}); }},
+      {"lights[0].direction", [](auto& r) {
+         auto* l = r.add_lights();
+         Append(l->mutable_rgb(), {1, 1, 1});
+         Append(l->mutable_direction(), {0, 0, 0});
+       }},
+      {"lights[0].position[2]", [](auto& r) {
+         auto* l = r.add_lights();
+         l->set_type(v1::RenderLight::TYPE_POINT);
+         Append(l->mutable_rgb(), {1, 1, 1});
+         Append(l->mutable_position(), {0, 0, NAN});
+       }},
+      {"lights[0].type", [](auto& r) { r.add_lights()->set_type(static_cast<v1::RenderLight::Type>(5)); }},
+      {"environment.intensity", [](auto& r) { r.mutable_environment()->set_intensity(-2); }},
+      {"environment.rotation_deg", [](auto& r) { r.mutable_environment()->set_rotation_deg(NAN); }},
+      {"environment.path", [](auto& r) { r.mutable_environment()->set_path("/no/such/sky.exr"); }},
+      {"camera.position", [](auto& r) { Append(r.mutable_camera()->mutable_look_at(), {0, 0, 0}); }},
+      {"camera.look_at", [](auto& r) {
+         Append(r.mutable_camera()->mutable_position(), {1, 2, 3});
+         Append(r.mutable_camera()->mutable_look_at(), {1, 2, 3});
+       }},
+      {"camera.up", [](auto& r) {
+         Append(r.mutable_camera()->mutable_position(), {0, 5, 0});
+         Append(r.mutable_camera()->mutable_look_at(), {0, 0, 0});
+       }},
+      {"camera.fov_deg", [](auto& r) {
+         Append(r.mutable_camera()->mutable_position(), {0, 0, 5});
+         Append(r.mutable_camera()->mutable_look_at(), {0, 0, 0});
+         r.mutable_camera()->set_fov_deg(179);
+       }},
+      {"width", [](auto& r) { r.set_width(0); }},
+      {"width", [](auto& r) { r.set_width(api::kMaxRenderSide + 1); }},
+      {"height", [](auto& r) { r.set_height(100000); }},
+      {"samples_per_pixel", [](auto& r) { r.set_samples_per_pixel(api::kMaxRenderSamplesPerPixel + 1); }},
+      {"samples_per_pixel", [](auto& r) {  // each within its limit, the product not
+         r.set_width(2048);
+         r.set_height(2048);
+         r.set_samples_per_pixel(32);
+       }},
+      {"format", [](auto& r) { r.set_format(static_cast<v1::RenderFormat>(7)); }},
+      {"exposure", [](auto& r) { r.set_exposure(-1); }},
+      {"error_target", [](auto& r) { r.set_error_target(2); }},
+      {"error_target", [](auto& r) { r.set_error_target(NAN); }},
+      {"precision", [](auto& r) { r.set_precision(static_cast<v1::Precision>(5)); }},
+  };
+  for (const Case& c : cases) {
+    RenderRequest request = Request("linen_plain", v1::SCENE_SPHERE, 8, 8, 1);
+    c.change(request);
+    const Rendered r = Render(*stub_, request);
+    EXPECT_EQ(r.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.field << ": " << r.status.error_message();
+    EXPECT_EQ(r.status.error_message().rfind(std::string(c.field) + ":", 0), 0u)
+        << "expected the message to start with '" << c.field << ":', got: " << r.status.error_message();
+  }
+  // The limits themselves are accepted: the most samples per pixel, 16 lights.
+  RenderRequest edge = Request("linen_plain", v1::SCENE_SPHERE, 2, 1, api::kMaxRenderSamplesPerPixel);
+  for (int i = 0; i < api::kMaxRenderLights; ++i) {
+    v1::RenderLight* l = edge.add_lights();
+    Append(l->mutable_rgb(), {0.1, 0.1, 0.1});
+    Append(l->mutable_direction(), {0, 0, 1});
+  }
+  EXPECT_TRUE(Render(*stub_, edge).status.ok());
+}
+
+TEST_F(RenderTest, EnvironmentMapFromAFileLightsTheScene) {
+  // A small EXR sky written with OpenImageIO: bright top half, black bottom half.
+  const std::string path = ::testing::TempDir() + "/render_sky.exr";
+  std::vector<float> sky(16 * 8 * 3, 0.0f);
+  for (int i = 0; i < 16 * 4 * 3; ++i) sky[i] = 1.0f;
+  auto out = OIIO::ImageOutput::create(path);
+  ASSERT_TRUE(out);
+  ASSERT_TRUE(out->open(path, OIIO::ImageSpec(16, 8, 3, OIIO::TypeDesc::FLOAT)));
+  ASSERT_TRUE(out->write_image(OIIO::TypeDesc::FLOAT, sky.data()));
+  out->close();
+  RenderRequest request = Request("linen_plain", v1::SCENE_SPHERE, 24, 24, 4);
+  request.mutable_environment()->set_path(path);
+  const Rendered r = Render(*stub_, request);
+  ASSERT_TRUE(r.status.ok()) << r.status.error_message();
+  const Decoded image = Decode(r.last().image(), "r.exr");
+  // The top of the sphere faces the sky, its bottom the black ground.
+  const auto at = [&](int x, int y) { return image.pixels[3 * (y * 24 + x) + 1]; };
+  EXPECT_GT(at(12, 5), 4 * at(12, 19) + 1e-4);
+}
+
+// Runs the client binary; returns its exit code, with stdout and stderr in *output.
+int RunClient(int port, const std::string& args, std::string* output) {
+  const std::string command =
+      std::string(LOOMLIGHT_CLIENT_BINARY) + " --server 127.0.0.1:" + std::to_string(port) + " " + args + " 2>&1";
+  FILE* pipe = popen(command.c_str(), "r");
+  output->clear();
+  char buffer[4096];
+  while (pipe && std::fgets(buffer, sizeof buffer, pipe)) *output += buffer;
+  const int status = pipe ? pclose(pipe) : -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+TEST_F(RenderTest, ClientWritesTheImageWithProgress) {
+  const std::string path = ::testing::TempDir() + "/render_client.png";
+  std::remove(path.c_str());
+  std::string out;
+  ASSERT_EQ(RunClient(server_->port(),
+                      "render --preset silk_shot --scene cylinders --size 64x40 --spp 2 --out " + path, &out), 0)
+      << out;
+  EXPECT_NE(out.find("64x40"), std::string::npos) << out;
+  EXPECT_NE(out.find("tangent_samples"), std::string::npos) << out;  // the fidelity report
+  EXPECT_NE(out.find("100%"), std::string::npos) << out;              // the plain progress line (not a terminal)
+  auto in = OIIO::ImageInput::open(path);
+  ASSERT_TRUE(in) << OIIO::geterror();
+  EXPECT_EQ(in->spec().width, 64);
+  EXPECT_EQ(in->spec().height, 40);
+  EXPECT_EQ(RunClient(server_->port(), "render --preset velvet --size 8x8 --width 3 --out x.png", &out), 2) << out;
+  EXPECT_EQ(RunClient(server_->port(), "render --preset no_such --out " + path, &out), 1) << out;
+  EXPECT_NE(out.find("INVALID_ARGUMENT: material.preset"), std::string::npos) << out;
+}
+
+}  // namespace
+}  // namespace loomlight

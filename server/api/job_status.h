@@ -1,11 +1,32 @@
-// The gRPC status of a batcher job's outcome, shared by every RPC that runs kernel jobs.
+// Batcher jobs for the RPCs: building one for a call, and the gRPC status of its outcome.
 #pragma once
 
 #include <grpcpp/grpcpp.h>
 
+#include <memory>
+
 #include "server/batching/batcher.h"
 
 namespace loomlight::api {
+
+// A job evaluating n queries (uv nullptr: f(wi, wo)) of one packed material, stopped before launch by the
+// call's deadline or cancellation; the caller sets `done`. The arrays must outlive the job.
+inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const models::PackedMaterial& material,
+                                             bool fp64, batching::Clock::time_point deadline,
+                                             grpc::CallbackServerContext* context, const float* wi, const float* wo,
+                                             const float* uv, size_t n) {
+  auto job = std::make_shared<batching::Job>();
+  job->model = model;
+  job->fp64 = fp64;
+  job->material = material;
+  job->wi = wi;
+  job->wo = wo;
+  job->uv = uv;
+  job->n = n;
+  job->deadline = deadline;
+  job->cancelled = [context] { return context->IsCancelled(); };
+  return job;
+}
 
 inline grpc::Status ToStatus(const batching::JobResult& r) {
   switch (r.status) {

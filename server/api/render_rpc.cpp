@@ -116,13 +116,6 @@ class CachedVariants final : public render::MaterialVariants {
   std::vector<std::shared_ptr<const MaterialCache::Entry>> kept_;
 };
 
-// Finishes a call that never started streaming (a rejected request).
-class RejectedRender final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
- public:
-  explicit RejectedRender(grpc::Status status) { Finish(std::move(status)); }
-  void OnDone() override { delete this; }
-};
-
 // One Render call in flight. As in Tabulate, every member is touched only on the HostWorker's thread: gRPC
 // reactions and batcher completions post there, so the state needs no lock, and `delete this` (posted by
 // OnDone, the last reaction) runs after every task posted before it. The call is finished only when no
@@ -313,16 +306,8 @@ class RenderCall final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
       const render::QueryBucket& b = chunk.buckets[e];
       if (b.size() == 0) continue;
       const render::Evaluator& evaluator = plan_.evaluators[e];
-      auto job = std::make_shared<batching::Job>();
-      job->model = evaluator.model;
-      job->fp64 = fp64_;
-      job->material = *evaluator.material;
-      job->wi = b.wi.data();
-      job->wo = b.wo.data();
-      job->uv = evaluator.with_uv ? b.uv.data() : nullptr;
-      job->n = b.size();
-      job->deadline = deadline_;
-      job->cancelled = [context = context_] { return context->IsCancelled(); };
+      auto job = NewJob(evaluator.model, *evaluator.material, fp64_, deadline_, context_, b.wi.data(), b.wo.data(),
+                        evaluator.with_uv ? b.uv.data() : nullptr, b.size());
       job->done = [this, index, e](batching::JobResult result) {
         deps_.worker->Post([this, index, e, result = std::move(result)] { OnJobDone(index, e, result); });
       };
@@ -555,7 +540,7 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   const auto received = Clock::now();
   const auto reject = [&](grpc::Status status) {
     deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
-    return new RejectedRender(std::move(status));
+    return new RejectedStream<v1::RenderUpdate>(std::move(status));
   };
   std::shared_ptr<const MaterialCache::Entry> material;
   if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())

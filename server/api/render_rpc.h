@@ -32,15 +32,7 @@ constexpr size_t kMaxEnvironmentPathBytes = 4096;
 // other clients' launches often and its host work (ray casting, accumulation) overlaps the kernels.
 constexpr size_t kRenderChunkQueries = kMaxQueriesPerCall / 4;
 
-// What the handler needs from the service (all owned by it and outliving every call).
-struct RenderDeps {
-  const models::Registry* registry = nullptr;
-  batching::Batcher* batcher = nullptr;
-  bool has_fp64 = false;
-  Metrics* metrics = nullptr;
-  MaterialCache* materials = nullptr;
-  HostWorker* worker = nullptr;
-};
+using RenderDeps = ServiceDeps;
 
 // Checks every field except the material, the environment file and device support. Returns "" or
 // "field: reason".

@@ -330,20 +330,14 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
           : received + (deadline - std::chrono::system_clock::now());
   for (size_t k = 0; k < call->parts.size(); ++k) {
     const EvaluateCall::Part& part = call->parts[k];
-    auto job = std::make_shared<batching::Job>();
-    job->model = part.material->model;
-    job->fp64 = fp64;
-    job->material = part.material->packed;
+    const bool whole = !layer;
+    auto job = NewJob(part.material->model, part.material->packed, fp64, job_deadline, context,
+                      whole ? wi : part.wi.data(), whole ? wo : part.wo.data(),
+                      whole ? uv : (uv && part.material->model->spatially_varying() ? part.uv.data() : nullptr),
+                      whole ? n : part.index.size());
     const std::string approximation = job->model->ChooseApproximation(request->error_target(), &job->material);
     if (!approximation.empty())
       call->approximation += (call->approximation.empty() ? "" : "; ") + approximation;
-    const bool whole = !layer;
-    job->wi = whole ? wi : part.wi.data();
-    job->wo = whole ? wo : part.wo.data();
-    job->uv = whole ? uv : (uv && part.material->model->spatially_varying() ? part.uv.data() : nullptr);
-    job->n = whole ? n : part.index.size();
-    job->deadline = job_deadline;
-    job->cancelled = [context] { return context->IsCancelled(); };
     job->done = [call, k](batching::JobResult r) { call->PartDone(k, std::move(r)); };
     if (job->n == 0) {
       call->PartDone(k, batching::JobResult{});  // nothing to launch (e.g. a curtain seen only from one side)
@@ -360,23 +354,17 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
 grpc::ServerUnaryReactor* LoomlightService::TextureSlice(grpc::CallbackServerContext* context,
                                                          const v1::TextureSliceRequest* request,
                                                          v1::TextureSliceResponse* response) {
-  const TextureSliceDeps deps{.registry = registry_, .batcher = batcher_, .has_fp64 = has_fp64_,
-                              .metrics = metrics_, .materials = &materials_, .worker = &worker_};
-  return HandleTextureSlice(deps, context, request, response);
+  return HandleTextureSlice(deps(), context, request, response);
 }
 
 grpc::ServerWriteReactor<v1::TabulateChunk>* LoomlightService::Tabulate(grpc::CallbackServerContext* context,
                                                                         const v1::TabulateRequest* request) {
-  const TabulateDeps deps{.registry = registry_, .batcher = batcher_, .has_fp64 = has_fp64_, .metrics = metrics_,
-                          .materials = &materials_, .worker = &worker_};
-  return HandleTabulate(deps, context, request);
+  return HandleTabulate(deps(), context, request);
 }
 
 grpc::ServerWriteReactor<v1::RenderUpdate>* LoomlightService::Render(grpc::CallbackServerContext* context,
                                                                     const v1::RenderRequest* request) {
-  const RenderDeps deps{.registry = registry_, .batcher = batcher_, .has_fp64 = has_fp64_, .metrics = metrics_,
-                        .materials = &materials_, .worker = &worker_};
-  return HandleRender(deps, context, request);
+  return HandleRender(deps(), context, request);
 }
 
 }  // namespace loomlight::api

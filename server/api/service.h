@@ -47,6 +47,25 @@ class MaterialCache {
   std::unordered_map<std::string, std::pair<std::shared_ptr<const Entry>, std::list<std::string>::iterator>> map_;
 };
 
+// What the streaming and long-running RPC handlers (TextureSlice, Tabulate, Render) need from the service;
+// all owned by it and outliving every call.
+struct ServiceDeps {
+  const models::Registry* registry = nullptr;
+  batching::Batcher* batcher = nullptr;
+  bool has_fp64 = false;
+  Metrics* metrics = nullptr;
+  MaterialCache* materials = nullptr;
+  HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
+};
+
+// Finishes a streaming call that never started streaming (a rejected request).
+template <class Message>
+class RejectedStream final : public grpc::ServerWriteReactor<Message> {
+ public:
+  explicit RejectedStream(grpc::Status status) { this->Finish(std::move(status)); }
+  void OnDone() override { delete this; }
+};
+
 class LoomlightService final : public v1::Loomlight::CallbackService {
  public:
   LoomlightService(const models::Registry* registry, batching::Batcher* batcher, bool has_fp64, Metrics* metrics)
@@ -67,6 +86,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
                                                     const v1::RenderRequest* request) override;
 
  private:
+  ServiceDeps deps() { return {registry_, batcher_, has_fp64_, metrics_, &materials_, &worker_}; }
   // Finishes a call on the default reactor and records it.
   grpc::ServerUnaryReactor* Reply(grpc::CallbackServerContext* context, const char* rpc,
                                   batching::Clock::time_point received, grpc::Status status);

@@ -167,13 +167,6 @@ class CsvEncoder final : public TableEncoder {
   const char* value_format_;
 };
 
-// Finishes a call that never started streaming (a rejected request).
-class RejectedTabulate final : public grpc::ServerWriteReactor<v1::TabulateChunk> {
- public:
-  explicit RejectedTabulate(grpc::Status status) { Finish(std::move(status)); }
-  void OnDone() override { delete this; }
-};
-
 // One Tabulate call in flight. Every member is touched only on the HostWorker's thread: gRPC reactions and
 // batcher completions post there, so the state needs no lock, and `delete this` (posted by OnDone, the
 // last reaction) runs after every task posted before it. The call is finished only when neither a batcher
@@ -252,15 +245,8 @@ class TabulateCall final : public grpc::ServerWriteReactor<v1::TabulateChunk> {
     wo_.resize(3 * count);
     for (size_t i = 0; i < count; ++i) grid_.Directions(first + i, &wi_[3 * i], &wo_[3 * i]);
 
-    auto job = std::make_shared<batching::Job>();
-    job->model = material_->model;
-    job->fp64 = fp64_;
-    job->material = material_->packed;
-    job->wi = wi_.data();
-    job->wo = wo_.data();
-    job->n = count;
-    job->deadline = deadline_;
-    job->cancelled = [context = context_] { return context->IsCancelled(); };
+    auto job = NewJob(material_->model, material_->packed, fp64_, deadline_, context_, wi_.data(), wo_.data(),
+                      nullptr, count);
     job->done = [this, first, count](batching::JobResult result) {
       deps_.worker->Post([this, first, count, result = std::move(result)] { OnJobDone(first, count, result); });
     };
@@ -550,7 +536,7 @@ grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& 
   const auto received = Clock::now();
   const auto reject = [&](grpc::Status status) {
     deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
-    return new RejectedTabulate(std::move(status));
+    return new RejectedStream<v1::TabulateChunk>(std::move(status));
   };
   std::shared_ptr<const MaterialCache::Entry> material;
   if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())

@@ -38,15 +38,7 @@ constexpr uint32_t kRawVersion = 1;
 constexpr uint32_t kRawHeaderBytes = 40;
 enum class GridKind : uint32_t { kInPlane = 1, kAnisotropic = 2, kMerl = 3 };
 
-// What the handler needs from the service (all owned by it and outliving every call).
-struct TabulateDeps {
-  const models::Registry* registry = nullptr;
-  batching::Batcher* batcher = nullptr;
-  bool has_fp64 = false;
-  Metrics* metrics = nullptr;
-  MaterialCache* materials = nullptr;
-  HostWorker* worker = nullptr;
-};
+using TabulateDeps = ServiceDeps;
 
 // A validated request's grid: its dimensions and the directions of each query.
 class TabulationGrid {

@@ -179,16 +179,8 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   bool Submit(int index) {
     if (!StillWanted()) return false;
     const Chunk& chunk = chunks_[index];
-    auto job = std::make_shared<batching::Job>();
-    job->model = material_->model;
-    job->fp64 = fp64_;
-    job->material = material_->packed;
-    job->wi = wi_.data();
-    job->wo = wo_.data();
-    job->uv = chunk.uv.data();
-    job->n = chunk.count;
-    job->deadline = deadline_;
-    job->cancelled = [context = context_] { return context->IsCancelled(); };
+    auto job = NewJob(material_->model, material_->packed, fp64_, deadline_, context_, wi_.data(), wo_.data(),
+                      chunk.uv.data(), chunk.count);
     job->done = [self = shared_from_this(), index](batching::JobResult result) {
       self->deps_.worker->Post([self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
     };

@@ -25,15 +25,7 @@ constexpr uint64_t kMaxSliceSamples = uint64_t{1} << 24;   // width x height x s
 // clients' launches instead of holding the device for seconds.
 constexpr size_t kSliceChunkQueries = kMaxQueriesPerCall;
 
-// What the handler needs from the service (all owned by it and outliving every call).
-struct TextureSliceDeps {
-  const models::Registry* registry = nullptr;
-  batching::Batcher* batcher = nullptr;
-  bool has_fp64 = false;
-  Metrics* metrics = nullptr;
-  MaterialCache* materials = nullptr;
-  HostWorker* worker = nullptr;  // runs every chunk's host work and the encoding
-};
+using TextureSliceDeps = ServiceDeps;
 
 // The position in [0, 1)^2 inside pixel `pixel` (index y * width + x) of its sample `sample` of `samples`:
 // the centre for one sample; otherwise the R2 sequence (i + 1/2) (0.7548776662, 0.5698402910) mod 1, shifted

@@ -102,18 +102,18 @@ void Canvas::write(const std::string& path) const {
     throw std::runtime_error("cannot write " + path + ": " + small.geterror());
 }
 
-void draw_title(Canvas& canvas, const std::string& title, const std::vector<std::string>& notes) {
+void draw_title(Canvas& canvas, const std::string& title, const std::vector<std::string>& notes, double top_units) {
   const double u = canvas.unit(), x = 16 * u;
-  canvas.text({x, 28 * u}, title, kTitleFont, kText, Align::kStart);
+  canvas.text({x, (top_units + 28) * u}, title, kTitleFont, kText, Align::kStart);
   for (std::size_t i = 0; i < notes.size(); ++i)
-    canvas.text({x, (52 + 18 * i) * u}, notes[i], kLabelFont, kFaintText, Align::kStart);
+    canvas.text({x, (top_units + 52 + 18 * i) * u}, notes[i], kLabelFont, kFaintText, Align::kStart);
 }
 
-void draw_legend(Canvas& canvas, const std::vector<LegendEntry>& legend) {
+void draw_legend(Canvas& canvas, const std::vector<LegendEntry>& legend, double top_units) {
   if (!text_font()) return;  // swatches without their text would say nothing
   const double u = canvas.unit(), x = canvas.width() - 180 * u;
   for (std::size_t i = 0; i < legend.size(); ++i) {
-    const double y = (20 + 20 * i) * u;
+    const double y = (top_units + 20 + 20 * i) * u;
     canvas.line({x, y}, {x + 24 * u, y}, legend[i].color, kCurveWidth);
     canvas.text({x + 32 * u, y}, legend[i].text, kLabelFont, kText, Align::kStart);
   }

@@ -65,10 +65,11 @@ class Canvas {
   std::unique_ptr<Pixels> pixels_;
 };
 
-// Title and notes in the top-left corner.
-void draw_title(Canvas& canvas, const std::string& title, const std::vector<std::string>& notes);
-// Colour swatches with their text in the top-right corner (nothing without a font).
-void draw_legend(Canvas& canvas, const std::vector<LegendEntry>& legend);
+// Title and notes in the top-left corner of a panel whose top edge is `top_units` below the canvas's top.
+void draw_title(Canvas& canvas, const std::string& title, const std::vector<std::string>& notes,
+                double top_units = 0);
+// Colour swatches with their text in the top-right corner of that panel (nothing without a font).
+void draw_legend(Canvas& canvas, const std::vector<LegendEntry>& legend, double top_units = 0);
 // printf-style formatting of one number, e.g. format_value("%.3g", v).
 std::string format_value(const char* format, double v);
 

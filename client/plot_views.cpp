@@ -264,15 +264,6 @@ int run_albedo(const ParsedOptions& options) {
 
 // ---- A lit sphere ----
 
-Vec3 normalized(const Vec3& v) {
-  const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-  return {v[0] / len, v[1] / len, v[2] / len};
-}
-double dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-Vec3 cross(const Vec3& a, const Vec3& b) {
-  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-
 // View space: x right, y up, the viewer along +z (orthographic). At a sphere point with normal n the
 // shading frame is: local z = n; local x (thread 1) = view +x projected onto the tangent plane, so threads
 // 1 run left-right and threads 2 (local y = n x local x) bottom-top across the middle of the image.
@@ -338,9 +329,18 @@ int run_sphere(const ParsedOptions& options) {
 
 }  // namespace
 
+Vec3 normalized(const Vec3& v) {
+  const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  return {v[0] / len, v[1] / len, v[2] / len};
+}
+double dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+Vec3 cross(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
 OptionList plot_view_options() {
   return {
-      {"view", "polar|thd|albedo|sphere", "what to draw (default polar; see the description)"},
+      {"view", "polar|fiber|thd|albedo|sphere", "what to draw (default fiber for the fiber model, else polar)"},
       {"resolution", "N", "thd: N x N cells (default 128); sphere: pixels across (default --size, at most 1024)"},
       {"phi-d", "DEG", "thd: the difference azimuth of the slice (default 90)"},
       {"phi-h", "DEG", "thd: the half-vector azimuth (default 0; anisotropic models change with it)"},
@@ -353,7 +353,7 @@ int run_plot_view(std::string_view view, const ParsedOptions& options) {
   if (view == "thd") return run_thd(options);
   if (view == "albedo") return run_albedo(options);
   if (view == "sphere") return run_sphere(options);
-  throw UsageError("--view: expected polar, thd, albedo or sphere, got '" + std::string(view) + "'");
+  throw UsageError("--view: expected polar, fiber, thd, albedo or sphere, got '" + std::string(view) + "'");
 }
 
 }  // namespace loomlight::client

@@ -6,8 +6,14 @@
 #include <string_view>
 
 #include "client/cli.h"
+#include "client/directions.h"
 
 namespace loomlight::client {
+
+// Vector helpers of the views' shading frames (the sphere's here, the fiber's in client/plot.cpp).
+Vec3 normalized(const Vec3& v);
+double dot(const Vec3& a, const Vec3& b);
+Vec3 cross(const Vec3& a, const Vec3& b);
 
 // The options these views add to `plot` (--phi-d, --phi-h, --light, --exposure, --resolution).
 OptionList plot_view_options();

@@ -5,8 +5,10 @@
 
 #include <sys/wait.h>
 
+#include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <thread>
 
@@ -151,23 +153,174 @@ TEST_F(Integration, ClientReportsServerErrorsWithNonZeroExit) {
   EXPECT_NE(out.find("wi[0]"), std::string::npos) << out;
 }
 
+// A PNG the client wrote: its size and how many pixels are not the white background.
+struct PlotImage {
+  int width = 0, height = 0;
+  size_t coloured = 0;
+};
+
+::testing::AssertionResult ReadPlot(const std::string& path, PlotImage* image) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) return ::testing::AssertionFailure() << "cannot open " << path << ": " << OIIO::geterror();
+  const OIIO::ImageSpec& spec = in->spec();
+  std::vector<unsigned char> pixels(size_t(spec.width) * spec.height * spec.nchannels);
+  if (spec.nchannels < 3 || !in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::UINT8, pixels.data()))
+    return ::testing::AssertionFailure() << "cannot read " << path << ": " << in->geterror();
+  *image = {spec.width, spec.height, 0};
+  for (size_t p = 0; p < pixels.size(); p += spec.nchannels)
+    if (pixels[p] < 200 || pixels[p + 1] < 200 || pixels[p + 2] < 200) ++image->coloured;
+  return ::testing::AssertionSuccess();
+}
+
+// Curves were drawn: a good share of pixels is not the white background.
+void ExpectCurvesDrawn(const PlotImage& image) {
+  EXPECT_GT(image.coloured, size_t(image.width) * image.height / 200);
+}
+
 TEST_F(Integration, ClientPlotWritesAPolarLobePng) {
   const std::string path = ::testing::TempDir() + "/lobe.png";
   std::remove(path.c_str());
   std::string out;
   ASSERT_EQ(RunClient(server_->address(), "plot --preset polyester_satin_charmeuse_front --incidence 0,30,60 --size 640 --out " + path, &out), 0) << out;
-  auto in = OIIO::ImageInput::open(path);
-  ASSERT_TRUE(in) << OIIO::geterror();
-  const OIIO::ImageSpec& spec = in->spec();
-  EXPECT_EQ(spec.width, 640);
-  EXPECT_GT(spec.height, 200);
-  std::vector<unsigned char> pixels(size_t(spec.width) * spec.height * spec.nchannels);
-  ASSERT_TRUE(in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::UINT8, pixels.data()));
-  // Curves were drawn: a good share of pixels is not the white background.
-  size_t coloured = 0;
-  for (size_t p = 0; p < pixels.size(); p += spec.nchannels)
-    if (pixels[p] < 200 || pixels[p + 1] < 200 || pixels[p + 2] < 200) ++coloured;
-  EXPECT_GT(coloured, pixels.size() / spec.nchannels / 200);
+  PlotImage image;
+  ASSERT_TRUE(ReadPlot(path, &image));
+  EXPECT_EQ(image.width, 640);
+  EXPECT_GT(image.height, 200);
+  ExpectCurvesDrawn(image);
+}
+
+// The "LOBE,THETA_I,ANGLE,VALUE" lines of `plot` (full circle, fiber), by lobe name.
+struct Peak {
+  double theta_i, angle, value;
+};
+std::map<std::string, std::vector<Peak>> ParsePeaks(const std::string& out) {
+  std::map<std::string, std::vector<Peak>> peaks;
+  std::istringstream lines(out);
+  for (std::string line; std::getline(lines, line);) {
+    std::vector<std::string> cells;
+    std::istringstream row(line);
+    for (std::string cell; std::getline(row, cell, ',');) cells.push_back(cell);
+    if (cells.size() == 4) peaks[cells[0]].push_back({std::stod(cells[1]), std::stod(cells[2]), std::stod(cells[3])});
+  }
+  return peaks;
+}
+
+constexpr double kRadiansPerDegree = M_PI / 180.0;
+
+// Luminance of f(wi, wo) from the fp32 kernel, as the client plots it (before its cosine factor).
+double DirectLuminance(const models::Model& model, const models::ParamValues& values, const std::vector<float>& wi,
+                       const std::vector<float>& wo) {
+  const std::vector<double> f = testing::RunKernel(model, model.Pack(values), false, wi, wo);
+  return 0.2126 * f[0] + 0.7152 * f[1] + 0.0722 * f[2];
+}
+
+const models::Model& PresetModel(const std::string& name, models::ParamValues* values) {
+  const models::PresetSpec* preset = nullptr;
+  const models::Model* model = models::Registry::Global().FindPreset(name, &preset);
+  EXPECT_NE(model, nullptr) << name;
+  *values = model->PresetValues(*preset);
+  return *model;
+}
+
+// A thin layer plots over the full circle by itself: reflection above, transmission below; each printed peak
+// is f |cos theta_o| (luminance) of the plane direction it names, light at -theta_i in the x-z plane.
+TEST_F(Integration, ClientPlotOfAThinLayerIsAFullCircleWithTransmissionBelow) {
+  const std::string path = ::testing::TempDir() + "/voile.png";
+  std::remove(path.c_str());
+  std::string out;
+  ASSERT_EQ(RunClient(server_->address(), "plot --preset sheer_voile --incidence 0,40 --size 500 --out " + path, &out), 0) << out;
+  PlotImage image;
+  ASSERT_TRUE(ReadPlot(path, &image));
+  EXPECT_EQ(image.width, 500);
+  EXPECT_GT(image.height, image.width);  // the whole disc, not the upper half
+  ExpectCurvesDrawn(image);
+
+  auto peaks = ParsePeaks(out);
+  ASSERT_EQ(peaks["reflection"].size(), 2u) << out;
+  ASSERT_EQ(peaks["transmission"].size(), 2u) << out;
+  models::ParamValues values;
+  const models::Model& model = PresetModel("sheer_voile", &values);
+  for (const char* lobe : {"reflection", "transmission"})
+    for (const Peak& p : peaks[lobe]) {
+      EXPECT_GT(p.value, 0.0) << lobe << " at theta_i " << p.theta_i;
+      EXPECT_EQ(std::abs(p.angle) > 90.0, std::string(lobe) == "transmission") << p.angle;
+      const double ti = -p.theta_i * kRadiansPerDegree, to = p.angle * kRadiansPerDegree;
+      const std::vector<float> wi = {float(std::sin(ti)), 0.0f, float(std::cos(ti))};
+      const std::vector<float> wo = {float(std::sin(to)), 0.0f, float(std::cos(to))};
+      const double expected = DirectLuminance(model, values, wi, wo) * std::abs(std::cos(to));
+      EXPECT_NEAR(p.value, expected, 1e-5 * expected) << lobe << " at theta_i " << p.theta_i << ", theta_o " << p.angle;
+    }
+}
+
+// A curtain (--layer) also plots the full circle: its transmitted half is the layer's, point for point; the
+// reflection material alone, forced onto the full circle, transmits nothing.
+TEST_F(Integration, ClientPlotOfACurtainShowsTheLayersTransmission) {
+  const std::string dir = ::testing::TempDir();
+  std::string curtain, layer, alone;
+  ASSERT_EQ(RunClient(server_->address(), "plot --preset linen_plain --layer cotton_curtain --incidence 0,30,60 --size 400 --out " + dir + "/curtain.png", &curtain), 0) << curtain;
+  ASSERT_EQ(RunClient(server_->address(), "plot --preset cotton_curtain --incidence 0,30,60 --size 400 --out " + dir + "/layer.png", &layer), 0) << layer;
+  ASSERT_EQ(RunClient(server_->address(), "plot --preset linen_plain --full-circle --incidence 0,30,60 --size 400 --out " + dir + "/linen.png", &alone), 0) << alone;
+  PlotImage image;
+  ASSERT_TRUE(ReadPlot(dir + "/curtain.png", &image));
+  EXPECT_EQ(image.width, 400);
+  EXPECT_GT(image.height, image.width);
+  ExpectCurvesDrawn(image);
+
+  auto with_layer = ParsePeaks(curtain), of_layer = ParsePeaks(layer), without = ParsePeaks(alone);
+  ASSERT_EQ(with_layer["transmission"].size(), 3u) << curtain;
+  ASSERT_EQ(of_layer["transmission"].size(), 3u) << layer;
+  ASSERT_EQ(without["transmission"].size(), 3u) << alone;
+  for (size_t i = 0; i < 3; ++i) {
+    EXPECT_GT(with_layer["transmission"][i].value, 0.0);
+    EXPECT_EQ(with_layer["transmission"][i].value, of_layer["transmission"][i].value) << i;
+    EXPECT_EQ(with_layer["transmission"][i].angle, of_layer["transmission"][i].angle) << i;
+    EXPECT_EQ(without["transmission"][i].value, 0.0) << i;
+    // The layer's direct transmission leaves less light to reflect (README "Curtains").
+    EXPECT_GT(without["reflection"][i].value, with_layer["reflection"][i].value) << i;
+    EXPECT_GT(with_layer["reflection"][i].value, 0.0) << i;
+  }
+}
+
+// The fiber view: two full-circle panels in one PNG, and each printed peak is f cos^2(theta_o) (luminance) of the
+// direction it names in the fiber frame t = axis = +y, u = +z, v = t x u = +x.
+TEST_F(Integration, ClientPlotOfAFiberShowsLongitudinalAndAzimuthalLobes) {
+  const std::string path = ::testing::TempDir() + "/fleece.png";
+  std::remove(path.c_str());
+  std::string out;
+  ASSERT_EQ(RunClient(server_->address(), "plot --preset fleece --param axis=0,1,0 --incidence 10,30 --size 600 --out " + path, &out), 0) << out;
+  PlotImage image;
+  ASSERT_TRUE(ReadPlot(path, &image));
+  EXPECT_EQ(image.width, 600);
+  EXPECT_GT(image.height, 2 * image.width);  // two discs, one above the other
+  ExpectCurvesDrawn(image);
+
+  auto peaks = ParsePeaks(out);
+  ASSERT_EQ(peaks["longitudinal"].size(), 2u) << out;
+  ASSERT_EQ(peaks["azimuthal"].size(), 2u) << out;
+  models::ParamValues values;
+  const models::Model& model = PresetModel("fleece", &values);
+  values["axis"] = {0.0, 1.0, 0.0};
+  for (size_t i = 0; i < 2; ++i) {
+    const Peak& lon = peaks["longitudinal"][i];
+    const Peak& az = peaks["azimuthal"][i];
+    const double ti = lon.theta_i * kRadiansPerDegree;
+    const std::vector<float> wi = {0.0f, float(std::sin(ti)), float(std::cos(ti))};
+    // Longitudinal: wo = sin(a) t + cos(a) u. Fleece's TT outweighs R, so the peak is forward (phi_o = 180),
+    // near the straight-through direction a = theta_i - 180 (pulled a few degrees toward the axis by cos^2).
+    const double a = lon.angle * kRadiansPerDegree;
+    const double lon_expected = DirectLuminance(model, values, wi, {0.0f, float(std::sin(a)), float(std::cos(a))}) *
+                                std::cos(a) * std::cos(a);
+    EXPECT_NEAR(lon.value, lon_expected, 1e-5 * lon_expected) << "theta_i " << lon.theta_i << ", a " << lon.angle;
+    EXPECT_NEAR(lon.angle, lon.theta_i - 180.0, 5.0);
+    // Azimuthal: wo = sin(-theta_i) t + cos(theta_i) (cos(phi) u + sin(phi) v); TT peaks forward at phi = 180.
+    const double phi = az.angle * kRadiansPerDegree;
+    const std::vector<float> wo = {float(std::cos(ti) * std::sin(phi)), float(-std::sin(ti)),
+                                   float(std::cos(ti) * std::cos(phi))};
+    const double az_expected = DirectLuminance(model, values, wi, wo) * std::cos(ti) * std::cos(ti);
+    EXPECT_NEAR(az.value, az_expected, 1e-5 * az_expected) << "theta_i " << az.theta_i << ", phi " << az.angle;
+    EXPECT_GT(std::abs(az.angle), 179.0);
+    EXPECT_GT(az.value, 0.0);
+  }
 }
 
 }  // namespace

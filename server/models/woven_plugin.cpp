@@ -96,8 +96,8 @@ std::vector<PresetSpec> Presets() {
       // that travels less than the twill's (the thread crimps over every crossing), giving the even
       // checker of small glints of Fig. 16. Undyed cotton: light, warm kd.
       MakePreset("cotton_plain", "Woven cotton plain weave, undyed (after Irawan and Marschner Fig. 16; parameters ours)",
-                 weave::PlainWeave(), {{0.20, 0.18, 0.15}, {0.45, 0.43, 0.40}, {1, 1.5}, 0.7, 0.8, 90, {2.0, 1.5}},
-                 {{0.19, 0.17, 0.14}, {0.45, 0.43, 0.40}, {1, 1.5}, 0.7, 0.8, 90, {2.0, 1.5}}),
+                 weave::PlainWeave(), {{0.20, 0.18, 0.15}, {0.45, 0.43, 0.40}, {1, 1.5}, 0.4, 0.85, 90, {2.0, 1.5}},
+                 {{0.19, 0.17, 0.14}, {0.45, 0.43, 0.40}, {1, 1.5}, 0.4, 0.85, 90, {2.0, 1.5}}),
       // Sateen (the paper's Fig. 18, values ours): a weft-faced 5-end satin (move 2), so 80% of the face is
       // weft floats over four warps. Their long straight segments carry elongated, strongly eccentric
       // highlights that sweep far along the float (large k_y): the sheen bands of Fig. 18. The warp shows

@@ -56,7 +56,7 @@ Accuracy Compare(const std::vector<T>& got, const std::vector<double>& ref, doub
     abs_sum += diff;
     ref_sum += std::fabs(r);
     if (pairs) {
-      const double cos_o = pairs->wo[3 * (i / 3) + 2];
+      const double cos_o = std::fabs(pairs->wo[3 * (i / 3) + 2]);  // wo below the surface: transmission
       const double d = std::log1p(f * cos_o) - std::log1p(r * cos_o);
       log_sq += d * d;
     }

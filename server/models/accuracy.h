@@ -28,7 +28,7 @@ struct Accuracy {
   double median = 0, p99 = 0, max = 0;  // |f - ref| / ref over the values with ref > floor
   size_t count = 0;                     // values above the floor
   double rel_l1 = 0;                    // sum |f - ref| / sum ref over every value
-  double log_rmse = 0;                  // sqrt(mean((log(1 + f cos_o) - log(1 + ref cos_o))^2)), cos_o = wo.z
+  double log_rmse = 0;                  // sqrt(mean((log(1 + f cos_o) - log(1 + ref cos_o))^2)), cos_o = |wo.z|
   std::string ToString() const;
 };
 // Compares the first ref.size() values of got (the reference may cover a prefix of the queries). The log

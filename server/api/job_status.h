@@ -9,6 +9,14 @@
 
 namespace loomlight::api {
 
+// The call's gRPC deadline on the batcher's steady clock, measured from `received` (max when none).
+inline batching::Clock::time_point CallDeadline(grpc::CallbackServerContext* context,
+                                                batching::Clock::time_point received) {
+  const auto deadline = context->deadline();
+  if (deadline == std::chrono::system_clock::time_point::max()) return batching::Clock::time_point::max();
+  return received + (deadline - std::chrono::system_clock::now());
+}
+
 // A job evaluating n queries (uv nullptr: f(wi, wo)) of one packed material, stopped before launch by the
 // call's deadline or cancellation; the caller sets `done`. The arrays must outlive the job.
 inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const models::PackedMaterial& material,

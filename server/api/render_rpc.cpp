@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "server/api/job_status.h"
+#include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
 #include "server/models/material.h"
 #include "server/render/fidelity.h"
@@ -116,43 +117,25 @@ class CachedVariants final : public render::MaterialVariants {
   std::vector<std::shared_ptr<const MaterialCache::Entry>> kept_;
 };
 
-// One Render call in flight. As in Tabulate, every member is touched only on the HostWorker's thread: gRPC
-// reactions and batcher completions post there, so the state needs no lock, and `delete this` (posted by
-// OnDone, the last reaction) runs after every task posted before it. The call is finished only when no
-// batcher job and no write is outstanding.
+// One Render call in flight, on the host worker (server/api/stream_call.h); batcher completions post there
+// too. The call is finished only when no batcher job and no write is outstanding.
 //
 // Pixels are rendered in chunks of whole pixels; two chunk buffers alternate: while one chunk's jobs are
 // on the device, the worker accumulates the previous chunk and traces the next. Every pixel's sum is taken
 // in a fixed order (evaluators in order, then queries in sample order), so the image does not depend on
 // timing or on how launches were batched.
-class RenderCall final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
+class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
              std::shared_ptr<const MaterialCache::Entry> material, Clock::time_point received)
-      : deps_(deps), context_(context), request_(request), material_(std::move(material)), received_(received),
+      : WorkerStreamCall(deps, context, kRpc, received), request_(request), material_(std::move(material)),
         fp64_(request.precision() == v1::PRECISION_FP64) {
-    const auto deadline = context->deadline();
-    if (deadline != std::chrono::system_clock::time_point::max())
-      deadline_ = received + (deadline - std::chrono::system_clock::now());
     deps_.worker->Post([this] {
       SetUp();
       Pump();
     });
   }
 
-  void OnWriteDone(bool ok) override {
-    deps_.worker->Post([this, ok] {
-      write_in_flight_ = false;
-      if (!ok) stream_broken_ = true;
-      Pump();
-    });
-  }
-  void OnCancel() override {
-    deps_.worker->Post([this] { Pump(); });
-  }
-  void OnDone() override {
-    deps_.worker->Post([this] { delete this; });
-  }
 
  private:
   struct Chunk {
@@ -243,7 +226,7 @@ class RenderCall final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
 
   // The one step of the state machine (as Tabulate's): notice a stop, keep one chunk in flight, keep one
   // write in flight while there is news, finish when nothing is outstanding.
-  void Pump() {
+  void Pump() override {
     if (finished_) return;
     NoticeStop();
     MaybeSubmit();  // does nothing once stopping
@@ -460,18 +443,8 @@ class RenderCall final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
     StartWrite(&update_);
   }
 
-  void FinishCall(const grpc::Status& status) {
-    finished_ = true;
-    deps_.metrics->Call(kRpc, status.error_code(), SecondsSince(received_));
-    Finish(status);
-  }
-
-  const RenderDeps deps_;
-  grpc::CallbackServerContext* const context_;
   const v1::RenderRequest request_;
   const std::shared_ptr<const MaterialCache::Entry> material_;
-  const Clock::time_point received_;
-  Clock::time_point deadline_ = Clock::time_point::max();
   const bool fp64_;
 
   render::RenderSetup setup_;
@@ -487,8 +460,7 @@ class RenderCall final : public grpc::ServerWriteReactor<v1::RenderUpdate> {
   double setup_seconds_ = 0, kernel_seconds_ = 0;
   v1::RenderUpdate update_;  // the write in flight
   v1::RenderUpdate final_;   // the image and its summary, once encoded
-  bool write_in_flight_ = false, sent_first_ = false, complete_ = false, final_sent_ = false;
-  bool stream_broken_ = false, finished_ = false;
+  bool sent_first_ = false, complete_ = false, final_sent_ = false;
   grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
 };
 

@@ -323,11 +323,7 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   call->model = material->model->name();
   call->n = n;
   call->remaining = call->parts.size();
-  const auto deadline = context->deadline();
-  const batching::Clock::time_point job_deadline =
-      deadline == std::chrono::system_clock::time_point::max()
-          ? batching::Clock::time_point::max()
-          : received + (deadline - std::chrono::system_clock::now());
+  const batching::Clock::time_point job_deadline = CallDeadline(context, received);
   for (size_t k = 0; k < call->parts.size(); ++k) {
     const EvaluateCall::Part& part = call->parts[k];
     const bool whole = !layer;

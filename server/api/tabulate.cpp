@@ -7,6 +7,7 @@
 #include <initializer_list>
 
 #include "server/api/job_status.h"
+#include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
 
 namespace loomlight::api {
@@ -167,51 +168,32 @@ class CsvEncoder final : public TableEncoder {
   const char* value_format_;
 };
 
-// One Tabulate call in flight. Every member is touched only on the HostWorker's thread: gRPC reactions and
-// batcher completions post there, so the state needs no lock, and `delete this` (posted by OnDone, the
-// last reaction) runs after every task posted before it. The call is finished only when neither a batcher
-// job nor a write is outstanding, so nothing refers to it after OnDone.
-class TabulateCall final : public grpc::ServerWriteReactor<v1::TabulateChunk> {
+// One Tabulate call in flight, on the host worker (server/api/stream_call.h); batcher completions post there
+// too. The call is finished only when neither a batcher job nor a write is outstanding, so nothing refers
+// to it after OnDone.
+class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
  public:
   TabulateCall(const TabulateDeps& deps, grpc::CallbackServerContext* context, const v1::TabulateRequest& request,
                std::shared_ptr<const MaterialCache::Entry> material, TabulationGrid grid, Clock::time_point received)
-      : deps_(deps),
-        context_(context),
+      : WorkerStreamCall(deps, context, kRpc, received),
         material_(std::move(material)),
         grid_(std::move(grid)),
-        received_(received),
         fp64_(request.precision() == v1::PRECISION_FP64),
         encoder_(MakeTableEncoder(request.format(), grid_, fp64_)),
         // Whole cells per job, so each cell's mean comes from one job.
         chunk_queries_(std::min<uint64_t>(kTabulateChunkQueries / grid_.queries_per_cell() * grid_.queries_per_cell(),
                                           grid_.queries())) {
-    const auto deadline = context->deadline();
-    if (deadline != std::chrono::system_clock::time_point::max())
-      deadline_ = received + (deadline - std::chrono::system_clock::now());
     deps_.worker->Post([this] {
       encoder_->Begin(&pending_);
       Pump();
     });
   }
 
-  void OnWriteDone(bool ok) override {
-    deps_.worker->Post([this, ok] {
-      write_in_flight_ = false;
-      if (!ok) stream_broken_ = true;  // the client went away
-      Pump();
-    });
-  }
-  void OnCancel() override {
-    deps_.worker->Post([this] { Pump(); });
-  }
-  void OnDone() override {
-    deps_.worker->Post([this] { delete this; });
-  }
 
  private:
   // The one step of the state machine: notice cancellation, keep one job in flight while the output
   // buffer allows, keep one write in flight while there is something to say, finish when all is done.
-  void Pump() {
+  void Pump() override {
     if (finished_) return;
     NoticeStop();
     MaybeSubmit();  // does nothing once stopping
@@ -333,18 +315,8 @@ class TabulateCall final : public grpc::ServerWriteReactor<v1::TabulateChunk> {
     StartWrite(&chunk_);
   }
 
-  void FinishCall(const grpc::Status& status) {
-    finished_ = true;
-    deps_.metrics->Call(kRpc, status.error_code(), SecondsSince(received_));
-    Finish(status);
-  }
-
-  const TabulateDeps deps_;
-  grpc::CallbackServerContext* const context_;
   const std::shared_ptr<const MaterialCache::Entry> material_;
   const TabulationGrid grid_;
-  const Clock::time_point received_;
-  Clock::time_point deadline_ = Clock::time_point::max();
   const bool fp64_;
   const std::unique_ptr<TableEncoder> encoder_;
   const uint64_t chunk_queries_;
@@ -356,10 +328,8 @@ class TabulateCall final : public grpc::ServerWriteReactor<v1::TabulateChunk> {
   size_t pending_begin_ = 0;
   v1::TabulateChunk chunk_;  // the write in flight
   double kernel_seconds_ = 0;
-  bool job_in_flight_ = false, write_in_flight_ = false, sent_first_ = false;
+  bool job_in_flight_ = false, sent_first_ = false;
   bool complete_ = false;       // every cell encoded, the file's end in pending_
-  bool stream_broken_ = false;  // a write failed
-  bool finished_ = false;
   grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
 };
 

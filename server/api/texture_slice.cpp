@@ -117,9 +117,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
         total_queries_(uint64_t{width_} * height_ * samples_),
         // Whole pixels per chunk, so each pixel's mean comes from one chunk.
         chunk_queries_(std::min<uint64_t>(kSliceChunkQueries / samples_ * samples_, total_queries_)) {
-    const auto deadline = context->deadline();
-    if (deadline != std::chrono::system_clock::time_point::max())
-      deadline_ = received + (deadline - std::chrono::system_clock::now());
+    deadline_ = CallDeadline(context, received);
     // The kernel takes a direction per query: the one wi and wo, repeated, shared by both chunk buffers.
     wi_.resize(3 * chunk_queries_);
     wo_.resize(3 * chunk_queries_);

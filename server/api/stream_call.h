@@ -1,0 +1,56 @@
+// The shared skeleton of the server-streaming calls (Tabulate, Render): their state lives on the service's
+// host worker. Every gRPC reaction posts there and then calls Pump(), the derived call's one place for
+// progress, writes and finishing, so the state needs no lock; `delete this` (posted by OnDone, the last
+// reaction) runs after every task posted before it.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include "server/api/job_status.h"
+#include "server/api/service.h"
+
+namespace loomlight::api {
+
+template <class Message>
+class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
+ public:
+  void OnWriteDone(bool ok) override {
+    deps_.worker->Post([this, ok] {
+      write_in_flight_ = false;
+      if (!ok) stream_broken_ = true;  // the client went away
+      Pump();
+    });
+  }
+  void OnCancel() override {
+    deps_.worker->Post([this] { Pump(); });
+  }
+  void OnDone() override {
+    deps_.worker->Post([this] { delete this; });
+  }
+
+ protected:
+  WorkerStreamCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, const char* rpc,
+                   batching::Clock::time_point received)
+      : deps_(deps), context_(context), rpc_(rpc), received_(received), deadline_(CallDeadline(context, received)) {}
+
+  // Advances the call; runs on the host worker only.
+  virtual void Pump() = 0;
+
+  void FinishCall(const grpc::Status& status) {
+    finished_ = true;
+    deps_.metrics->Call(rpc_, status.error_code(),
+                        std::chrono::duration<double>(batching::Clock::now() - received_).count());
+    this->Finish(status);
+  }
+
+  const ServiceDeps deps_;
+  grpc::CallbackServerContext* const context_;
+  const char* const rpc_;
+  const batching::Clock::time_point received_;
+  const batching::Clock::time_point deadline_;
+  bool write_in_flight_ = false;
+  bool stream_broken_ = false;  // a write failed
+  bool finished_ = false;
+};
+
+}  // namespace loomlight::api

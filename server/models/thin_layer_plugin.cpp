@@ -127,8 +127,9 @@ class ThinLayerModel : public Model {
  public:
   std::string name() const override { return "thin_layer"; }
   std::string description() const override {
-    return "Frisvad et al. thin semi-transparent layer: Chandrasekhar's single scattering in a plane-parallel "
-           "slab, front-lit reflection and back-lit diffuse transmission (wi, wo on opposite sides)";
+    return "Frisvad et al. thin semi-transparent layer: a plane-parallel slab, single scattering (Chandrasekhar's "
+           "closed form) or all orders (adding-doubling tables); front-lit reflection and back-lit diffuse "
+           "transmission (wi, wo on opposite sides)";
   }
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }

@@ -37,14 +37,6 @@ std::unique_ptr<api::LoomlightServer> StartServer(batching::BatcherOptions batch
   return server;
 }
 
-std::unique_ptr<v1::Loomlight::Stub> Connect(int port) {
-  grpc::ChannelArguments args;
-  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
-  args.SetMaxSendMessageSize(api::kMaxMessageBytes);
-  return v1::Loomlight::NewStub(grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port),
-                                                          grpc::InsecureChannelCredentials(), args));
-}
-
 EvaluateRequest Request(const std::string& preset, size_t n, unsigned seed) {
   EvaluateRequest r;
   r.mutable_material()->set_preset(preset);
@@ -93,7 +85,7 @@ TEST_F(ApiTest, HealthIsServing) {
 }
 
 TEST_F(ApiTest, ListModelsDescribesSchemaAndPresets) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   grpc::ClientContext ctx;
   v1::ListModelsResponse resp;
   ASSERT_TRUE(stub->ListModels(&ctx, {}, &resp).ok());
@@ -118,7 +110,7 @@ TEST_F(ApiTest, ListModelsDescribesSchemaAndPresets) {
 }
 
 TEST_F(ApiTest, EvaluateMatchesReferenceInBothPrecisions) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   EvaluateRequest req = Request("silk_shot", 5000, 3);
   auto* p = req.mutable_material()->add_params();
   p->set_name("thread2.albedo");
@@ -183,7 +175,7 @@ TEST_F(ApiTest, BadInputIsRejectedNamingTheField) {
       {"uv on a uniform model", [](EvaluateRequest& r) { r.add_uv(0.5f); r.add_uv(0.5f); }, "uv"},
       {"unknown precision", [](EvaluateRequest& r) { r.set_precision(static_cast<v1::Precision>(7)); }, "precision"},
   };
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   for (const BadCase& c : cases) {
     EvaluateRequest req = Request("linen_plain", 4, 1);
     c.mutate(req);
@@ -200,7 +192,7 @@ TEST_F(ApiTest, BadInputIsRejectedNamingTheField) {
 }
 
 TEST_F(ApiTest, WovenPatternsAreValidatedAndEvaluated) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   auto woven = [](int warps, std::vector<double> cells) {
     EvaluateRequest r = Request("cotton_twill", 50, 9);
     AddParam(r, "pattern.warps", {double(warps)});
@@ -240,7 +232,7 @@ void AddText(EvaluateRequest& r, const std::string& name, const std::string& tex
 }
 
 TEST_F(ApiTest, WifDraftsSetTheWovenPattern) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   EvaluateRequest by_cells = Request("cotton_twill", 200, 21);
   AddParam(by_cells, "pattern.warps", {2});
   AddParam(by_cells, "pattern.cells", {1, 0, 0, 1});
@@ -292,7 +284,7 @@ TEST_F(ApiTest, WifDraftsSetTheWovenPattern) {
 // except where float rounding moves a sample across a highlight's edge, where the BTF jumps), and uv is
 // validated like the directions.
 TEST_F(ApiTest, WovenBtfWithUvMatchesReference) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   const int n = 20000;
   EvaluateRequest req = Request("cotton_satin", n, 5);
   std::mt19937 rng(3);
@@ -367,7 +359,7 @@ v1::Material Curtain(const std::string& reflection, const std::string& layer) {
 
 // A thin layer alone reports its direct transmittance exp(-tau / |n.wo|) per query.
 TEST_F(ApiTest, ThinLayerReportsDirectTransmittance) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   EvaluateRequest req = Request("cotton_curtain", 1000, 31);
   for (int q = 0; q < 1000; q += 2) req.mutable_wo()->Set(3 * q + 2, -req.wo(3 * q + 2));  // half transmitted
   EvaluateResponse resp;
@@ -384,7 +376,7 @@ TEST_F(ApiTest, ThinLayerReportsDirectTransmittance) {
 // A curtain: same-side pairs give the reflection model scaled by sqrt((1 - T(wi)) (1 - T(wo))), opposite
 // sides the layer's transmission, pairs below the cloth the mirrored front; reciprocal; energy below 1.
 TEST_F(ApiTest, CurtainsCombineReflectionAndLayerTransmission) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   const int n = 4000;
   EvaluateRequest req = Request("linen_plain", n, 41);
   *req.mutable_material() = Curtain("linen_plain", "sheer_voile");
@@ -508,7 +500,7 @@ TEST_F(ApiTest, MoreQueriesThanTheLimitAreRejected) {
   const size_t n = api::kMaxQueriesPerCall + 1;
   req.mutable_wi()->Resize(int(3 * n), 0.0f);
   req.mutable_wo()->Resize(int(3 * n), 0.0f);
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   EvaluateResponse resp;
   const grpc::Status s = Call(*stub, req, &resp);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
@@ -520,7 +512,7 @@ TEST_F(ApiTest, BadRequestsNeverDisturbOtherClients) {
   std::vector<std::thread> threads;
   for (int t = 0; t < 8; ++t)
     threads.emplace_back([&, t] {
-      auto stub = Connect(server_->port());
+      auto stub = testing::Connect(server_->port());
       for (int k = 0; k < 10; ++k) {
         EvaluateRequest req = Request(t % 2 ? "velvet" : "silk_shot", 2000, t * 100 + k);
         if (t % 2 == 0) req.mutable_wi()->Set(5 * 3, 3.0f);  // one non-unit direction
@@ -538,7 +530,7 @@ TEST_F(ApiTest, BadRequestsNeverDisturbOtherClients) {
 // Random, mostly malformed requests: every answer is OK (with finite, non-negative f of the right size) or
 // INVALID_ARGUMENT, and the server keeps serving.
 TEST_F(ApiTest, RandomRequestsGetAnAnswerAndNeverHurtTheServer) {
-  auto stub = Connect(server_->port());
+  auto stub = testing::Connect(server_->port());
   std::mt19937 rng(2026);
   std::uniform_real_distribution<double> u(0, 1);
   const char* names[] = {"eta", "tangent_samples", "thread1.coverage", "thread2.albedo", "thread1.gamma_s",
@@ -630,7 +622,7 @@ TEST(Batching, ConcurrentRequestsAreCoalescedIntoOneLaunch) {
   const char* presets[] = {"linen_plain", "velvet", "silk_shot", "silk_crepe_de_chine"};
   for (int t = 0; t < 16; ++t)
     threads.emplace_back([&, t] {
-      auto stub = Connect(server->port());
+      auto stub = testing::Connect(server->port());
       for (int k = 0; k < 4; ++k) {
         EvaluateResponse resp;
         if (Call(*stub, Request(presets[t % 4], 3000, t * 10 + k), &resp).ok()) {
@@ -653,7 +645,7 @@ TEST(Batching, NoCoalescingRunsOneRequestPerLaunch) {
   std::atomic<int> max_requests{0};
   for (int t = 0; t < 8; ++t)
     threads.emplace_back([&, t] {
-      auto stub = Connect(server->port());
+      auto stub = testing::Connect(server->port());
       EvaluateResponse resp;
       ASSERT_TRUE(Call(*stub, Request("velvet", 3000, t), &resp).ok());
       if (int(resp.batch_requests()) > max_requests) max_requests = resp.batch_requests();
@@ -690,7 +682,7 @@ TEST(Metrics, PrometheusEndpointCountsCallsAndQueries) {
   auto server = api::LoomlightServer::Start(options, &error);
   ASSERT_NE(server, nullptr) << error;
   ASSERT_GT(server->metrics_port(), 0);
-  auto stub = Connect(server->port());
+  auto stub = testing::Connect(server->port());
   EvaluateResponse resp;
   ASSERT_TRUE(Call(*stub, Request("velvet", 37, 1), &resp).ok());
   ASSERT_TRUE(Call(*stub, Request("velvet", 5, 2), &resp).ok());
@@ -718,7 +710,7 @@ TEST(Batching, FullQueueAnswersResourceExhausted) {
   batching::BatcherOptions options;
   options.max_queued_queries = 1000;
   auto server = StartServer(options);
-  auto stub = Connect(server->port());
+  auto stub = testing::Connect(server->port());
   // While a long request occupies the device, the first small one queues and the rest overflow. Rounds of
   // six small calls are sent until one round overlaps the long call (the first rounds may run before it).
   std::thread big = StartBlockingCall(*stub);
@@ -745,7 +737,7 @@ TEST(Batching, FullQueueAnswersResourceExhausted) {
 
 TEST(Batching, ExpiredRequestsAreDroppedBeforeLaunch) {
   auto server = StartServer();
-  auto stub = Connect(server->port());
+  auto stub = testing::Connect(server->port());
   std::atomic<bool> big_done{false};
   std::thread big = StartBlockingCall(*stub, &big_done);
   // Small calls with a 50 ms deadline succeed until the long call holds the device (its 24 MB request may

@@ -107,20 +107,9 @@ TEST_F(Integration, ConcurrentClientsGetExactlyTheDirectEvaluation) {
   EXPECT_TRUE(server_->running());
 }
 
-// Runs the client binary against the test server; returns its exit code, with stdout and stderr in *output.
-int RunClient(const std::string& address, const std::string& args, std::string* output) {
-  const std::string cmd = std::string(LOOMLIGHT_CLIENT_BINARY) + " --server " + address + " " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  char buf[4096];
-  output->clear();
-  while (p && std::fgets(buf, sizeof buf, p)) *output += buf;
-  const int status = p ? pclose(p) : -1;
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
 TEST_F(Integration, ClientEvalPrintsCsvEqualToDirectEvaluation) {
   std::string out;
-  ASSERT_EQ(RunClient(server_->address(), "eval --preset velvet --wi 0,0,1 --wo 0.6,0,0.8 --wi-deg 60,30 --wo-deg 45,200", &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->address(), "eval --preset velvet --wi 0,0,1 --wo 0.6,0,0.8 --wi-deg 60,30 --wo-deg 45,200", &out), 0) << out;
   std::istringstream lines(out);
   std::string line;
   std::getline(lines, line);
@@ -146,10 +135,10 @@ TEST_F(Integration, ClientEvalPrintsCsvEqualToDirectEvaluation) {
 
 TEST_F(Integration, ClientReportsServerErrorsWithNonZeroExit) {
   std::string out;
-  EXPECT_EQ(RunClient(server_->address(), "eval --preset burlap --wi 0,0,1 --wo 0,0,1", &out), 1);
+  EXPECT_EQ(testing::RunClient(server_->address(), "eval --preset burlap --wi 0,0,1 --wo 0,0,1", &out), 1);
   EXPECT_NE(out.find("INVALID_ARGUMENT"), std::string::npos) << out;
   EXPECT_NE(out.find("material.preset"), std::string::npos) << out;
-  EXPECT_EQ(RunClient(server_->address(), "eval --preset velvet --wi 0,0,2 --wo 0,0,1", &out), 1);
+  EXPECT_EQ(testing::RunClient(server_->address(), "eval --preset velvet --wi 0,0,2 --wo 0,0,1", &out), 1);
   EXPECT_NE(out.find("wi[0]"), std::string::npos) << out;
 }
 
@@ -181,7 +170,7 @@ TEST_F(Integration, ClientPlotWritesAPolarLobePng) {
   const std::string path = ::testing::TempDir() + "/lobe.png";
   std::remove(path.c_str());
   std::string out;
-  ASSERT_EQ(RunClient(server_->address(), "plot --preset polyester_satin_charmeuse_front --incidence 0,30,60 --size 640 --out " + path, &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->address(), "plot --preset polyester_satin_charmeuse_front --incidence 0,30,60 --size 640 --out " + path, &out), 0) << out;
   PlotImage image;
   ASSERT_TRUE(ReadPlot(path, &image));
   EXPECT_EQ(image.width, 640);
@@ -228,7 +217,7 @@ TEST_F(Integration, ClientPlotOfAThinLayerIsAFullCircleWithTransmissionBelow) {
   const std::string path = ::testing::TempDir() + "/voile.png";
   std::remove(path.c_str());
   std::string out;
-  ASSERT_EQ(RunClient(server_->address(), "plot --preset sheer_voile --incidence 0,40 --size 500 --out " + path, &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->address(), "plot --preset sheer_voile --incidence 0,40 --size 500 --out " + path, &out), 0) << out;
   PlotImage image;
   ASSERT_TRUE(ReadPlot(path, &image));
   EXPECT_EQ(image.width, 500);
@@ -257,9 +246,9 @@ TEST_F(Integration, ClientPlotOfAThinLayerIsAFullCircleWithTransmissionBelow) {
 TEST_F(Integration, ClientPlotOfACurtainShowsTheLayersTransmission) {
   const std::string dir = ::testing::TempDir();
   std::string curtain, layer, alone;
-  ASSERT_EQ(RunClient(server_->address(), "plot --preset linen_plain --layer cotton_curtain --incidence 0,30,60 --size 400 --out " + dir + "/curtain.png", &curtain), 0) << curtain;
-  ASSERT_EQ(RunClient(server_->address(), "plot --preset cotton_curtain --incidence 0,30,60 --size 400 --out " + dir + "/layer.png", &layer), 0) << layer;
-  ASSERT_EQ(RunClient(server_->address(), "plot --preset linen_plain --full-circle --incidence 0,30,60 --size 400 --out " + dir + "/linen.png", &alone), 0) << alone;
+  ASSERT_EQ(testing::RunClient(server_->address(), "plot --preset linen_plain --layer cotton_curtain --incidence 0,30,60 --size 400 --out " + dir + "/curtain.png", &curtain), 0) << curtain;
+  ASSERT_EQ(testing::RunClient(server_->address(), "plot --preset cotton_curtain --incidence 0,30,60 --size 400 --out " + dir + "/layer.png", &layer), 0) << layer;
+  ASSERT_EQ(testing::RunClient(server_->address(), "plot --preset linen_plain --full-circle --incidence 0,30,60 --size 400 --out " + dir + "/linen.png", &alone), 0) << alone;
   PlotImage image;
   ASSERT_TRUE(ReadPlot(dir + "/curtain.png", &image));
   EXPECT_EQ(image.width, 400);
@@ -287,7 +276,7 @@ TEST_F(Integration, ClientPlotOfAFiberShowsLongitudinalAndAzimuthalLobes) {
   const std::string path = ::testing::TempDir() + "/fleece.png";
   std::remove(path.c_str());
   std::string out;
-  ASSERT_EQ(RunClient(server_->address(), "plot --preset fleece --param axis=0,1,0 --incidence 10,30 --size 600 --out " + path, &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->address(), "plot --preset fleece --param axis=0,1,0 --incidence 10,30 --size 600 --out " + path, &out), 0) << out;
   PlotImage image;
   ASSERT_TRUE(ReadPlot(path, &image));
   EXPECT_EQ(image.width, 600);

@@ -19,6 +19,7 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/render_rpc.h"
 #include "server/api/server.h"
+#include "tests/testing.h"
 
 // After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
 #include <OpenImageIO/filesystem.h>
@@ -29,13 +30,6 @@ namespace {
 
 using v1::RenderRequest;
 using v1::RenderUpdate;
-
-std::unique_ptr<v1::Loomlight::Stub> Connect(int port) {
-  grpc::ChannelArguments args;
-  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
-  return v1::Loomlight::NewStub(
-      grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(), args));
-}
 
 // Appends values to a repeated field (this protobuf has no initializer-list Add).
 template <class T>
@@ -79,31 +73,12 @@ Rendered Render(v1::Loomlight::Stub& stub, const RenderRequest& request,
   return out;
 }
 
-struct Decoded {
-  int width = 0, height = 0, channels = 0;
-  std::vector<float> pixels;
-};
-
-Decoded Decode(const std::string& bytes, const char* name) {
-  Decoded d;
-  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
-  auto in = OIIO::ImageInput::open(name, nullptr, &reader);
-  EXPECT_TRUE(in) << OIIO::geterror();
-  if (!in) return d;
-  d.width = in->spec().width;
-  d.height = in->spec().height;
-  d.channels = in->spec().nchannels;
-  d.pixels.resize(size_t(d.width) * d.height * d.channels);
-  EXPECT_TRUE(in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::FLOAT, d.pixels.data())) << in->geterror();
-  return d;
-}
-
 // The linear image of an EXR render.
 std::vector<float> Linear(v1::Loomlight::Stub& stub, const RenderRequest& request) {
   const Rendered r = Render(stub, request);
   EXPECT_TRUE(r.status.ok()) << r.status.error_message();
   if (!r.status.ok()) return {};
-  return Decode(r.last().image(), "render.exr").pixels;
+  return testing::DecodeImage(r.last().image(), "render.exr").pixels;
 }
 
 double RelativeRmse(const std::vector<float>& image, const std::vector<float>& reference) {
@@ -135,7 +110,7 @@ class RenderTest : public ::testing::Test {
     server_ = nullptr;
   }
   static api::LoomlightServer* server_;
-  std::unique_ptr<v1::Loomlight::Stub> stub_ = Connect(server_->port());
+  std::unique_ptr<v1::Loomlight::Stub> stub_ = testing::Connect(server_->port());
 };
 api::LoomlightServer* RenderTest::server_ = nullptr;
 
@@ -146,7 +121,7 @@ TEST_F(RenderTest, ImagesDecodeAtTheRequestedSizeWithProgress) {
     const Rendered r = Render(*stub_, Request("silk_shot", v1::SCENE_SPHERE, 40, 28, 2, format));
     ASSERT_TRUE(r.status.ok()) << name << ": " << r.status.error_message();
     const RenderUpdate& last = r.last();
-    const Decoded image = Decode(last.image(), name);
+    const testing::DecodedImage image = testing::DecodeImage(last.image(), name);
     EXPECT_EQ(image.width, 40) << name;
     EXPECT_EQ(image.height, 28) << name;
     EXPECT_EQ(image.channels, 3) << name;
@@ -343,7 +318,7 @@ TEST_F(RenderTest, EvaluateIsServedWhileARenderRuns) {
     grpc::ClientContext ctx;
     v1::EvaluateResponse response;
     const auto start = std::chrono::steady_clock::now();
-    ASSERT_TRUE(Connect(server_->port())->Evaluate(&ctx, e, &response).ok());
+    ASSERT_TRUE(testing::Connect(server_->port())->Evaluate(&ctx, e, &response).ok());
     slowest = std::max(slowest, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   }
   stop = true;
@@ -445,29 +420,17 @@ TEST_F(RenderTest, EnvironmentMapFromAFileLightsTheScene) {
   request.mutable_environment()->set_path(path);
   const Rendered r = Render(*stub_, request);
   ASSERT_TRUE(r.status.ok()) << r.status.error_message();
-  const Decoded image = Decode(r.last().image(), "r.exr");
+  const testing::DecodedImage image = testing::DecodeImage(r.last().image(), "r.exr");
   // The top of the sphere faces the sky, its bottom the black ground.
   const auto at = [&](int x, int y) { return image.pixels[3 * (y * 24 + x) + 1]; };
   EXPECT_GT(at(12, 5), 4 * at(12, 19) + 1e-4);
-}
-
-// Runs the client binary; returns its exit code, with stdout and stderr in *output.
-int RunClient(int port, const std::string& args, std::string* output) {
-  const std::string command =
-      std::string(LOOMLIGHT_CLIENT_BINARY) + " --server 127.0.0.1:" + std::to_string(port) + " " + args + " 2>&1";
-  FILE* pipe = popen(command.c_str(), "r");
-  output->clear();
-  char buffer[4096];
-  while (pipe && std::fgets(buffer, sizeof buffer, pipe)) *output += buffer;
-  const int status = pipe ? pclose(pipe) : -1;
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
 TEST_F(RenderTest, ClientWritesTheImageWithProgress) {
   const std::string path = ::testing::TempDir() + "/render_client.png";
   std::remove(path.c_str());
   std::string out;
-  ASSERT_EQ(RunClient(server_->port(),
+  ASSERT_EQ(testing::RunClient(server_->port(),
                       "render --preset silk_shot --scene cylinders --size 64x40 --spp 2 --out " + path, &out), 0)
       << out;
   EXPECT_NE(out.find("64x40"), std::string::npos) << out;
@@ -477,8 +440,8 @@ TEST_F(RenderTest, ClientWritesTheImageWithProgress) {
   ASSERT_TRUE(in) << OIIO::geterror();
   EXPECT_EQ(in->spec().width, 64);
   EXPECT_EQ(in->spec().height, 40);
-  EXPECT_EQ(RunClient(server_->port(), "render --preset velvet --size 8x8 --width 3 --out x.png", &out), 2) << out;
-  EXPECT_EQ(RunClient(server_->port(), "render --preset no_such --out " + path, &out), 1) << out;
+  EXPECT_EQ(testing::RunClient(server_->port(), "render --preset velvet --size 8x8 --width 3 --out x.png", &out), 2) << out;
+  EXPECT_EQ(testing::RunClient(server_->port(), "render --preset no_such --out " + path, &out), 1) << out;
   EXPECT_NE(out.find("INVALID_ARGUMENT: material.preset"), std::string::npos) << out;
 }
 

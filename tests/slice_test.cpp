@@ -32,13 +32,6 @@ using v1::TextureSliceResponse;
 
 constexpr const char* kPreset = "cotton_twill";
 
-std::unique_ptr<v1::Loomlight::Stub> Connect(const std::string& address) {
-  grpc::ChannelArguments args;
-  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
-  args.SetMaxSendMessageSize(api::kMaxMessageBytes);
-  return v1::Loomlight::NewStub(grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args));
-}
-
 std::array<float, 3> Direction(double theta_deg, double phi_deg) {
   const double t = theta_deg * std::numbers::pi / 180, p = phi_deg * std::numbers::pi / 180;
   return {float(std::sin(t) * std::cos(p)), float(std::sin(t) * std::sin(p)), float(std::cos(t))};
@@ -90,26 +83,6 @@ std::vector<float> Evaluate(v1::Loomlight::Stub& stub, const std::vector<float>&
   return {response.f().begin(), response.f().end()};
 }
 
-struct Decoded {
-  int width = 0, height = 0, channels = 0;
-  std::vector<float> pixels;  // as float, whatever the file's type (8-bit PNG: 0..1)
-};
-
-// Decodes PNG or EXR bytes in memory with OpenImageIO; `name` picks the reader.
-Decoded Decode(const std::string& bytes, const char* name) {
-  Decoded d;
-  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
-  auto in = OIIO::ImageInput::open(name, nullptr, &reader);
-  EXPECT_TRUE(in) << OIIO::geterror();
-  if (!in) return d;
-  d.width = in->spec().width;
-  d.height = in->spec().height;
-  d.channels = in->spec().nchannels;
-  d.pixels.resize(size_t(d.width) * d.height * d.channels);
-  EXPECT_TRUE(in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::FLOAT, d.pixels.data())) << in->geterror();
-  return d;
-}
-
 std::vector<float> RawFloats(const std::string& bytes) {
   std::vector<float> v(bytes.size() / 4);
   std::memcpy(v.data(), bytes.data(), 4 * v.size());  // the test machine is little-endian, like the format
@@ -121,7 +94,7 @@ class SliceTest : public ::testing::Test {
   static void SetUpTestSuite() { server_ = new testing::ServerProcess(); }
   static void TearDownTestSuite() { delete server_; }
   static testing::ServerProcess* server_;
-  std::unique_ptr<v1::Loomlight::Stub> stub_ = Connect(server_->address());
+  std::unique_ptr<v1::Loomlight::Stub> stub_ = testing::Connect(server_->address());
 };
 testing::ServerProcess* SliceTest::server_ = nullptr;
 
@@ -137,7 +110,7 @@ TEST_F(SliceTest, ExrPixelsAreTheBtfAtPixelCentresWithTopRowAtVMax) {
   EXPECT_EQ(response.format(), v1::IMAGE_FORMAT_EXR);
   EXPECT_EQ(response.queries(), uint64_t(kWidth * kHeight));
   EXPECT_EQ(response.exposure(), 1.0);
-  const Decoded image = Decode(response.image(), "slice.exr");
+  const testing::DecodedImage image = testing::DecodeImage(response.image(), "slice.exr");
   ASSERT_EQ(image.width, kWidth);
   ASSERT_EQ(image.height, kHeight);
   ASSERT_EQ(image.channels, 3);
@@ -175,7 +148,7 @@ TEST_F(SliceTest, RawIsTheExrPixelsAsLittleEndianFloats) {
   ASSERT_EQ(raw.image().size(), size_t(40 * 24 * 3 * 4));
   EXPECT_EQ(raw.format(), v1::IMAGE_FORMAT_RAW);
   EXPECT_EQ(raw.queries(), uint64_t(40 * 24 * 2));
-  const Decoded decoded = Decode(exr.image(), "slice.exr");
+  const testing::DecodedImage decoded = testing::DecodeImage(exr.image(), "slice.exr");
   EXPECT_EQ(RawFloats(raw.image()), decoded.pixels);
 }
 
@@ -200,7 +173,7 @@ TEST_F(SliceTest, PngIsSrgbOfTheLinearImageTimesTheExposure) {
   EXPECT_EQ(manual.exposure(), 3.5);
 
   for (const TextureSliceResponse* png : {&automatic, &manual}) {
-    const Decoded decoded = Decode(png->image(), "slice.png");
+    const testing::DecodedImage decoded = testing::DecodeImage(png->image(), "slice.png");
     ASSERT_EQ(decoded.width, 48);
     ASSERT_EQ(decoded.height, 36);
     ASSERT_EQ(decoded.channels, 3);
@@ -365,23 +338,12 @@ TEST_F(SliceTest, ShortDeadlineIsExceededAndTheServerKeepsServing) {
   EXPECT_TRUE(server_->running());
 }
 
-// Runs the client binary against the test server; returns its exit code, with stdout and stderr in *output.
-int RunClient(const std::string& address, const std::string& args, std::string* output) {
-  const std::string command = std::string(LOOMLIGHT_CLIENT_BINARY) + " --server " + address + " " + args + " 2>&1";
-  FILE* pipe = popen(command.c_str(), "r");
-  output->clear();
-  char buffer[4096];
-  while (pipe && std::fgets(buffer, sizeof buffer, pipe)) *output += buffer;
-  const int status = pipe ? pclose(pipe) : -1;
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
 TEST_F(SliceTest, ClientWritesAnImageThatDecodes) {
   for (const char* extension : {"png", "exr"}) {
     const std::string path = ::testing::TempDir() + "/slice_client." + extension;
     std::remove(path.c_str());
     std::string out;
-    ASSERT_EQ(RunClient(server_->address(),
+    ASSERT_EQ(testing::RunClient(server_->address(),
                         std::string("slice --preset cotton_twill --wi 0,0,1 --wo-deg 30,0 --size 80x60 "
                                     "--region 0,0,2,2 --spp 4 --out ") + path, &out), 0) << out;
     EXPECT_NE(out.find("80x60"), std::string::npos) << out;
@@ -394,9 +356,9 @@ TEST_F(SliceTest, ClientWritesAnImageThatDecodes) {
     EXPECT_EQ(in->spec().format == OIIO::TypeDesc::UINT8, std::string(extension) == "png");
   }
   std::string out;
-  EXPECT_EQ(RunClient(server_->address(), "slice --preset velvet --wi 0,0,1 --wo 0,0,1 --out /dev/null --format raw", &out), 1);
+  EXPECT_EQ(testing::RunClient(server_->address(), "slice --preset velvet --wi 0,0,1 --wo 0,0,1 --out /dev/null --format raw", &out), 1);
   EXPECT_NE(out.find("INVALID_ARGUMENT: material:"), std::string::npos) << out;
-  EXPECT_EQ(RunClient(server_->address(), "slice --preset cotton_twill --wi 0,0,1 --wo 0,0,1 --out x.tiff", &out), 2);
+  EXPECT_EQ(testing::RunClient(server_->address(), "slice --preset cotton_twill --wi 0,0,1 --wo 0,0,1 --out x.tiff", &out), 2);
 }
 
 // In process: shutting the server down with slices in flight (several seconds of work, more than the
@@ -407,7 +369,7 @@ TEST(SliceShutdown, ServerShutsDownWithSlicesInFlight) {
   std::string error;
   auto server = api::LoomlightServer::Start(options, &error);
   ASSERT_NE(server, nullptr) << error;
-  auto stub = Connect("127.0.0.1:" + std::to_string(server->port()));
+  auto stub = testing::Connect("127.0.0.1:" + std::to_string(server->port()));
   std::vector<std::future<grpc::StatusCode>> calls;
   for (int i = 0; i < 4; ++i)
     calls.push_back(std::async(std::launch::async, [&] {

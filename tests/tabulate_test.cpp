@@ -32,14 +32,6 @@ namespace {
 
 using Vec = std::array<double, 3>;
 
-std::unique_ptr<v1::Loomlight::Stub> Connect(int port) {
-  grpc::ChannelArguments args;
-  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
-  args.SetMaxSendMessageSize(api::kMaxMessageBytes);
-  return v1::Loomlight::NewStub(grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port),
-                                                          grpc::InsecureChannelCredentials(), args));
-}
-
 // ---- Directions at the documented bin centres, written here from the README, not from the server ----
 
 double Rad(double deg) { return deg * std::numbers::pi / 180.0; }
@@ -198,7 +190,7 @@ class TabulateTest : public ::testing::Test {
     std::string error;
     server_ = api::LoomlightServer::Start(options, &error).release();
     ASSERT_NE(server_, nullptr) << error;
-    stub_ = Connect(server_->port()).release();
+    stub_ = testing::Connect(server_->port()).release();
     grpc::ClientContext ctx;
     ASSERT_TRUE(stub_->ListModels(&ctx, v1::ListModelsRequest(), &models_).ok());
     ASSERT_GT(models_.models_size(), 0);
@@ -475,7 +467,7 @@ TEST(TabulateShutdown, ServerShutsDownWithTabulationsInFlight) {
   std::string error;
   auto server = api::LoomlightServer::Start(options, &error);
   ASSERT_NE(server, nullptr) << error;
-  auto stub = Connect(server->port());
+  auto stub = testing::Connect(server->port());
   grpc::ClientContext ctx;
   v1::ListModelsResponse models;
   ASSERT_TRUE(stub->ListModels(&ctx, v1::ListModelsRequest(), &models).ok());
@@ -497,17 +489,6 @@ TEST(TabulateShutdown, ServerShutsDownWithTabulationsInFlight) {
 
 // ---- The client: `loomlight tab` and the plot views ----
 
-int RunClient(int port, const std::string& args, std::string* output) {
-  const std::string cmd =
-      std::string(LOOMLIGHT_CLIENT_BINARY) + " --server 127.0.0.1:" + std::to_string(port) + " " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  char buf[4096];
-  output->clear();
-  while (p && std::fgets(buf, sizeof buf, p)) *output += buf;
-  const int status = p ? pclose(p) : -1;
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
 std::string ReadFile(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string(std::istreambuf_iterator<char>(in), {});
@@ -517,22 +498,22 @@ TEST_F(TabulateTest, ClientTabWritesEachFormat) {
   const std::string material = "--model " + models_.models(0).name();
   const std::string dir = ::testing::TempDir();
   std::string out;
-  ASSERT_EQ(RunClient(server_->port(), "tab " + material + " --grid 4d --dims 3,4,5,6 --out " + dir + "/t.raw", &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->port(), "tab " + material + " --grid 4d --dims 3,4,5,6 --out " + dir + "/t.raw", &out), 0) << out;
   EXPECT_NE(out.find("360 cells"), std::string::npos) << out;  // a plain final line when stderr is no terminal
   const std::string raw = ReadFile(dir + "/t.raw");
   ASSERT_EQ(raw.size(), 40u + 12 * 360);
   EXPECT_EQ(raw.substr(0, 4), "LLTB");
-  ASSERT_EQ(RunClient(server_->port(), "tab " + material + " --grid inplane --incidence 0,45 --theta-o-count 9 --out " + dir + "/t.csv", &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->port(), "tab " + material + " --grid inplane --incidence 0,45 --theta-o-count 9 --out " + dir + "/t.csv", &out), 0) << out;
   const std::string csv = ReadFile(dir + "/t.csv");
   EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 19);  // a header and 2 x 9 cells
-  ASSERT_EQ(RunClient(server_->port(), "tab " + material + " --grid merl --phi-h-samples 1 --out " + dir + "/t.binary", &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->port(), "tab " + material + " --grid merl --phi-h-samples 1 --out " + dir + "/t.binary", &out), 0) << out;
   EXPECT_EQ(ReadFile(dir + "/t.binary").size(), 12u + 24 * 90 * 90 * 180);
-  ASSERT_EQ(RunClient(server_->port(), "tab " + material + " --grid 4d --dims 2,2,2,2 --out " + dir + "/t.exr", &out), 0) << out;
+  ASSERT_EQ(testing::RunClient(server_->port(), "tab " + material + " --grid 4d --dims 2,2,2,2 --out " + dir + "/t.exr", &out), 0) << out;
   auto in = OIIO::ImageInput::open(dir + "/t.exr");
   ASSERT_TRUE(in) << OIIO::geterror();
   EXPECT_EQ(in->spec().width, 4);
   // Errors come back named, with exit status 1.
-  EXPECT_EQ(RunClient(server_->port(), "tab " + material + " --grid 4d --dims 128,128,128,32 --out " + dir + "/big.raw", &out), 1);
+  EXPECT_EQ(testing::RunClient(server_->port(), "tab " + material + " --grid 4d --dims 128,128,128,32 --out " + dir + "/big.raw", &out), 1);
   EXPECT_NE(out.find("INVALID_ARGUMENT: anisotropic"), std::string::npos) << out;
 }
 
@@ -567,7 +548,7 @@ TEST_F(TabulateTest, PlotViewsWritePngsOfTheRequestedSize) {
       const std::string path = ::testing::TempDir() + "/view_" + model.name() + "_" + view + ".png";
       std::remove(path.c_str());
       std::string out;
-      ASSERT_EQ(RunClient(server_->port(), std::string("plot ") + material + " --view " + view + " --size 320 --out " + path, &out), 0)
+      ASSERT_EQ(testing::RunClient(server_->port(), std::string("plot ") + material + " --view " + view + " --size 320 --out " + path, &out), 0)
           << view << ": " << out;
       const Png png = ReadPng(path);
       EXPECT_EQ(png.width, 320) << view;

@@ -12,6 +12,11 @@
 #include <cstdio>
 #include <sstream>
 
+#include "server/api/service.h"
+// OpenImageIO after protobuf/gRPC: its headers define a bswap macro that breaks theirs.
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+
 namespace loomlight::testing {
 
 runtime::ClRuntime& SharedRuntime() {
@@ -37,6 +42,43 @@ std::vector<double> RunKernel(const models::Model& model, const models::PackedMa
                                         wi.size() / 3, &f, &error))
       << error;
   return f;
+}
+
+std::unique_ptr<v1::Loomlight::Stub> Connect(const std::string& address) {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
+  args.SetMaxSendMessageSize(api::kMaxMessageBytes);
+  return v1::Loomlight::NewStub(grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args));
+}
+
+std::unique_ptr<v1::Loomlight::Stub> Connect(int port) { return Connect("127.0.0.1:" + std::to_string(port)); }
+
+int RunClient(const std::string& address, const std::string& args, std::string* output) {
+  const std::string command = std::string(LOOMLIGHT_CLIENT_BINARY) + " --server " + address + " " + args + " 2>&1";
+  FILE* pipe = popen(command.c_str(), "r");
+  output->clear();
+  char buffer[4096];
+  while (pipe && std::fgets(buffer, sizeof buffer, pipe)) *output += buffer;
+  const int status = pipe ? pclose(pipe) : -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+int RunClient(int port, const std::string& args, std::string* output) {
+  return RunClient("127.0.0.1:" + std::to_string(port), args, output);
+}
+
+DecodedImage DecodeImage(const std::string& bytes, const char* name) {
+  DecodedImage d;
+  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
+  auto in = OIIO::ImageInput::open(name, nullptr, &reader);
+  EXPECT_TRUE(in) << OIIO::geterror();
+  if (!in) return d;
+  d.width = in->spec().width;
+  d.height = in->spec().height;
+  d.channels = in->spec().nchannels;
+  d.pixels.resize(size_t(d.width) * d.height * d.channels);
+  EXPECT_TRUE(in->read_image(0, 0, 0, d.channels, OIIO::TypeDesc::FLOAT, d.pixels.data())) << in->geterror();
+  return d;
 }
 
 ServerProcess::ServerProcess(std::vector<std::string> extra_args) {

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/models/accuracy.h"
 #include "server/models/registry.h"
 #include "server/runtime/cl_runtime.h"
@@ -23,6 +24,23 @@ runtime::ClRuntime& SharedRuntime();
 std::vector<double> RunKernel(const models::Model& model, const models::PackedMaterial& m, bool fp64,
                               const std::vector<float>& wi, const std::vector<float>& wo,
                               const std::vector<float>& uv = {});
+
+// A stub for a Loomlight server, with the API's message size limits both ways (large requests and replies).
+std::unique_ptr<v1::Loomlight::Stub> Connect(const std::string& address);
+std::unique_ptr<v1::Loomlight::Stub> Connect(int port);  // 127.0.0.1:port
+
+// Runs the `loomlight` client binary against `address` with `args`; returns its exit code, with its stdout
+// and stderr in *output.
+int RunClient(const std::string& address, const std::string& args, std::string* output);
+int RunClient(int port, const std::string& args, std::string* output);  // 127.0.0.1:port
+
+// An image decoded with OpenImageIO: channels as float, whatever the file's type (8-bit PNG: 0..1).
+struct DecodedImage {
+  int width = 0, height = 0, channels = 0;
+  std::vector<float> pixels;
+};
+// Decodes PNG, JPEG or EXR bytes in memory; `name` (e.g. "x.png") picks the reader. Failures are test failures.
+DecodedImage DecodeImage(const std::string& bytes, const char* name);
 
 // The loomlight-server binary started on 127.0.0.1 with a free port; killed on destruction.
 class ServerProcess {

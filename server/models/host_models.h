@@ -15,7 +15,8 @@ void MicrocylinderEval(const double* material, int tangent_samples, const float*
 int WovenMaterialSize();
 void WovenEval(const double* material, const float* wi, const float* wo, const float* uv, size_t n, double* f);
 // Thin semi-transparent layer (kernels/models/thin_layer.h): f and the direct transmittance exp(-tau/|n.wo|).
-void ThinLayerEval(const double* material, const float* wi, const float* wo, size_t n, double* f);
+// scattering: TL_SCATTERING_SINGLE or _ALL (the launch-uniform value).
+void ThinLayerEval(const double* material, int scattering, const float* wi, const float* wo, size_t n, double* f);
 void ThinLayerTransmittance(const double* material, const float* wo, size_t n, double* t);
 // Fiber scattering (kernels/models/fiber.h); mode is the launch-uniform value. The ambient factor of Eq. 7
 // (RGB per wo) from the packed tables.
@@ -28,6 +29,6 @@ namespace loomlight::native {
 void MicrocylinderEval(const float* material, int tangent_samples, const float* wi, const float* wo, size_t n,
                        float* f);
 void WovenEval(const float* material, const float* wi, const float* wo, const float* uv, size_t n, float* f);
-void ThinLayerEval(const float* material, const float* wi, const float* wo, size_t n, float* f);
+void ThinLayerEval(const float* material, int scattering, const float* wi, const float* wo, size_t n, float* f);
 void FiberEval(const float* material, int mode, const float* wi, const float* wo, size_t n, float* f);
 }  // namespace loomlight::native

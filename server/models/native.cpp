@@ -17,6 +17,7 @@ typedef float real;
 #include "models/woven.h"
 #include "models/thin_layer.h"
 #include "models/fiber.h"
+#include "server/models/host_queries.h"
 }  // namespace device
 
 namespace {
@@ -38,36 +39,15 @@ void ParallelFor(size_t n, Body body) {
 
 void MicrocylinderEval(const float* material, int tangent_samples, const float* wi, const float* wo, size_t n,
                        float* f) {
-  ParallelFor(n, [&](size_t begin, size_t end) {
-    for (size_t q = begin; q < end; ++q)
-      device::mc_eval(material, tangent_samples, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q],
-                      wo[3 * q + 1], wo[3 * q + 2], f + 3 * q);
-  });
+  ParallelFor(n, [&](size_t begin, size_t end) { device::mc_queries(material, tangent_samples, wi, wo, begin, end, f); });
 }
 void WovenEval(const float* material, const float* wi, const float* wo, const float* uv, size_t n, float* f) {
-  ParallelFor(n, [&](size_t begin, size_t end) {
-    for (size_t q = begin; q < end; ++q) {
-      const float* a = wi + 3 * q;
-      const float* b = wo + 3 * q;
-      if (uv)
-        device::wv_btf(material, a[0], a[1], a[2], b[0], b[1], b[2], uv[2 * q], uv[2 * q + 1], f + 3 * q);
-      else
-        device::wv_brdf(material, a[0], a[1], a[2], b[0], b[1], b[2], f + 3 * q);
-    }
-  });
+  ParallelFor(n, [&](size_t begin, size_t end) { device::wv_queries(material, wi, wo, uv, begin, end, f); });
 }
-void ThinLayerEval(const float* material, const float* wi, const float* wo, size_t n, float* f) {
-  ParallelFor(n, [&](size_t begin, size_t end) {
-    for (size_t q = begin; q < end; ++q)
-      device::tl_eval(material, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q], wo[3 * q + 1], wo[3 * q + 2],
-                      f + 3 * q);
-  });
+void ThinLayerEval(const float* material, int scattering, const float* wi, const float* wo, size_t n, float* f) {
+  ParallelFor(n, [&](size_t begin, size_t end) { device::tl_queries(material, scattering, wi, wo, begin, end, f); });
 }
 void FiberEval(const float* material, int mode, const float* wi, const float* wo, size_t n, float* f) {
-  ParallelFor(n, [&](size_t begin, size_t end) {
-    for (size_t q = begin; q < end; ++q)
-      device::fb_eval(material, mode, wi[3 * q], wi[3 * q + 1], wi[3 * q + 2], wo[3 * q], wo[3 * q + 1],
-                      wo[3 * q + 2], f + 3 * q);
-  });
+  ParallelFor(n, [&](size_t begin, size_t end) { device::fb_queries(material, mode, wi, wo, begin, end, f); });
 }
 }  // namespace loomlight::native

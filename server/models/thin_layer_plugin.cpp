@@ -17,18 +17,12 @@
 
 namespace loomlight::models {
 namespace {
-// The shared source on the host for the all-orders mode, which reference.cpp and native.cpp do not take a
-// mode for (double: the reference; float: the native baseline, here single-threaded).
-namespace tl_double {
+// The layout constants (TL_*) of the shared source; evaluation goes through reference.cpp and native.cpp.
+namespace tl_layout {
 typedef double real;
 #include "common/shim.h"
 #include "models/thin_layer.h"
-}  // namespace tl_double
-namespace tl_float {
-typedef float real;
-#include "common/shim.h"
-#include "models/thin_layer.h"
-}  // namespace tl_float
+}  // namespace tl_layout
 
 // The single-scattering error estimate covers directions at least this far from the layer's plane.
 constexpr double kErrorMinCosine = 0.1;
@@ -81,15 +75,6 @@ double TabulateAllOrders(double tau, const std::vector<double>& albedo, std::vec
     reflection[0] = reflection[n + 1];
   }
   return worst;
-}
-
-template <class Real, class Eval>
-void EvalAllOrders(const Real* material, const float* wi, const float* wo, size_t n, Real* f, Eval eval) {
-  for (size_t q = 0; q < n; ++q) {
-    const float* a = wi + 3 * q;
-    const float* b = wo + 3 * q;
-    eval(material, TL_SCATTERING_ALL, a[0], a[1], a[2], b[0], b[1], b[2], f + 3 * q);
-  }
 }
 
 std::vector<ParamSpec> Schema() {
@@ -150,8 +135,7 @@ class ThinLayerModel : public Model {
 
   void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
                      double* f) const override {
-    if (m.uniform == TL_SCATTERING_SINGLE) return reference::ThinLayerEval(m.data.data(), wi, wo, n, f);
-    EvalAllOrders<tl_double::real>(m.data.data(), wi, wo, n, f, tl_double::tl_eval_scattering);
+    reference::ThinLayerEval(m.data.data(), m.uniform, wi, wo, n, f);
   }
   bool transmission() const override { return true; }
   bool isotropic() const override { return true; }  // f depends on |n.wi|, |n.wo| and the side only
@@ -172,8 +156,7 @@ class ThinLayerModel : public Model {
   void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
                   float* f) const override {
     const std::vector<float> data(m.data.begin(), m.data.end());
-    if (m.uniform == TL_SCATTERING_SINGLE) return native::ThinLayerEval(data.data(), wi, wo, n, f);
-    EvalAllOrders<tl_float::real>(data.data(), wi, wo, n, f, tl_float::tl_eval_scattering);
+    native::ThinLayerEval(data.data(), m.uniform, wi, wo, n, f);
   }
 
  private:

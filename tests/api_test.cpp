@@ -174,6 +174,8 @@ TEST_F(ApiTest, BadInputIsRejectedNamingTheField) {
       {"zero direction", [](EvaluateRequest& r) { for (int i = 0; i < 3; ++i) r.mutable_wo()->Set(i, 0.0f); }, "wo[0]"},
       {"uv on a uniform model", [](EvaluateRequest& r) { r.add_uv(0.5f); r.add_uv(0.5f); }, "uv"},
       {"unknown precision", [](EvaluateRequest& r) { r.set_precision(static_cast<v1::Precision>(7)); }, "precision"},
+      {"negative error target", [](EvaluateRequest& r) { r.set_error_target(-0.01); }, "error_target"},
+      {"NaN error target", [](EvaluateRequest& r) { r.set_error_target(std::nan("")); }, "error_target"},
   };
   auto stub = testing::Connect(server_->port());
   for (const BadCase& c : cases) {
@@ -492,6 +494,34 @@ TEST_F(ApiTest, CurtainsCombineReflectionAndLayerTransmission) {
     EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.name;
     EXPECT_EQ(st.error_message().rfind(c.field, 0), 0u) << c.name << ": " << st.error_message();
   }
+}
+
+// error_target picks the thin layer's mode: a loose target keeps single scattering, a tight one switches to
+// all orders (more light: multiple scattering only adds), and the response says which; without a target
+// the material's own `scattering` parameter decides.
+TEST_F(ApiTest, ErrorTargetChoosesTheThinLayersScatteringMode) {
+  auto stub = testing::Connect(server_->port());
+  EvaluateRequest req = Request("cotton_curtain", 200, 17);
+  EvaluateResponse none, loose, tight;
+  ASSERT_TRUE(Call(*stub, req, &none).ok());
+  req.set_error_target(1.0);
+  ASSERT_TRUE(Call(*stub, req, &loose).ok());
+  req.set_error_target(1e-3);
+  ASSERT_TRUE(Call(*stub, req, &tight).ok());
+  EXPECT_NE(none.approximation().find("single scattering"), std::string::npos) << none.approximation();
+  EXPECT_NE(loose.approximation().find("single scattering"), std::string::npos) << loose.approximation();
+  EXPECT_NE(tight.approximation().find("all scattering orders"), std::string::npos) << tight.approximation();
+  double single = 0, all = 0;
+  for (int i = 0; i < none.f_size(); ++i) {
+    EXPECT_EQ(loose.f(i), none.f(i)) << i;
+    EXPECT_GE(tight.f(i), none.f(i)) << i;
+    single += none.f(i);
+    all += tight.f(i);
+  }
+  EXPECT_GT(all, 1.05 * single);  // tau 0.8, albedo ~0.8: multiple scattering is far from negligible
+  EvaluateResponse reflective;
+  ASSERT_TRUE(Call(*stub, Request("velvet", 10, 1), &reflective).ok());
+  EXPECT_EQ(reflective.approximation(), "");
 }
 
 TEST_F(ApiTest, MoreQueriesThanTheLimitAreRejected) {

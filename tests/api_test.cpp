@@ -17,8 +17,10 @@
 
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/job_status.h"
 #include "server/api/server.h"
 #include "server/models/material.h"
+#include "server/models/quote.h"
 #include "tests/testing.h"
 
 namespace loomlight {
@@ -782,6 +784,144 @@ TEST(Batching, ExpiredRequestsAreDroppedBeforeLaunch) {
   big.join();
   // The server is still healthy afterwards.
   EXPECT_TRUE(Call(*stub, Request("velvet", 100, 3), &resp).ok());
+}
+
+// ---- Hostile text in error messages (client input echoed only truncated) and text parameters ----
+
+TEST(Quote, ShortTextIsQuotedWhole) {
+  EXPECT_EQ(models::Quote("burlap"), "'burlap'");
+  EXPECT_EQ(models::Quote(""), "''");
+  EXPECT_EQ(models::Quote("caf\u00e9 \u2713 \U0001F600"), "'caf\u00e9 \u2713 \U0001F600'");  // UTF-8 as it is
+}
+
+TEST(Quote, UnprintableBytesAreEscapedOnOneLine) {
+  EXPECT_EQ(models::Quote("a\nb\rc\td"), "'a\\nb\\rc\\td'");
+  EXPECT_EQ(models::Quote(std::string("\x01\x1b[2J\x7f", 6)), "'\\x01\\x1b[2J\\x7f'");
+  EXPECT_EQ(models::Quote(std::string("nul\0here", 8)), "'nul\\x00here'");
+  EXPECT_EQ(models::Quote("it's a\\b"), "'it\\'s a\\\\b'");
+  // Not well-formed UTF-8: stray bytes, a cut sequence, overlong '/', a surrogate, past U+10FFFF.
+  EXPECT_EQ(models::Quote("\xff\x80"), "'\\xff\\x80'");
+  EXPECT_EQ(models::Quote("x\xe2\x9c"), "'x\\xe2\\x9c'");
+  EXPECT_EQ(models::Quote("\xc0\xaf"), "'\\xc0\\xaf'");
+  EXPECT_EQ(models::Quote("\xed\xa0\x80"), "'\\xed\\xa0\\x80'");
+  EXPECT_EQ(models::Quote("\xf4\x90\x80\x80"), "'\\xf4\\x90\\x80\\x80'");
+  // C1 controls, line separators and bidirectional overrides would break or reorder the line.
+  EXPECT_EQ(models::Quote("a\u0085b\u2028c\u202ed"), "'a\\u0085b\\u2028c\\u202ed'");
+}
+
+// The body between the quotes of a cut quote, checked to be cut as documented: at most kMaxQuotedBytes,
+// followed by the ellipsis and the input's size.
+std::string CutBody(const std::string& quoted, size_t input_size) {
+  const std::string tail = "\u2026' (" + std::to_string(input_size) + " bytes)";
+  EXPECT_EQ(quoted.front(), '\'') << quoted;
+  EXPECT_GE(quoted.size(), tail.size() + 1);
+  EXPECT_EQ(quoted.substr(quoted.size() - tail.size()), tail) << quoted;
+  const std::string body = quoted.substr(1, quoted.size() - 1 - tail.size());
+  EXPECT_LE(body.size(), models::kMaxQuotedBytes);
+  return body;
+}
+
+TEST(Quote, LongTextIsCutOnACharacterBoundaryWithItsSize) {
+  const std::string a(1000, 'a');
+  EXPECT_EQ(models::Quote(a), "'" + std::string(200, 'a') + "\u2026' (1000 bytes)");
+  EXPECT_EQ(models::Quote(std::string(200, 'a')), "'" + std::string(200, 'a') + "'");  // at the limit: whole
+  // Four-byte characters after 0 to 3 ASCII bytes: the cut never splits one.
+  std::string emoji;
+  for (int i = 0; i < 300; ++i) emoji += "\U0001F600";
+  for (size_t lead = 0; lead < 4; ++lead) {
+    const std::string text = std::string(lead, 'a') + emoji;
+    const std::string body = CutBody(models::Quote(text), text.size());
+    EXPECT_EQ(text.rfind(body, 0), 0u) << "not a prefix";
+    EXPECT_EQ((body.size() - lead) % 4, 0u) << "cut inside a character";
+    EXPECT_GT(body.size(), models::kMaxQuotedBytes - 4);
+  }
+  // Escapes count at their escaped size and are never split: 1 MB of control bytes shows 50 of them.
+  const std::string controls(1000000, '\x01');
+  std::string want;
+  for (int i = 0; i < 50; ++i) want += "\\x01";
+  EXPECT_EQ(CutBody(models::Quote(controls), controls.size()), want);
+  EXPECT_EQ(CutBody(models::Quote(std::string(199, 'a') + "\n"), 200), std::string(199, 'a'));
+}
+
+TEST(Quote, EchoTokenShowsShortPlainTokensBare) {
+  EXPECT_EQ(models::EchoToken("300"), "300");
+  EXPECT_EQ(models::EchoToken("1.1"), "1.1");
+  EXPECT_EQ(models::EchoToken("COLOR PALETTE"), "COLOR PALETTE");
+  EXPECT_EQ(models::EchoToken(""), "''");
+  EXPECT_EQ(models::EchoToken("a=b"), "'a=b'");
+  EXPECT_EQ(models::EchoToken("two\nlines"), "'two\\nlines'");
+  EXPECT_EQ(models::EchoToken(std::string(models::kMaxTokenBytes, 'x')), std::string(models::kMaxTokenBytes, 'x'));
+  EXPECT_EQ(models::EchoToken(std::string(5000, 'x')), models::Quote(std::string(5000, 'x')));
+}
+
+TEST(InvalidStatus, MessagesAreCappedOnACharacterBoundary) {
+  const grpc::Status short_status = api::Invalid("material.preset: unknown preset 'burlap'");
+  EXPECT_EQ(short_status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(short_status.error_message(), "material.preset: unknown preset 'burlap'");
+  const std::string exact(api::kMaxStatusMessageBytes, 'm');
+  EXPECT_EQ(api::Invalid(exact).error_message(), exact);
+  std::string two_byte;
+  for (int i = 0; i < 3000; ++i) two_byte += "\u00e9";
+  for (size_t lead = 0; lead < 4; ++lead) {
+    const std::string message = "wi: " + std::string(lead, 'a') + two_byte;
+    const grpc::Status s = api::Invalid(message);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    const std::string& got = s.error_message();
+    EXPECT_LE(got.size(), api::kMaxStatusMessageBytes);
+    const std::string mark = " \u2026 (message cut from " + std::to_string(message.size()) + " bytes)";
+    ASSERT_GE(got.size(), mark.size());
+    EXPECT_EQ(got.substr(got.size() - mark.size()), mark) << got;
+    const std::string kept = got.substr(0, got.size() - mark.size());
+    EXPECT_EQ(message.rfind(kept, 0), 0u) << "not a prefix";
+    EXPECT_EQ((kept.size() - 4 - lead) % 2, 0u) << "cut inside a character";
+    EXPECT_GT(kept.size(), api::kMaxStatusMessageBytes - mark.size() - 2);
+  }
+}
+
+// A request edited into a bad one, and how its error message must start.
+struct EchoCase {
+  const char* name;
+  std::function<void(EvaluateRequest&)> mutate;
+  std::string expected;
+};
+
+// Client text of 100 KB and 1 MB in every echoing field: INVALID_ARGUMENT (not RESOURCE_EXHAUSTED, which a
+// status message over the client's ~8 KB trailer limit becomes), naming the field, quoting the text cut
+// with its size, on one line, well under the cap.
+TEST_F(ApiTest, HugeClientTextIsEchoedTruncated) {
+  auto stub = testing::Connect(server_->port());
+  for (size_t size : {size_t{100000}, size_t{1000000}}) {
+    std::string junk;  // valid UTF-8 (protobuf strings must be), with a control character and a 2-byte one
+    while (junk.size() < size) junk += "x\x01\u00e9" + std::to_string(junk.size());
+    junk.resize(size);
+    while ((static_cast<unsigned char>(junk.back()) & 0xC0) == 0xC0) junk.pop_back();  // no cut 'é'
+    const std::string echoed = "(" + std::to_string(junk.size()) + " bytes)";
+    std::string wif_shafts = kPlainWif, wif_index = kPlainWif;
+    wif_shafts.replace(wif_shafts.find("Shafts=2"), 8, "Shafts=" + junk);
+    wif_index.replace(wif_index.find("[THREADING]\n1=1"), 15, "[THREADING]\n1=" + junk);
+    const std::vector<EchoCase> cases = {
+        {"preset", [&](EvaluateRequest& r) { r.mutable_material()->set_preset(junk); }, "material.preset: unknown preset '"},
+        {"model", [&](EvaluateRequest& r) { r.mutable_material()->set_preset(""); r.mutable_material()->set_model(junk); },
+         "material.model: unknown model '"},
+        {"model of a preset", [&](EvaluateRequest& r) { r.mutable_material()->set_model(junk); }, "material.model: preset 'cotton_twill'"},
+        {"parameter name", [&](EvaluateRequest& r) { AddParam(r, junk, {1}); }, "material.params[0].name: model 'woven' has no parameter '"},
+        {"WIF count", [&](EvaluateRequest& r) { AddText(r, "pattern.wif", wif_shafts); }, "material.params[0].text: WIF line 12: [WEAVING] Shafts='"},
+        {"WIF index", [&](EvaluateRequest& r) { AddText(r, "pattern.wif", wif_index); }, "material.params[0].text: WIF line 20: shaft '"},
+    };
+    for (const EchoCase& c : cases) {
+      SCOPED_TRACE(std::string(c.name) + ", " + std::to_string(size) + " bytes");
+      EvaluateRequest req = Request("cotton_twill", 4, 1);
+      c.mutate(req);
+      EvaluateResponse resp;
+      const grpc::Status s = Call(*stub, req, &resp);
+      const std::string& m = s.error_message();
+      EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << m.substr(0, 300);
+      EXPECT_EQ(m.rfind(c.expected, 0), 0u) << m.substr(0, 300);
+      EXPECT_NE(m.find(echoed), std::string::npos) << m.substr(0, 300);
+      EXPECT_LT(m.size(), 400u);
+      EXPECT_EQ(m.find_first_of(std::string("\n\r\x01", 3)), std::string::npos) << m.substr(0, 300);
+    }
+  }
 }
 
 }  // namespace

@@ -579,5 +579,35 @@ TEST(BuilderTest, RejectsBadArguments) {
   EXPECT_EQ(p, (WeavePattern{1, 1, {1}})) << "output touched on error";
 }
 
+// ---- Client text echoed only truncated: 100 KB in every value, key or name a message shows ----
+
+TEST(WifTest, LongValuesAreEchoedCutWithTheirSize) {
+  const std::string junk = std::string(100000, 'x') + "\x01";
+  const std::string size = "(" + std::to_string(junk.size()) + " bytes)";
+  const std::vector<BadDraft> cases = {
+      {"Shafts=", {{"Shafts=4", "Shafts=" + junk + " ; <-- bad"}}, true, "[WEAVING] Shafts='xxx"},
+      {"WARP Threads=", {{"[WARP]\nThreads=4", "[WARP]\nThreads=" + junk + " ; <-- bad"}}, true, "[WARP] Threads='xxx"},
+      {"Rising Shed=", {{"Rising Shed=true", "Rising Shed=" + junk + " ; <-- bad"}}, true, "Rising Shed='xxx"},
+      {"Version=", {{"Version=1.1", "Version=" + junk + " ; <-- bad"}}, true, "WIF version 'xxx"},
+      {"[CONTENTS] value", {{"WEFT=true", "WEFT=" + junk + " ; <-- bad"}}, true, "'xxx"},
+      {"[CONTENTS] key", {{"WEFT=true", "WEFT=true\n" + junk + "=true ; <-- bad"}}, true, "the file has no ['XXX"},
+      {"index key", {{"[THREADING]\n1=1\n", "[THREADING]\n" + junk + "=1 ; <-- bad\n"}}, true, "thread 'XXX"},
+      {"index value", {{"[THREADING]\n1=1\n", "[THREADING]\n1=1," + junk + " ; <-- bad\n"}}, true, "shaft 'xxx"},
+  };
+  for (const BadDraft& c : cases) {
+    SCOPED_TRACE(c.name);
+    std::string text = kTwillWif;
+    for (const auto& [from, to] : c.edits) text = Edit(text, from, to);
+    WeavePattern p;
+    const std::string err = ParseWif(text, &p);
+    const std::string prefix = "line " + std::to_string(LineOf(text, "<-- bad")) + ": ";
+    EXPECT_EQ(err.rfind(prefix, 0), 0u) << err.substr(0, 300);
+    EXPECT_NE(err.find(c.reason), std::string::npos) << err.substr(0, 300);
+    EXPECT_NE(err.find(size), std::string::npos) << err.substr(0, 300);
+    EXPECT_LT(err.size(), 400u) << err.substr(0, 300);
+    EXPECT_EQ(err.find('\x01'), std::string::npos) << "control byte echoed raw";
+  }
+}
+
 }  // namespace
 }  // namespace loomlight::models::weave

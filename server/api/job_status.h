@@ -3,7 +3,9 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <cstdint>
 #include <memory>
+#include <string>
 
 #include "server/batching/batcher.h"
 
@@ -34,6 +36,22 @@ inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const m
   job->deadline = deadline;
   job->cancelled = [context] { return context->IsCancelled(); };
   return job;
+}
+
+// The most bytes of an INVALID_ARGUMENT status message. Messages quote client input only truncated
+// (models::Quote), so a longer one is a bug; this is the last guard: a status message travels in the HTTP/2
+// trailers, and one over the client's header limit (about 8 KB) reaches it as RESOURCE_EXHAUSTED instead.
+inline constexpr size_t kMaxStatusMessageBytes = 1024;
+
+// An INVALID_ARGUMENT status; a message over kMaxStatusMessageBytes is cut on a UTF-8 character boundary and
+// ends with " … (message cut from N bytes)", the whole at most kMaxStatusMessageBytes. Every RPC's
+// INVALID_ARGUMENT is made here.
+inline grpc::Status Invalid(const std::string& message) {
+  if (message.size() <= kMaxStatusMessageBytes) return {grpc::StatusCode::INVALID_ARGUMENT, message};
+  const std::string mark = " \u2026 (message cut from " + std::to_string(message.size()) + " bytes)";
+  size_t n = kMaxStatusMessageBytes - mark.size();  // message[n] is the first byte left out
+  for (int k = 0; k < 3 && n > 0 && (static_cast<uint8_t>(message[n]) & 0xC0) == 0x80; ++k) --n;
+  return {grpc::StatusCode::INVALID_ARGUMENT, message.substr(0, n) + mark};
 }
 
 inline grpc::Status ToStatus(const batching::JobResult& r) {

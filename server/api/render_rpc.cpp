@@ -24,8 +24,6 @@ using render::Vec3;
 
 double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
-grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
-
 std::string Indexed(const std::string& field, int i) { return field + "[" + std::to_string(i) + "]"; }
 
 // Exactly three finite values within +-limit (or `optional` and empty). Returns "" or "field: reason".

@@ -38,8 +38,6 @@ double SecondsSince(batching::Clock::time_point t) {
   return std::chrono::duration<double>(batching::Clock::now() - t).count();
 }
 
-grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
-
 // The kernel work of one Evaluate call: one part per kernel (the material alone, or a curtain's reflection
 // and its layer), joined into the response when the last part is done. Parts complete on the batcher's
 // thread; a part that never reaches a kernel (queue full, no queries) completes at once.

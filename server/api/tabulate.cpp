@@ -21,8 +21,6 @@ using tabulation::CosSin;
 
 double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
-grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
-
 // "1,048,576": limits in messages are read by people.
 std::string Grouped(uint64_t n) {
   std::string digits = std::to_string(n), out;

@@ -19,8 +19,6 @@ using Clock = batching::Clock;
 
 double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
-grpc::Status Invalid(const std::string& message) { return {grpc::StatusCode::INVALID_ARGUMENT, message}; }
-
 // splitmix64's finaliser: a fixed, well-mixed hash of the pixel index.
 uint64_t MixBits(uint64_t x) {
   x += 0x9e3779b97f4a7c15ull;

@@ -5,6 +5,8 @@
 #include <sstream>
 #include <vector>
 
+#include "server/models/quote.h"
+
 namespace loomlight::models {
 namespace {
 
@@ -42,15 +44,15 @@ std::string ResolveMaterial(const v1::Material& material, const Registry& regist
   if (!material.preset().empty()) {
     const PresetSpec* preset = nullptr;
     model = registry.FindPreset(material.preset(), &preset);
-    if (!model) return field + ".preset: unknown preset '" + material.preset() + "'";
+    if (!model) return field + ".preset: unknown preset " + Quote(material.preset());
     if (!material.model().empty() && material.model() != model->name())
-      return field + ".model: preset '" + material.preset() + "' belongs to model '" + model->name() +
-             "', not '" + material.model() + "'";
+      return field + ".model: preset '" + preset->name + "' belongs to model '" + model->name() + "', not " +
+             Quote(material.model());
     out->values = model->PresetValues(*preset);
     out->label = preset->name;
   } else if (!material.model().empty()) {
     model = registry.FindModel(material.model());
-    if (!model) return field + ".model: unknown model '" + material.model() + "'";
+    if (!model) return field + ".model: unknown model " + Quote(material.model());
     out->values = model->DefaultValues();
     out->label = model->name();
   } else {
@@ -65,15 +67,15 @@ std::string ResolveMaterial(const v1::Material& material, const Registry& regist
     const std::string pfield = field + ".params[" + std::to_string(i) + "]";
     const ParamSpec* spec = model->FindParam(param.name());
     if (!spec)
-      return pfield + ".name: model '" + model->name() + "' has no parameter '" + param.name() + "'";
+      return pfield + ".name: model '" + model->name() + "' has no parameter " + Quote(param.name());
     if (!seen.insert(param.name()).second)
-      return pfield + ".name: parameter '" + param.name() + "' given twice";
+      return pfield + ".name: parameter '" + spec->name + "' given twice";
     if (spec->type == ParamType::kText) {
       texts.push_back(i);  // applied after every value, so its parameters cannot also be given
       continue;
     }
     if (!param.text().empty())
-      return pfield + ".text: parameter '" + param.name() + "' takes values, not text";
+      return pfield + ".text: parameter '" + spec->name + "' takes values, not text";
     const std::vector<double> values(param.values().begin(), param.values().end());
     std::string err = CheckValues(*spec, values, pfield + ".values");
     if (!err.empty()) return err;
@@ -83,16 +85,16 @@ std::string ResolveMaterial(const v1::Material& material, const Registry& regist
     const v1::Param& param = material.params(i);
     const std::string pfield = field + ".params[" + std::to_string(i) + "]";
     const ParamSpec& spec = *model->FindParam(param.name());
-    if (param.values_size() > 0) return pfield + ".values: parameter '" + param.name() + "' takes text, not values";
+    if (param.values_size() > 0) return pfield + ".values: parameter '" + spec.name + "' takes text, not values";
     if (param.text().empty() || param.text().size() > spec.max_count)
-      return pfield + ".text: parameter '" + param.name() + "' takes 1 to " + std::to_string(spec.max_count) +
+      return pfield + ".text: parameter '" + spec.name + "' takes 1 to " + std::to_string(spec.max_count) +
              " bytes of text, got " + std::to_string(param.text().size());
     ParamValues applied = out->values;
     std::string err = model->ApplyText(param.name(), param.text(), &applied);
     if (!err.empty()) return pfield + ".text: " + err;
     for (const auto& [name, v] : applied)
       if (v != out->values[name] && seen.count(name))
-        return pfield + ".name: parameter '" + param.name() + "' sets '" + name + "', which is also given";
+        return pfield + ".name: parameter '" + spec.name + "' sets '" + name + "', which is also given";
     out->values = std::move(applied);
   }
   std::string err = model->Validate(out->values);

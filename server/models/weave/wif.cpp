@@ -7,6 +7,8 @@
 #include <string_view>
 #include <vector>
 
+#include "server/models/quote.h"
+
 namespace loomlight::models::weave {
 namespace {
 
@@ -148,8 +150,8 @@ std::string ReadCount(const Section& s, const std::string& name, const std::stri
   if (!e) return required ? LineError(s.line, "[" + name + "] has no " + key + "= key") : "";
   int v = 0;
   if (!ParseNumber(e->value, &v) || v < min || v > kMaxRepeat)
-    return LineError(e->line, "[" + name + "] " + key + "=" + e->value + " is not a number in " + std::to_string(min) +
-                                  ".." + std::to_string(kMaxRepeat));
+    return LineError(e->line, "[" + name + "] " + key + "=" + EchoToken(e->value) + " is not a number in " +
+                                  std::to_string(min) + ".." + std::to_string(kMaxRepeat));
   *out = v;
   return "";
 }
@@ -171,7 +173,7 @@ Range CountRange(const std::string& what, const std::optional<int>& declared, co
 }
 
 std::string ParseIndex(std::string_view text, const Range& range, int line, int* out) {
-  if (!ParseNumber(text, out)) return LineError(line, range.what + " '" + std::string(text) + "' is not a number");
+  if (!ParseNumber(text, out)) return LineError(line, range.what + " " + Quote(text) + " is not a number");
   if (*out < 1 || *out > range.max)
     return LineError(line, range.what + " " + std::to_string(*out) + " out of range 1.." + std::to_string(range.max) +
                                " (" + range.bound + ")");
@@ -235,13 +237,13 @@ std::string CheckHeader(const Sections& sections) {
   if (std::string err = FindKey(*wif, "WIF", "Version", &version); !err.empty()) return err;
   if (!version) return LineError(wif->line, "[WIF] has no Version= key");
   if (version->value != "1" && version->value.rfind("1.", 0) != 0)
-    return LineError(version->line, "WIF version " + version->value + " is not supported (only 1.x)");
+    return LineError(version->line, "WIF version " + EchoToken(version->value) + " is not supported (only 1.x)");
   if (std::string err = Require(sections, "CONTENTS", &contents); !err.empty()) return err;
   for (const Entry& e : contents->entries) {
     bool present = false;
-    if (!ParseBool(e.value, &present)) return LineError(e.line, "'" + e.value + "' is not a boolean");
+    if (!ParseBool(e.value, &present)) return LineError(e.line, Quote(e.value) + " is not a boolean");
     if (present && !Find(sections, e.key))
-      return LineError(e.line, "[CONTENTS] lists " + e.key + " but the file has no [" + e.key + "] section");
+      return LineError(e.line, "listed in [CONTENTS], but the file has no [" + EchoToken(e.key) + "] section");
   }
   return "";
 }
@@ -260,7 +262,7 @@ std::string ReadCounts(const Sections& sections, Draft* d) {
   const Entry* shed = nullptr;
   if (std::string err = FindKey(*weaving, "WEAVING", "Rising Shed", &shed); !err.empty()) return err;
   if (shed && !ParseBool(shed->value, &d->rising))
-    return LineError(shed->line, "Rising Shed=" + shed->value + " is not a boolean");
+    return LineError(shed->line, "Rising Shed=" + EchoToken(shed->value) + " is not a boolean");
   if (const Section* warp = Find(sections, "WARP"))
     if (std::string err = ReadCount(*warp, "WARP", "Threads", 1, false, &d->warps); !err.empty()) return err;
   if (const Section* weft = Find(sections, "WEFT"))

@@ -924,5 +924,36 @@ TEST_F(ApiTest, HugeClientTextIsEchoedTruncated) {
   }
 }
 
+// A text parameter is never combined with a parameter it sets, even when the values agree (otherwise which
+// of the two wins would depend on the values); parameters it does not set combine with it.
+TEST_F(ApiTest, TextParametersAreNeverCombinedWithTheParametersTheySet) {
+  auto stub = testing::Connect(server_->port());
+  const std::vector<EchoCase> cases = {  // kPlainWif sets pattern.warps = 2 and pattern.cells = {1, 0, 0, 1}
+      {"WIF, then warps as the WIF sets them",
+       [](EvaluateRequest& r) { AddText(r, "pattern.wif", kPlainWif); AddParam(r, "pattern.warps", {2}); },
+       "material.params[0].name: parameter 'pattern.wif' sets 'pattern.warps', which is also given"},
+      {"warps as the WIF sets them, then the WIF",
+       [](EvaluateRequest& r) { AddParam(r, "pattern.warps", {2}); AddText(r, "pattern.wif", kPlainWif); },
+       "material.params[1].name: parameter 'pattern.wif' sets 'pattern.warps'"},
+      {"cells as the WIF sets them",
+       [](EvaluateRequest& r) { AddParam(r, "pattern.cells", {1, 0, 0, 1}); AddText(r, "pattern.wif", kPlainWif); },
+       "material.params[1].name: parameter 'pattern.wif' sets 'pattern.cells'"},
+  };
+  for (const EchoCase& c : cases) {
+    EvaluateRequest req = Request("cotton_twill", 4, 1);
+    c.mutate(req);
+    EvaluateResponse resp;
+    const grpc::Status s = Call(*stub, req, &resp);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.name << ": " << s.error_message();
+    EXPECT_EQ(s.error_message().rfind(c.expected, 0), 0u) << c.name << ": " << s.error_message();
+  }
+  EvaluateRequest other = Request("cotton_twill", 4, 1);
+  AddParam(other, "eta", {1.4});
+  AddText(other, "pattern.wif", kPlainWif);
+  AddParam(other, "warp.alpha", {0.5});
+  EvaluateResponse resp;
+  const grpc::Status s = Call(*stub, other, &resp);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+}
 }  // namespace
 }  // namespace loomlight

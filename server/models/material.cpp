@@ -89,13 +89,15 @@ std::string ResolveMaterial(const v1::Material& material, const Registry& regist
     if (param.text().empty() || param.text().size() > spec.max_count)
       return pfield + ".text: parameter '" + spec.name + "' takes 1 to " + std::to_string(spec.max_count) +
              " bytes of text, got " + std::to_string(param.text().size());
-    ParamValues applied = out->values;
-    std::string err = model->ApplyText(param.name(), param.text(), &applied);
+    // Applied to an empty set, so what it writes is exactly the parameters it sets: none of them may also be
+    // given, whatever their values (equal values too: a client never has to guess which of two wins).
+    ParamValues set;
+    std::string err = model->ApplyText(spec.name, param.text(), &set);
     if (!err.empty()) return pfield + ".text: " + err;
-    for (const auto& [name, v] : applied)
-      if (v != out->values[name] && seen.count(name))
+    for (const auto& [name, v] : set)
+      if (seen.count(name))
         return pfield + ".name: parameter '" + spec.name + "' sets '" + name + "', which is also given";
-    out->values = std::move(applied);
+    for (auto& [name, v] : set) out->values[name] = std::move(v);
   }
   std::string err = model->Validate(out->values);
   if (!err.empty()) return field + ".params: " + err;

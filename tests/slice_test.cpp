@@ -18,6 +18,7 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/server.h"
 #include "server/api/texture_slice.h"
+#include "server/imaging/image_encode.h"
 #include "tests/testing.h"
 
 // After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
@@ -389,6 +390,44 @@ TEST(SliceShutdown, ServerShutsDownWithSlicesInFlight) {
   }
   std::printf("%d of %zu slices were interrupted by the shutdown\n", interrupted, calls.size());
   server.reset();
+}
+
+// Identical images give identical bytes whenever they are encoded: no wall-clock date in any format's header
+// (OpenImageIO's EXR writer adds one unless told otherwise), so encodings a second apart are equal, and the
+// EXR still decodes to its pixels.
+TEST(ImageEncode, SameImageGivesIdenticalBytesASecondApartInEveryFormat) {
+  imaging::LinearRgbImage image{24, 16, {}};
+  for (int i = 0; i < 24 * 16 * 3; ++i) image.rgb.push_back(0.01f * float(i % 97));
+  const std::vector<std::pair<imaging::ImageFormat, const char*>> formats = {
+      {imaging::ImageFormat::kExr, "x.exr"}, {imaging::ImageFormat::kPng, "x.png"},
+      {imaging::ImageFormat::kJpeg, "x.jpg"}, {imaging::ImageFormat::kRaw, "x.raw"}};
+  std::vector<std::string> first;
+  for (const auto& [format, name] : formats) {
+    ASSERT_EQ(imaging::EncodeImage(image, format, 1.0, &first.emplace_back()), "") << name;
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(1100));
+  for (size_t i = 0; i < formats.size(); ++i) {
+    std::string again;
+    ASSERT_EQ(imaging::EncodeImage(image, formats[i].first, 1.0, &again), "") << formats[i].second;
+    EXPECT_EQ(again, first[i]) << formats[i].second << " bytes depend on when they were encoded";
+  }
+  const testing::DecodedImage exr = testing::DecodeImage(first[0], "x.exr");
+  ASSERT_EQ(exr.width, 24);
+  ASSERT_EQ(exr.channels, 3);
+  EXPECT_EQ(exr.pixels, image.rgb);
+}
+
+// End to end: two identical EXR slices a second apart are the same bytes (and PNG, for good measure).
+TEST_F(SliceTest, IdenticalRequestsASecondApartGiveIdenticalBytes) {
+  for (v1::ImageFormat format : {v1::IMAGE_FORMAT_EXR, v1::IMAGE_FORMAT_PNG}) {
+    const TextureSliceRequest request = Slice(32, 24, 2, format);
+    TextureSliceResponse first, second;
+    ASSERT_TRUE(CallSlice(*stub_, request, &first).ok());
+    std::this_thread::sleep_for(std::chrono::milliseconds(1100));
+    ASSERT_TRUE(CallSlice(*stub_, request, &second).ok());
+    EXPECT_FALSE(first.image().empty());
+    EXPECT_EQ(first.image(), second.image()) << v1::ImageFormat_Name(format);
+  }
 }
 
 }  // namespace

@@ -101,6 +101,10 @@ std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double 
       OIIO::ImageSpec spec(image.width, image.height, 3, OIIO::TypeDesc::FLOAT);
       spec.attribute("compression", "zip");
       spec.attribute("oiio:ColorSpace", "Linear");
+      // OpenImageIO's EXR writer stamps the wall-clock time (capDate) when DateTime is not given, so identical
+      // images would differ by the second they were encoded; an empty DateTime keeps the bytes a function of
+      // the pixels (the PNG and JPEG writers add no date of their own).
+      spec.attribute("DateTime", "");
       return WriteInMemory("image.exr", spec, OIIO::TypeDesc::FLOAT, FinitePixels(image, &storage).data(), bytes);
     }
     case ImageFormat::kPng:

@@ -25,14 +25,9 @@ v1::Param parse_param_file(const std::string& text) {
   const auto eq = text.find('=');
   if (eq == std::string::npos || eq == 0 || eq + 1 == text.size())
     throw UsageError("--param-file needs NAME=PATH, got '" + text + "'");
-  const std::string path = text.substr(eq + 1);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw UsageError("--param-file: cannot read '" + path + "'");
-  std::ostringstream contents;
-  contents << in.rdbuf();
   v1::Param param;
   param.set_name(text.substr(0, eq));
-  param.set_text(contents.str());
+  param.set_text(read_local_file(text.substr(eq + 1), "--param-file"));
   return param;
 }
 
@@ -44,6 +39,14 @@ std::string join_values(const v1::Param& param) {
 }
 
 }  // namespace
+
+std::string read_local_file(const std::string& path, const std::string& option) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw UsageError(option + ": cannot read '" + path + "'");
+  std::ostringstream contents;
+  contents << in.rdbuf();
+  return contents.str();
+}
 
 const OptionList& material_options() {
   static const OptionList options = {

@@ -18,6 +18,10 @@ const OptionList& material_options();
 // The server checks names, counts and ranges; the client only checks the syntax.
 loomlight::v1::EvaluateRequest material_request(const ParsedOptions& options);
 
+// The bytes of a file on the client's machine (sent to the server as data); a UsageError naming `option`
+// when it cannot be read.
+std::string read_local_file(const std::string& path, const std::string& option);
+
 // A short human name of the material, e.g. "silk_shot" or "microcylinder (eta=1.46)", for titles.
 std::string material_label(const loomlight::v1::Material& material);
 

@@ -111,6 +111,9 @@ int run_models(const ParsedOptions& options) {
   const v1::ListModelsResponse response = client.list_models();
   std::cout << "server limits: " << response.max_queries_per_call() << " queries per call, |w| within "
             << response.unit_tolerance() << " of 1\n";
+  std::cout << "environment maps (render --env NAME):";
+  for (const std::string& name : response.environment_maps()) std::cout << " " << name;
+  std::cout << (response.environment_maps().empty() ? " none (the server has no --environment-dir)\n" : "\n");
   for (const v1::ModelInfo& model : response.models()) print_model(std::cout, model, options.has("verbose"));
   return 0;
 }

@@ -88,7 +88,11 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
   if (auto rotation = options.last("texture-rotation"))
     request.set_texture_rotation_deg(parse_number(*rotation, "--texture-rotation"));
   for (const auto& entry : options.matching({"light"})) add_light(request, entry.value);
-  if (auto env = options.last("env")) request.mutable_environment()->set_path(*env == "builtin" ? "" : *env);
+  if (auto env = options.last("env"); env && *env != "builtin") request.mutable_environment()->set_name(*env);
+  if (auto file = options.last("env-file"))
+    request.mutable_environment()->set_data(read_local_file(*file, "--env-file"));
+  if ((options.last("env") || options.last("env-file")) && !request.has_environment())
+    request.mutable_environment();  // the built-in sky, explicitly
   if (auto intensity = options.last("env-intensity"))
     request.mutable_environment()->set_intensity(parse_number(*intensity, "--env-intensity"));
   if (auto rotation = options.last("env-rotation"))
@@ -167,7 +171,8 @@ OptionList render_options() {
       {"texture-scale", "X", "pattern repeats per scene unit (default: the scene's)"},
       {"texture-rotation", "DEG", "rotates the threads in the surface"},
       {"light", "dir:X,Y,Z:R,G,B|point:X,Y,Z:R,G,B", "a directional light (toward it; irradiance) or a point light (repeatable)"},
-      {"env", "FILE|builtin", "environment map (EXR/HDR on the server) or the built-in sky"},
+      {"env", "NAME|builtin", "one of the server's environment maps (see `models`) or the built-in sky"},
+      {"env-file", "FILE", "a local environment map (EXR/HDR), sent to the server"},
       {"env-intensity", "X", "environment radiance scale (default 1)"},
       {"env-rotation", "DEG", "environment rotation about +y"},
       {"camera", "X,Y,Z", "camera position (with --look-at; default: the scene's camera)"},

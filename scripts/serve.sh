@@ -6,4 +6,5 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 "$root/scripts/install-deps.sh"
 cmake -S "$root" -B "$root/build" -DCMAKE_BUILD_TYPE=Release
 cmake --build "$root/build" -j"$(nproc)" --target loomlight-server loomlight
-exec "$root/build/loomlight-server" --address 127.0.0.1:50051 --metrics-address 127.0.0.1:9464 "$@"
+exec "$root/build/loomlight-server" --address 127.0.0.1:50051 --metrics-address 127.0.0.1:9464 \
+  --environment-dir "$root/deploy/environments" "$@"

@@ -22,7 +22,15 @@ void Usage() {
                "  --max-queue-delay-us N     wait this long for a batch to fill (default 0)\n"
                "  --max-queued-queries N     queued queries before RESOURCE_EXHAUSTED (default 8388608)\n"
                "  --no-batching              one request per launch\n"
-               "  --metrics-address HOST:PORT  serve Prometheus metrics at http://HOST:PORT/metrics (default: off)\n");
+               "  --metrics-address HOST:PORT  serve Prometheus metrics at http://HOST:PORT/metrics (default: off)\n"
+               "  --environment-dir DIR      environment maps clients may name (EXR/HDR files; default: none)\n"
+               "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
+               "  --max-long-calls N         TextureSlice, Tabulate and Render calls at once (default 16)\n"
+               "  --material-cache-mb N      packed materials kept, in MiB (default 64)\n"
+               "  --environment-cache-mb N   decoded environment maps kept, in MiB (default 256)\n"
+               "  --grpc-memory-mb N         gRPC's own buffers, in MiB (default 512)\n"
+               "  --stall-seconds N          health NOT_SERVING while one task runs longer (default 20)\n"
+               "  --shutdown-grace SECONDS   on SIGTERM, in-flight calls may finish this long (default 30)\n");
 }
 
 volatile std::sig_atomic_t g_stop = 0;
@@ -50,6 +58,14 @@ int main(int argc, char** argv) {
       }
       return n;
     };
+    auto mebibytes = [&]() -> size_t {
+      const unsigned long long n = number();
+      if (n == 0 || n > (1ull << 24)) {
+        std::fprintf(stderr, "error: %s takes 1..16777216 MiB\n", arg.c_str());
+        std::exit(2);
+      }
+      return static_cast<size_t>(n) << 20;
+    };
     if (arg == "--address") options.address = value();
     else if (arg == "--platform") options.runtime.platform = value();
     else if (arg == "--device") options.runtime.device = value();
@@ -60,6 +76,14 @@ int main(int argc, char** argv) {
     else if (arg == "--max-queued-queries") options.batcher.max_queued_queries = number();
     else if (arg == "--no-batching") options.batcher.coalesce = false;
     else if (arg == "--metrics-address") options.metrics_address = value();
+    else if (arg == "--environment-dir") options.environment_dir = value();
+    else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
+    else if (arg == "--max-long-calls") options.limits.max_long_running_calls = number();
+    else if (arg == "--material-cache-mb") options.limits.material_cache_bytes = mebibytes();
+    else if (arg == "--environment-cache-mb") options.environment_cache_bytes = mebibytes();
+    else if (arg == "--grpc-memory-mb") options.grpc_memory_bytes = mebibytes();
+    else if (arg == "--stall-seconds") options.stall_limit = std::chrono::seconds(number());
+    else if (arg == "--shutdown-grace") options.shutdown_grace = std::chrono::seconds(number());
     else if (arg == "--help" || arg == "-h") { Usage(); return 0; }
     else { std::fprintf(stderr, "error: unknown option '%s'\n", arg.c_str()); Usage(); return 2; }
   }
@@ -77,7 +101,8 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, [](int) { g_stop = 1; });
   std::signal(SIGTERM, [](int) { g_stop = 1; });
   while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  std::fprintf(stderr, "loomlight-server: shutting down\n");
+  std::fprintf(stderr, "loomlight-server: shutting down (in-flight calls get %lld s)\n",
+               static_cast<long long>(options.shutdown_grace.count() / 1000));
   server->Shutdown();
   return 0;
 }

@@ -612,7 +612,6 @@ TEST_F(ApiTest, RandomRequestsGetAnAnswerAndNeverHurtTheServer) {
 }
 
 TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) {
-  api::MaterialCache cache(2);
   const auto& registry = models::Registry::Global();
   auto material = [](const std::string& preset, double eta) {
     v1::Material m;
@@ -624,9 +623,22 @@ TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) 
     }
     return m;
   };
+  // The bytes of one entry (these materials all have the same parameters, so the same size), then a cache
+  // that holds two of them.
+  size_t entry_bytes = 0;
+  {
+    api::MaterialCache probe(size_t{1} << 20);
+    std::shared_ptr<const api::MaterialCache::Entry> entry;
+    ASSERT_EQ(probe.Get(material("velvet", -1.0), registry, &entry), "");
+    entry_bytes = probe.bytes();
+  }
+  ASSERT_GT(entry_bytes, 0u);
+  api::MaterialCache cache(2 * entry_bytes + entry_bytes / 2);
   std::vector<std::shared_ptr<const api::MaterialCache::Entry>> first;
+  const std::pair<const char*, double> materials[] = {{"velvet", -1.0}, {"velvet", 1.3}, {"silk_shot", -1.0}};
   for (int round = 0; round < 2; ++round)
-    for (auto [preset, eta] : {std::pair{"velvet", -1.0}, {"velvet", 1.3}, {"silk_shot", -1.0}}) {
+    for (size_t k = 0; k < 3; ++k) {
+      const auto [preset, eta] = materials[k];
       const v1::Material m = material(preset, eta);
       std::shared_ptr<const api::MaterialCache::Entry> entry;
       ASSERT_EQ(cache.Get(m, registry, &entry), "");
@@ -635,8 +647,10 @@ TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) 
       EXPECT_EQ(entry->model, resolved.model);
       EXPECT_EQ(entry->packed.data, resolved.model->Pack(resolved.values).data) << preset << " eta " << eta;
       if (round == 0) first.push_back(entry);
+      if (round == 1) EXPECT_NE(entry.get(), first[k].get()) << "round two should have missed: " << preset;
+      EXPECT_LE(cache.entries(), 2u);
     }
-  // Capacity 2 with three materials cycling: every lookup of round two missed and packed afresh.
+  // Capacity 2 with three materials cycling: every lookup of round two missed (above); a repeat hits.
   std::shared_ptr<const api::MaterialCache::Entry> again;
   ASSERT_EQ(cache.Get(material("silk_shot", -1.0), registry, &again), "");
   std::shared_ptr<const api::MaterialCache::Entry> hit;
@@ -686,26 +700,6 @@ TEST(Batching, NoCoalescingRunsOneRequestPerLaunch) {
   EXPECT_EQ(max_requests, 1);
 }
 
-// GET http://127.0.0.1:port/path; the body, or "" on failure.
-std::string HttpGet(int port, const std::string& path) {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_port = htons(static_cast<uint16_t>(port));
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  std::string response;
-  if (connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0) {
-    const std::string request = "GET " + path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
-    if (write(fd, request.data(), request.size()) == static_cast<ssize_t>(request.size())) {
-      char buf[4096];
-      for (ssize_t got; (got = read(fd, buf, sizeof buf)) > 0;) response.append(buf, static_cast<size_t>(got));
-    }
-  }
-  close(fd);
-  const size_t body = response.find("\r\n\r\n");
-  return body == std::string::npos ? "" : response.substr(body + 4);
-}
-
 TEST(Metrics, PrometheusEndpointCountsCallsAndQueries) {
   api::ServerOptions options;
   options.address = "127.0.0.1:0";
@@ -719,7 +713,7 @@ TEST(Metrics, PrometheusEndpointCountsCallsAndQueries) {
   ASSERT_TRUE(Call(*stub, Request("velvet", 37, 1), &resp).ok());
   ASSERT_TRUE(Call(*stub, Request("velvet", 5, 2), &resp).ok());
   EXPECT_EQ(Call(*stub, Request("burlap", 5, 3), &resp).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
-  const std::string text = HttpGet(server->metrics_port(), "/metrics");
+  const std::string text = testing::HttpGet(server->metrics_port(), "/metrics");
   EXPECT_NE(text.find("loomlight_calls_total{code=\"OK\",rpc=\"Evaluate\"} 2"), std::string::npos) << text;
   EXPECT_NE(text.find("loomlight_calls_total{code=\"INVALID_ARGUMENT\",rpc=\"Evaluate\"} 1"), std::string::npos);
   EXPECT_NE(text.find("loomlight_queries_total{model=\"microcylinder\",precision=\"fp32\"} 42"), std::string::npos);

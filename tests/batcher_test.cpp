@@ -13,6 +13,7 @@ namespace {
 using batching::Job;
 using batching::JobResult;
 using batching::JobStatus;
+using batching::Batcher;
 
 struct Submitted {
   std::shared_ptr<Job> job;
@@ -53,11 +54,11 @@ std::unique_ptr<Submitted> Blocker() { return MakeJob("velvet", size_t{1} << 20,
 TEST(Batcher, CoalescesSameKernelAndKeepsOtherKernelsApart) {
   batching::Batcher batcher(&testing::SharedRuntime(), {});
   auto blocker = Blocker();  // occupies the device while the rest queue
-  ASSERT_TRUE(batcher.Submit(blocker->job));
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
   auto a = MakeJob("linen_plain", 100), b = MakeJob("silk_shot", 200), c = MakeJob("velvet", 300);
   auto other = MakeJob("velvet", 50, 16);  // different tangent sample count: its own launch
-  for (auto* s : {a.get(), b.get(), other.get(), c.get()}) ASSERT_TRUE(batcher.Submit(s->job));
+  for (auto* s : {a.get(), b.get(), other.get(), c.get()}) ASSERT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
   for (auto* s : {a.get(), b.get(), c.get()}) {
     const JobResult r = s->result.get();
@@ -80,7 +81,7 @@ TEST(Batcher, DropsExpiredAndCancelledJobsBeforeLaunch) {
   auto cancelled = MakeJob("velvet", 1000);
   cancelled->job->cancelled = [] { return true; };
   auto fine = MakeJob("velvet", 1000);
-  for (auto* s : {expired.get(), cancelled.get(), fine.get()}) ASSERT_TRUE(batcher.Submit(s->job));
+  for (auto* s : {expired.get(), cancelled.get(), fine.get()}) ASSERT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
   const JobResult re = expired->result.get(), rc = cancelled->result.get(), rf = fine->result.get();
   EXPECT_EQ(re.status, JobStatus::kDeadlineExceeded);
   EXPECT_TRUE(re.f.empty());
@@ -94,11 +95,11 @@ TEST(Batcher, RefusesBeyondTheQueueBoundButAlwaysTakesOneRequest) {
   options.max_queued_queries = 500;
   batching::Batcher batcher(&testing::SharedRuntime(), options);
   auto blocker = Blocker();
-  ASSERT_TRUE(batcher.Submit(blocker->job));  // larger than the bound, but the queue was empty
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);  // larger than the bound, but the queue was empty
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
   auto first = MakeJob("velvet", 400), second = MakeJob("velvet", 400);
-  EXPECT_TRUE(batcher.Submit(first->job));
-  EXPECT_FALSE(batcher.Submit(second->job));  // 800 queued would exceed 500
+  EXPECT_EQ(batcher.Submit(first->job), Batcher::Refusal::kNone);
+  EXPECT_EQ(batcher.Submit(second->job), Batcher::Refusal::kQueueFull);  // 800 queued would exceed 500
   EXPECT_EQ(first->result.get().status, JobStatus::kOk);
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
 }
@@ -108,10 +109,10 @@ TEST(Batcher, QueueDelayLetsABatchFill) {
   options.max_queue_delay = std::chrono::milliseconds(200);
   batching::Batcher batcher(&testing::SharedRuntime(), options);
   auto a = MakeJob("velvet", 100);
-  ASSERT_TRUE(batcher.Submit(a->job));
+  ASSERT_EQ(batcher.Submit(a->job), Batcher::Refusal::kNone);
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
   auto b = MakeJob("linen_plain", 100);
-  ASSERT_TRUE(batcher.Submit(b->job));
+  ASSERT_EQ(batcher.Submit(b->job), Batcher::Refusal::kNone);
   EXPECT_EQ(a->result.get().batch_requests, 2u);
   EXPECT_EQ(b->result.get().batch_requests, 2u);
 }
@@ -119,14 +120,57 @@ TEST(Batcher, QueueDelayLetsABatchFill) {
 TEST(Batcher, StopFailsQueuedJobsAsUnavailable) {
   auto batcher = std::make_unique<batching::Batcher>(&testing::SharedRuntime(), batching::BatcherOptions{});
   auto blocker = Blocker();
-  ASSERT_TRUE(batcher->Submit(blocker->job));
+  ASSERT_EQ(batcher->Submit(blocker->job), Batcher::Refusal::kNone);
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
   auto queued = MakeJob("velvet", 100);
-  ASSERT_TRUE(batcher->Submit(queued->job));
+  ASSERT_EQ(batcher->Submit(queued->job), Batcher::Refusal::kNone);
   batcher->Stop();
   EXPECT_EQ(queued->result.get().status, JobStatus::kUnavailable);
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
 }
 
 }  // namespace
+TEST(Batcher, InteractiveJobsLaunchBeforeQueuedBulkJobs) {
+  batching::Batcher batcher(&testing::SharedRuntime(), {});
+  auto blocker = Blocker();
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  // Queued while the blocker runs: bulk first, then an interactive job of another kernel.
+  auto bulk = MakeJob("velvet", size_t{1} << 18, 256);
+  bulk->job->priority = batching::Priority::kBulk;
+  auto interactive = MakeJob("linen_plain", 64);
+  ASSERT_EQ(batcher.Submit(bulk->job), Batcher::Refusal::kNone);
+  ASSERT_EQ(batcher.Submit(interactive->job), Batcher::Refusal::kNone);
+  const JobResult ri = interactive->result.get();
+  const JobResult rb = bulk->result.get();
+  ASSERT_EQ(ri.status, JobStatus::kOk);
+  ASSERT_EQ(rb.status, JobStatus::kOk);
+  // The interactive job launched first although it queued last: it waited less than the bulk job did.
+  EXPECT_LT(ri.queue_seconds, rb.queue_seconds);
+  EXPECT_GE(rb.queue_seconds, ri.queue_seconds + ri.kernel_seconds * 0.9);
+}
+
+TEST(Batcher, BulkWorkCannotFillTheInteractiveQueue) {
+  batching::BatcherOptions options;
+  options.max_queued_queries = 500;
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  auto blocker = Blocker();
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  auto bulk = MakeJob("velvet", 400), more_bulk = MakeJob("velvet", 400), interactive = MakeJob("velvet", 400);
+  bulk->job->priority = more_bulk->job->priority = batching::Priority::kBulk;
+  EXPECT_EQ(batcher.Submit(bulk->job), Batcher::Refusal::kNone);
+  EXPECT_EQ(batcher.Submit(more_bulk->job), Batcher::Refusal::kQueueFull);
+  EXPECT_EQ(batcher.Submit(interactive->job), Batcher::Refusal::kNone);  // its own queue has room
+  EXPECT_EQ(interactive->result.get().status, JobStatus::kOk);
+  EXPECT_EQ(bulk->result.get().status, JobStatus::kOk);
+}
+
+TEST(Batcher, SubmitAfterStopSaysStopping) {
+  batching::Batcher batcher(&testing::SharedRuntime(), {});
+  batcher.Stop();
+  auto job = MakeJob("velvet", 10);
+  EXPECT_EQ(batcher.Submit(job->job), Batcher::Refusal::kStopping);
+}
+
 }  // namespace loomlight

@@ -11,8 +11,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <functional>
 #include <future>
+#include <sstream>
 #include <thread>
 #include <type_traits>
 
@@ -406,8 +408,8 @@ TEST_F(RenderTest, EveryInvalidFieldIsNamed) {
   EXPECT_TRUE(Render(*stub_, edge).status.ok());
 }
 
-TEST_F(RenderTest, EnvironmentMapFromAFileLightsTheScene) {
-  // A small EXR sky written with OpenImageIO: bright top half, black bottom half.
+TEST_F(RenderTest, EnvironmentMapSentAsBytesLightsTheScene) {
+  // A small EXR sky written with OpenImageIO: bright top half, black bottom half; its bytes go in the request.
   const std::string path = ::testing::TempDir() + "/render_sky.exr";
   std::vector<float> sky(16 * 8 * 3, 0.0f);
   for (int i = 0; i < 16 * 4 * 3; ++i) sky[i] = 1.0f;
@@ -417,7 +419,10 @@ TEST_F(RenderTest, EnvironmentMapFromAFileLightsTheScene) {
   ASSERT_TRUE(out->write_image(OIIO::TypeDesc::FLOAT, sky.data()));
   out->close();
   RenderRequest request = Request("linen_plain", v1::SCENE_SPHERE, 24, 24, 4);
-  request.mutable_environment()->set_path(path);
+  std::ifstream file(path, std::ios::binary);
+  std::stringstream bytes;
+  bytes << file.rdbuf();
+  request.mutable_environment()->set_data(bytes.str());
   const Rendered r = Render(*stub_, request);
   ASSERT_TRUE(r.status.ok()) << r.status.error_message();
   const testing::DecodedImage image = testing::DecodeImage(r.last().image(), "r.exr");

@@ -4,6 +4,7 @@
 
 #include <sys/types.h>
 
+#include <chrono>
 #include <memory>
 #include <random>
 #include <string>
@@ -34,6 +35,9 @@ std::unique_ptr<v1::Loomlight::Stub> Connect(int port);  // 127.0.0.1:port
 int RunClient(const std::string& address, const std::string& args, std::string* output);
 int RunClient(int port, const std::string& args, std::string* output);  // 127.0.0.1:port
 
+// GET http://127.0.0.1:port/path (e.g. the metrics endpoint); the body, or "" on failure.
+std::string HttpGet(int port, const std::string& path);
+
 // An image decoded with OpenImageIO: channels as float, whatever the file's type (8-bit PNG: 0..1).
 struct DecodedImage {
   int width = 0, height = 0, channels = 0;
@@ -50,6 +54,12 @@ class ServerProcess {
   int port() const { return port_; }
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
   bool running() const;
+  pid_t pid() const { return pid_; }
+  // The server's resident memory now (VmRSS), in bytes; 0 when it cannot be read.
+  size_t RssBytes() const;
+  // Sends SIGTERM, then waits up to `timeout` for the process to exit: its exit code, or -1 (still running,
+  // or killed by a signal).
+  int Terminate(std::chrono::milliseconds timeout);
 
  private:
   pid_t pid_ = -1;

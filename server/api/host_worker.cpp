@@ -27,7 +27,9 @@ void HostWorker::Run() {
     std::function<void()> task = std::move(tasks_.front());
     tasks_.pop_front();
     lock.unlock();
+    busy_since_ = std::chrono::steady_clock::now();
     task();
+    busy_since_ = std::chrono::steady_clock::time_point::max();
     lock.lock();
   }
 }

@@ -4,6 +4,8 @@
 // thread per service bounds the CPU that host work takes from the kernels.
 #pragma once
 
+#include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <functional>
@@ -20,6 +22,8 @@ class HostWorker {
   // Runs every task posted so far, then joins.
   ~HostWorker();
   void Post(std::function<void()> task);
+  // When the task running now started; max when idle (the health watchdog reads it).
+  std::chrono::steady_clock::time_point busy_since() const { return busy_since_.load(); }
 
  private:
   void Run();
@@ -28,6 +32,7 @@ class HostWorker {
   std::condition_variable wake_;
   std::deque<std::function<void()>> tasks_;
   bool stopping_ = false;
+  std::atomic<std::chrono::steady_clock::time_point> busy_since_{std::chrono::steady_clock::time_point::max()};
   std::thread thread_;  // declared last: starts after the rest is constructed
 };
 

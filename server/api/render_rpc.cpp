@@ -5,6 +5,7 @@
 #include <memory>
 #include <vector>
 
+#include "server/api/admission.h"
 #include "server/api/job_status.h"
 #include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
@@ -125,9 +126,25 @@ class CachedVariants final : public render::MaterialVariants {
 class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
-             std::shared_ptr<const MaterialCache::Entry> material, Clock::time_point received)
-      : WorkerStreamCall(deps, context, kRpc, received), request_(request), material_(std::move(material)),
-        fp64_(request.precision() == v1::PRECISION_FP64) {
+             std::shared_ptr<const MaterialCache::Entry> material, Admission admission, Clock::time_point received)
+      : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), request_(request),
+        material_(std::move(material)), fp64_(request.precision() == v1::PRECISION_FP64) {
+    const v1::RenderEnvironment& env = request_.environment();
+    if (!env.name().empty() || !env.data().empty()) {
+      // Reading and decoding a map runs on the asset loader, never on the host worker every streaming call
+      // shares; the call cannot finish meanwhile (Pump waits for loading_ to clear).
+      loading_ = true;
+      deps_.loader->Post([this] {
+        grpc::Status status = LoadEnvironment();
+        deps_.worker->Post([this, status] {
+          loading_ = false;
+          if (status.ok()) SetUp();
+          else if (status_.ok()) status_ = status;
+          Pump();
+        });
+      });
+      return;
+    }
     deps_.worker->Post([this] {
       SetUp();
       Pump();
@@ -144,6 +161,33 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     size_t jobs_in_flight = 0;
     uint64_t queries = 0;
   };
+
+  // On the asset loader: the request's map (by name or from its bytes) into environment_, within the call's
+  // deadline, while the client is there, and within the memory budget.
+  grpc::Status LoadEnvironment() {
+    const auto stop = [this] { return context_->IsCancelled() || Clock::now() >= deadline_; };
+    bool refused = false;
+    const auto admit = [this, &refused](size_t bytes) {
+      refused = !admission_.bytes.Grow(bytes);
+      return !refused;
+    };
+    const v1::RenderEnvironment& env = request_.environment();
+    std::string error, field;
+    if (!env.name().empty()) {
+      field = "environment.name";
+      error = deps_.environments->Get(env.name(), stop, admit, &environment_);
+    } else {
+      field = "environment.data";
+      auto decoded = std::make_shared<render::Environment>();
+      error = render::Environment::Decode(env.data(), stop, admit, decoded.get());
+      environment_ = std::move(decoded);
+    }
+    if (error.empty()) return grpc::Status::OK;
+    if (Clock::now() >= deadline_) return {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
+    if (context_->IsCancelled()) return {grpc::StatusCode::CANCELLED, "call cancelled"};
+    if (refused) return {grpc::StatusCode::RESOURCE_EXHAUSTED, field + ": " + error};
+    return Invalid(field + ": " + error);
+  }
 
   // Scene, camera, lights, environment and the fidelity choice; on failure status_ says why.
   void SetUp() {
@@ -178,15 +222,9 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     const bool default_lighting = r.lights().empty() && !r.has_environment();
     if (default_lighting) s.lights = s.scene.default_lights;
     if (default_lighting || r.has_environment()) {
-      auto environment = std::make_shared<render::Environment>();
-      if (r.has_environment() && !r.environment().path().empty()) {
-        if (std::string e = render::Environment::Load(r.environment().path(), environment.get()); !e.empty()) {
-          status_ = Invalid("environment.path: " + e);
-          return;
-        }
-      } else {
-        *environment = render::Environment::Builtin();
-      }
+      // A copy with its own transform; the decoded map itself is shared (a cached map is not copied).
+      auto environment = std::make_shared<render::Environment>(environment_ ? *environment_
+                                                                            : render::Environment::Builtin());
       const double intensity = default_lighting ? s.scene.default_environment_intensity
                                : r.environment().intensity() > 0 ? r.environment().intensity() : 1.0;
       environment->SetTransform(intensity, r.has_environment() ? r.environment().rotation_deg() : 0.0);
@@ -225,7 +263,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // The one step of the state machine (as Tabulate's): notice a stop, keep one chunk in flight, keep one
   // write in flight while there is news, finish when nothing is outstanding.
   void Pump() override {
-    if (finished_) return;
+    if (finished_ || loading_) return;  // a load in flight still refers to this call
     NoticeStop();
     MaybeSubmit();  // does nothing once stopping
     if (!status_.ok()) {
@@ -239,15 +277,6 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   }
 
   bool JobsInFlight() const { return chunks_[0].jobs_in_flight + chunks_[1].jobs_in_flight > 0; }
-
-  // Records why the work should stop: the client cancelled or vanished, or the deadline passed.
-  void NoticeStop() {
-    if (!status_.ok()) return;
-    if (stream_broken_ || context_->IsCancelled())
-      status_ = {grpc::StatusCode::CANCELLED, "call cancelled"};
-    else if (Clock::now() >= deadline_)
-      status_ = {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
-  }
 
   // Traces the next pixels into a free chunk buffer (none left: pixels = 0).
   void Prepare(Chunk& chunk) {
@@ -289,6 +318,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       const render::Evaluator& evaluator = plan_.evaluators[e];
       auto job = NewJob(evaluator.model, *evaluator.material, fp64_, deadline_, context_, b.wi.data(), b.wo.data(),
                         evaluator.with_uv ? b.uv.data() : nullptr, b.size());
+      job->priority = batching::Priority::kBulk;
       job->done = [this, index, e](batching::JobResult result) {
         deps_.worker->Post([this, index, e, result = std::move(result)] { OnJobDone(index, e, result); });
       };
@@ -300,8 +330,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       return;
     }
     for (auto& job : jobs) {
-      if (!deps_.batcher->Submit(job)) {
-        status_ = {grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"};
+      if (grpc::Status s = SubmitJob(deps_.batcher, job); !s.ok()) {
+        status_ = s;
         return;
       }
       ++chunk.jobs_in_flight;
@@ -444,6 +474,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   const v1::RenderRequest request_;
   const std::shared_ptr<const MaterialCache::Entry> material_;
   const bool fp64_;
+  bool loading_ = false;  // the asset loader is reading the environment map
+  std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
 
   render::RenderSetup setup_;
   std::unique_ptr<CachedVariants> variants_;  // owns the packed variants the plan points at
@@ -459,10 +491,16 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   v1::RenderUpdate update_;  // the write in flight
   v1::RenderUpdate final_;   // the image and its summary, once encoded
   bool sent_first_ = false, complete_ = false, final_sent_ = false;
-  grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
 };
 
 }  // namespace
+
+size_t RenderBytes(const v1::RenderRequest& r) {
+  const size_t pixels = size_t{r.width()} * r.height();
+  // Per pixel: the sums (24), the linear image (12) and its encoding (at most 16); two chunk buffers of
+  // queries (wi, wo, uv, weight and tag: 48; the kernel's result and its copy: 48); the request's map bytes.
+  return pixels * 52 + 2 * kRenderChunkQueries * 96 + r.environment().data().size();
+}
 
 std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   if (!v1::ScenePreset_IsValid(r.scene())) return "scene: unknown value " + std::to_string(r.scene());
@@ -477,7 +515,15 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
     if (std::string e = ValidateLight(r.lights(i), Indexed("lights", i)); !e.empty()) return e;
   if (r.has_environment()) {
     const v1::RenderEnvironment& env = r.environment();
-    if (env.path().size() > kMaxEnvironmentPathBytes) return "environment.path: longer than 4096 bytes";
+    if (!env.path().empty())
+      return "environment.path: server paths are not accepted; name one of the server's maps (environment.name, "
+             "listed by ListModels) or send the map's bytes (environment.data)";
+    if (!env.name().empty() && !env.data().empty()) return "environment.data: give a map name or its bytes, not both";
+    if (!env.name().empty())
+      if (std::string e = assets::EnvironmentMaps::CheckName(env.name()); !e.empty()) return "environment.name: " + e;
+    if (env.data().size() > render::Environment::kMaxEncodedBytes)
+      return "environment.data: " + std::to_string(env.data().size()) + " bytes exceed the limit of " +
+             std::to_string(render::Environment::kMaxEncodedBytes);
     if (!std::isfinite(env.intensity()) || env.intensity() < 0 || env.intensity() > kMaxLightValue)
       return "environment.intensity: " + std::to_string(env.intensity()) + " must be finite and >= 0 (0 = 1)";
     if (!std::isfinite(env.rotation_deg()) || std::fabs(env.rotation_deg()) > 360)
@@ -518,7 +564,10 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   if (std::string error = ValidateRenderRequest(*request); !error.empty()) return reject(Invalid(error));
   if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
     return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
-  return new RenderCall(deps, context, *request, std::move(material), received);
+  Admission admission;
+  if (grpc::Status s = Admit(deps.memory, deps.long_calls, RenderBytes(*request), &admission); !s.ok())
+    return reject(s);
+  return new RenderCall(deps, context, *request, std::move(material), std::move(admission), received);
 }
 
 }  // namespace loomlight::api

@@ -27,16 +27,17 @@ constexpr double kMaxSceneCoordinate = 1e4;                    // |x|, |y|, |z| 
 constexpr double kMaxLightValue = 1e9;                         // per RGB channel
 constexpr double kMaxTextureScale = 1e5;                       // pattern repeats per unit
 constexpr double kMinFovDeg = 1, kMaxFovDeg = 150;
-constexpr size_t kMaxEnvironmentPathBytes = 4096;
 // Queries per chunk (whole pixels): a quarter of one Evaluate call, so that a render takes turns with
 // other clients' launches often and its host work (ray casting, accumulation) overlaps the kernels.
 constexpr size_t kRenderChunkQueries = kMaxQueriesPerCall / 4;
 
 using RenderDeps = ServiceDeps;
 
-// Checks every field except the material, the environment file and device support. Returns "" or
-// "field: reason".
+// Checks every field except the material, whether a named environment map exists and device support.
+// Returns "" or "field: reason".
 std::string ValidateRenderRequest(const v1::RenderRequest& request);
+// The bytes a validated request's call holds (its admission), before any environment map is decoded.
+size_t RenderBytes(const v1::RenderRequest& request);
 
 // Serves one call: validation errors finish at once; otherwise the reactor streams progress and the image.
 grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps, grpc::CallbackServerContext* context,

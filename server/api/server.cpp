@@ -2,20 +2,18 @@
 
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <grpcpp/resource_quota.h>
+
+#include <cstdio>
 
 namespace loomlight::api {
 namespace {
 const char* kServiceName = "loomlight.v1.Loomlight";
-
-void SetServing(grpc::Server* server, bool serving) {
-  grpc::HealthCheckServiceInterface* health = server->GetHealthCheckService();
-  health->SetServingStatus("", serving);
-  health->SetServingStatus(kServiceName, serving);
-}
 }  // namespace
 
 std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& options, std::string* error) {
   auto s = std::unique_ptr<LoomlightServer>(new LoomlightServer);
+  s->options_ = options;
   s->runtime_ = runtime::ClRuntime::Create(options.runtime, error);
   if (!s->runtime_) return nullptr;
   const models::Registry& registry = models::Registry::Global();
@@ -26,9 +24,21 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
     *error = s->metrics_->Serve(options.metrics_address);
     if (!error->empty()) return nullptr;
   }
+  s->memory_ = std::make_unique<batching::Budget>(options.limits.memory_budget_bytes);
+  s->long_calls_ = std::make_unique<batching::Budget>(options.limits.max_long_running_calls);
+  s->environments_ = assets::EnvironmentMaps::Open(options.environment_dir, options.environment_cache_bytes,
+                                                   s->memory_.get(), error);
+  if (!s->environments_) return nullptr;
   s->batcher_ = std::make_unique<batching::Batcher>(s->runtime_.get(), options.batcher);
-  s->service_ = std::make_unique<LoomlightService>(&registry, s->batcher_.get(), s->runtime_->has_fp64(),
-                                                   s->metrics_.get());
+  ServiceDeps deps;
+  deps.registry = &registry;
+  deps.batcher = s->batcher_.get();
+  deps.has_fp64 = s->runtime_->has_fp64();
+  deps.metrics = s->metrics_.get();
+  deps.memory = s->memory_.get();
+  deps.long_calls = s->long_calls_.get();
+  deps.environments = s->environments_.get();
+  s->service_ = std::make_unique<LoomlightService>(deps, options.limits);
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
@@ -36,28 +46,78 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   builder.RegisterService(s->service_.get());
   builder.SetMaxReceiveMessageSize(kMaxMessageBytes);
   builder.SetMaxSendMessageSize(kMaxMessageBytes);
+  // gRPC's own buffers (requests being received, replies being sent) are bounded too.
+  grpc::ResourceQuota quota("loomlight");
+  quota.Resize(options.grpc_memory_bytes);
+  builder.SetResourceQuota(quota);
   s->server_ = builder.BuildAndStart();
   if (!s->server_ || s->port_ == 0) {
     *error = "cannot listen on " + options.address;
     return nullptr;
   }
-  SetServing(s->server_.get(), false);
+  s->UpdateServing();  // NOT_SERVING: every RPC is answered UNAVAILABLE until warm
   // Warm before SERVING: PoCL compiles each kernel for the work-group size on first launch.
   if (!s->runtime_->Warm(registry, error)) {
     s->Shutdown();
     return nullptr;
   }
-  SetServing(s->server_.get(), true);
+  {
+    std::lock_guard<std::mutex> lock(s->mutex_);
+    s->warm_ = true;
+  }
+  s->UpdateServing();
+  s->watchdog_ = std::thread([server = s.get()] { server->Watch(); });
   return s;
+}
+
+void LoomlightServer::UpdateServing() {
+  std::lock_guard<std::mutex> lock(mutex_);  // held throughout, so concurrent updates cannot end stale
+  const bool serving = warm_ && !draining_ && !stuck_;
+  service_->SetServing(serving);
+  grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService();
+  health->SetServingStatus("", serving);
+  health->SetServingStatus(kServiceName, serving);
+}
+
+void LoomlightServer::Watch() {
+  const auto period = std::min<std::chrono::milliseconds>(std::chrono::milliseconds(500), options_.stall_limit / 4);
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!draining_) {
+    wake_.wait_for(lock, period, [this] { return draining_; });
+    if (draining_) return;
+    const auto now = batching::Clock::now();
+    std::string reason;
+    const std::pair<const char*, batching::Clock::time_point> busy[] = {
+        {"host worker", service_->worker_busy_since()},
+        {"asset loader", service_->loader_busy_since()},
+        {"kernel launch", batcher_->busy_since()}};
+    for (const auto& [what, since] : busy)
+      if (since != batching::Clock::time_point::max() && now - since > options_.stall_limit)
+        reason = std::string(what) + " busy with one task for " +
+                 std::to_string(std::chrono::duration_cast<std::chrono::seconds>(now - since).count()) + " s";
+    if (reason.empty() == !stuck_) continue;
+    stuck_ = !reason.empty();
+    std::fprintf(stderr, "loomlight-server: %s\n",
+                 stuck_ ? ("NOT_SERVING: " + reason).c_str() : "SERVING again: nothing is stuck");
+    lock.unlock();
+    UpdateServing();
+    lock.lock();
+  }
 }
 
 void LoomlightServer::Shutdown() {
   if (shut_down_) return;
   shut_down_ = true;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    draining_ = true;
+  }
+  wake_.notify_all();
+  if (watchdog_.joinable()) watchdog_.join();
   if (server_) {
-    SetServing(server_.get(), false);
-    // Let in-flight calls finish for up to a second, then cancel them.
-    server_->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(1));
+    UpdateServing();
+    // No new calls from here; in-flight ones may finish within the grace, then gRPC cancels them.
+    server_->Shutdown(std::chrono::system_clock::now() + options_.shutdown_grace);
   }
   if (batcher_) batcher_->Stop();
 }

@@ -3,8 +3,13 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <thread>
 
 #include "server/api/service.h"
 #include "server/batching/batcher.h"
@@ -17,6 +22,14 @@ struct ServerOptions {
   runtime::RuntimeOptions runtime;
   batching::BatcherOptions batcher;
   std::string metrics_address;  // "host:port" for Prometheus' /metrics ("" = none; port 0 picks one)
+  ServiceLimits limits;
+  std::string environment_dir;                 // maps clients may name ("" = none)
+  size_t environment_cache_bytes = size_t{256} << 20;  // decoded maps kept (within the memory budget)
+  size_t grpc_memory_bytes = size_t{512} << 20;        // gRPC's own buffers (its resource quota)
+  // Health reports NOT_SERVING while the host worker, the asset loader or a kernel launch has been busy
+  // with one task for longer than this (stuck), and SERVING again when it recovers.
+  std::chrono::milliseconds stall_limit{20000};
+  std::chrono::milliseconds shutdown_grace{30000};  // in-flight calls may finish for this long on Shutdown
 };
 
 class LoomlightServer {
@@ -26,6 +39,7 @@ class LoomlightServer {
   static std::unique_ptr<LoomlightServer> Start(const ServerOptions& options, std::string* error);
   ~LoomlightServer();
   void Wait() { server_->Wait(); }
+  // Health NOT_SERVING, no new calls; in-flight calls get the shutdown grace to finish, then are cancelled.
   void Shutdown();
   int port() const { return port_; }
   int metrics_port() const { return metrics_->port(); }
@@ -34,12 +48,23 @@ class LoomlightServer {
 
  private:
   LoomlightServer() = default;
+  // Health and the service's gate together: SERVING only when warm, not draining and nothing is stuck.
+  void UpdateServing();
+  void Watch();  // the watchdog thread
+
+  ServerOptions options_;
   std::unique_ptr<runtime::ClRuntime> runtime_;
   std::unique_ptr<batching::Batcher> batcher_;
   std::unique_ptr<Metrics> metrics_;
+  std::unique_ptr<batching::Budget> memory_, long_calls_;
+  std::unique_ptr<assets::EnvironmentMaps> environments_;
   std::unique_ptr<LoomlightService> service_;
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;
+  std::mutex mutex_;  // guards the serving state below and the watchdog's wake-up
+  std::condition_variable wake_;
+  bool warm_ = false, draining_ = false, stuck_ = false;
+  std::thread watchdog_;
   bool shut_down_ = false;
 };
 

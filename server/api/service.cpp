@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "server/api/admission.h"
 #include "server/api/job_status.h"
 #include "server/api/render_rpc.h"
 #include "server/api/tabulate.h"
@@ -48,6 +49,7 @@ struct EvaluateCall {
     std::vector<float> wi, wo, uv;                  // their directions (curtains only)
     bool scale_by_interaction = false;              // a curtain's reflection
   };
+  Admission admission;  // the call's bytes, held until the last part is done
   std::shared_ptr<const MaterialCache::Entry> entry;
   std::vector<Part> parts;
   std::vector<double> f;              // 3 per query
@@ -113,66 +115,112 @@ struct EvaluateCall {
   }
 };
 
-}  // namespace
-
-std::string MaterialCache::Resolve(const v1::Material& material, const models::Registry& registry,
-                                   const std::string& field, Entry* out) {
-  models::ResolvedMaterial resolved;
-  std::string error = models::ResolveMaterial(material, registry, &resolved, field);
-  if (!error.empty()) return error;
-  out->model = resolved.model;
-  out->packed = resolved.model->Pack(resolved.values);
+// Resolves a material and its curtain layer (Material.transmission), naming fields under "material".
+std::string ResolveComposition(const v1::Material& material, const models::Registry& registry,
+                               models::ResolvedMaterial* top, models::ResolvedMaterial* layer) {
+  if (std::string error = models::ResolveMaterial(material, registry, top, "material"); !error.empty()) return error;
   if (!material.has_transmission()) return "";
-  const std::string layer_field = field + ".transmission";
-  if (out->model->transmission())
-    return layer_field + ": model '" + out->model->name() + "' already transmits; add a layer to a reflection model";
+  const std::string layer_field = "material.transmission";
+  if (top->model->transmission())
+    return layer_field + ": model '" + top->model->name() + "' already transmits; add a layer to a reflection model";
   if (material.transmission().has_transmission()) return layer_field + ".transmission: layers do not nest";
-  auto layer = std::make_shared<Entry>();
-  error = Resolve(material.transmission(), registry, layer_field, layer.get());
-  if (!error.empty()) return error;
+  if (std::string error = models::ResolveMaterial(material.transmission(), registry, layer, layer_field); !error.empty())
+    return error;
   if (!layer->model->transmission())
     return layer_field + ": model '" + layer->model->name() + "' has no transmission (use a thin_layer material)";
-  out->transmission = std::move(layer);
   return "";
 }
 
+// The model's name and every parameter's values in the map's (sorted) order, bytes exactly.
+void AppendCanonical(const models::ResolvedMaterial& m, std::string* key) {
+  key->append(m.model->name());
+  key->push_back('\0');
+  for (const auto& [name, values] : m.values) {
+    key->append(name);
+    key->push_back('\0');
+    const uint64_t count = values.size();
+    key->append(reinterpret_cast<const char*>(&count), sizeof count);
+    key->append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(double));
+  }
+}
+
+size_t EntryBytes(const MaterialCache::Entry& e) {
+  return sizeof e + e.packed.data.size() * sizeof(double) + (e.transmission ? EntryBytes(*e.transmission) : 0);
+}
+
+}  // namespace
+
 std::string MaterialCache::Get(const v1::Material& material, const models::Registry& registry,
                                std::shared_ptr<const Entry>* out) {
+  models::ResolvedMaterial top, layer;
+  if (std::string error = ResolveComposition(material, registry, &top, &layer); !error.empty())
+    return error;  // bad materials are not cached: they are cheap to reject again
   std::string key;
-  {
-    google::protobuf::io::StringOutputStream stream(&key);
-    google::protobuf::io::CodedOutputStream coded(&stream);
-    coded.SetSerializationDeterministic(true);
-    material.SerializeToCodedStream(&coded);
+  AppendCanonical(top, &key);
+  if (layer.model) {
+    key.append("\0+layer\0", 8);
+    AppendCanonical(layer, &key);
   }
   {
     std::lock_guard<std::mutex> lock(mutex_);
     auto it = map_.find(key);
     if (it != map_.end()) {
-      order_.splice(order_.begin(), order_, it->second.second);
-      *out = it->second.first;
+      order_.splice(order_.begin(), order_, it->second.order);
+      *out = it->second.entry;
       return "";
     }
   }
   auto entry = std::make_shared<Entry>();
-  std::string error = Resolve(material, registry, "material", entry.get());
-  if (!error.empty()) return error;  // bad materials are not cached: they are cheap to reject again
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (map_.find(key) == map_.end()) {
-    order_.push_front(key);
-    map_[key] = {entry, order_.begin()};
-    if (map_.size() > capacity_) {
-      map_.erase(order_.back());
-      order_.pop_back();
-    }
+  entry->model = top.model;
+  entry->packed = top.model->Pack(top.values);
+  if (layer.model) {
+    auto packed_layer = std::make_shared<Entry>();
+    packed_layer->model = layer.model;
+    packed_layer->packed = layer.model->Pack(layer.values);
+    entry->transmission = std::move(packed_layer);
   }
   *out = entry;
+  // Keys count twice (the map's and the order list's copy).
+  const size_t bytes = 2 * key.size() + EntryBytes(*entry);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (bytes > capacity_bytes_ || map_.count(key)) return "";
+  while (!order_.empty() && bytes_ + bytes > capacity_bytes_) {
+    auto last = map_.find(order_.back());
+    bytes_ -= last->second.bytes;
+    map_.erase(last);
+    order_.pop_back();
+  }
+  order_.push_front(key);
+  map_.emplace(std::move(key), Slot{entry, order_.begin(), bytes});
+  bytes_ += bytes;
   return "";
+}
+
+size_t MaterialCache::bytes() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return bytes_;
+}
+
+size_t MaterialCache::entries() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return map_.size();
+}
+
+LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits& limits)
+    : deps_(deps), materials_(limits.material_cache_bytes) {
+  deps_.materials = &materials_;
+  deps_.worker = &worker_;
+  deps_.loader = &loader_;
+}
+
+grpc::Status LoomlightService::Serving() const {
+  if (serving_) return grpc::Status::OK;
+  return {grpc::StatusCode::UNAVAILABLE, "the server is not serving (starting up or shutting down); retry"};
 }
 
 grpc::ServerUnaryReactor* LoomlightService::Reply(grpc::CallbackServerContext* context, const char* rpc,
                                                   batching::Clock::time_point received, grpc::Status status) {
-  metrics_->Call(rpc, status.error_code(), SecondsSince(received));
+  deps_.metrics->Call(rpc, status.error_code(), SecondsSince(received));
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
   reactor->Finish(std::move(status));
   return reactor;
@@ -209,7 +257,8 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
                                                        const v1::ListModelsRequest*,
                                                        v1::ListModelsResponse* response) {
   const auto received = batching::Clock::now();
-  for (const auto& model : registry_->models()) {
+  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "ListModels", received, s);
+  for (const auto& model : deps_.registry->models()) {
     v1::ModelInfo* info = response->add_models();
     info->set_name(model->name());
     info->set_description(model->description());
@@ -236,6 +285,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
   }
   response->set_max_queries_per_call(kMaxQueriesPerCall);
   response->set_unit_tolerance(kUnitTolerance);
+  for (const std::string& name : deps_.environments->Names()) response->add_environment_maps(name);
   return Reply(context, "ListModels", received, grpc::Status::OK);
 }
 
@@ -243,13 +293,14 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
                                                      const v1::EvaluateRequest* request,
                                                      v1::EvaluateResponse* response) {
   const auto received = batching::Clock::now();
+  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "Evaluate", received, s);
   std::shared_ptr<const MaterialCache::Entry> material;
-  std::string error = materials_.Get(request->material(), *registry_, &material);
+  std::string error = materials_.Get(request->material(), *deps_.registry, &material);
   if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
   if (!v1::Precision_IsValid(request->precision()))
     return Reply(context, "Evaluate", received, Invalid("precision: unknown value " + std::to_string(request->precision())));
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
-  if (fp64 && !has_fp64_)
+  if (fp64 && !deps_.has_fp64)
     return Reply(context, "Evaluate", received, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
   if (request->wi_size() != request->wo_size())
     return Reply(context, "Evaluate", received, Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
@@ -273,6 +324,8 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   }
 
   auto call = std::make_shared<EvaluateCall>();
+  if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission); !s.ok())
+    return Reply(context, "Evaluate", received, s);
   call->entry = material;
   call->f.assign(3 * n, 0.0);
   const MaterialCache::Entry* layer = material->transmission.get();
@@ -315,7 +368,7 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
 
   call->reactor = context->DefaultReactor();
   call->response = response;
-  call->metrics = metrics_;
+  call->metrics = deps_.metrics;
   call->received = received;
   call->fp64 = fp64;
   call->model = material->model->name();
@@ -335,11 +388,12 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     job->done = [call, k](batching::JobResult r) { call->PartDone(k, std::move(r)); };
     if (job->n == 0) {
       call->PartDone(k, batching::JobResult{});  // nothing to launch (e.g. a curtain seen only from one side)
-    } else if (!batcher_->Submit(job)) {
-      batching::JobResult full;
-      full.status = batching::JobStatus::kResourceExhausted;
-      full.message = "evaluation queue is full; retry later";
-      call->PartDone(k, std::move(full));
+    } else if (grpc::Status s = SubmitJob(deps_.batcher, job); !s.ok()) {
+      batching::JobResult refused;
+      refused.status = s.error_code() == grpc::StatusCode::UNAVAILABLE ? batching::JobStatus::kUnavailable
+                                                                      : batching::JobStatus::kResourceExhausted;
+      refused.message = s.error_message();
+      call->PartDone(k, std::move(refused));
     }
   }
   return call->reactor;
@@ -348,17 +402,26 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
 grpc::ServerUnaryReactor* LoomlightService::TextureSlice(grpc::CallbackServerContext* context,
                                                          const v1::TextureSliceRequest* request,
                                                          v1::TextureSliceResponse* response) {
-  return HandleTextureSlice(deps(), context, request, response);
+  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "TextureSlice", batching::Clock::now(), s);
+  return HandleTextureSlice(deps_, context, request, response);
 }
 
 grpc::ServerWriteReactor<v1::TabulateChunk>* LoomlightService::Tabulate(grpc::CallbackServerContext* context,
                                                                         const v1::TabulateRequest* request) {
-  return HandleTabulate(deps(), context, request);
+  if (grpc::Status s = Serving(); !s.ok()) {
+    deps_.metrics->Call("Tabulate", s.error_code(), 0);
+    return new RejectedStream<v1::TabulateChunk>(s);
+  }
+  return HandleTabulate(deps_, context, request);
 }
 
 grpc::ServerWriteReactor<v1::RenderUpdate>* LoomlightService::Render(grpc::CallbackServerContext* context,
                                                                     const v1::RenderRequest* request) {
-  return HandleRender(deps(), context, request);
+  if (grpc::Status s = Serving(); !s.ok()) {
+    deps_.metrics->Call("Render", s.error_code(), 0);
+    return new RejectedStream<v1::RenderUpdate>(s);
+  }
+  return HandleRender(deps_, context, request);
 }
 
 }  // namespace loomlight::api

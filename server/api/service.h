@@ -2,6 +2,7 @@
 // batcher. Nothing reaches a kernel unvalidated.
 #pragma once
 
+#include <atomic>
 #include <list>
 #include <memory>
 #include <mutex>
@@ -10,7 +11,9 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/host_worker.h"
 #include "server/api/metrics.h"
+#include "server/assets/environment_maps.h"
 #include "server/batching/batcher.h"
+#include "server/batching/budget.h"
 #include "server/models/registry.h"
 
 namespace loomlight::api {
@@ -21,10 +24,17 @@ constexpr double kUnitTolerance = 1e-4;                 // | |w| - 1 | accepted 
 constexpr int kMaxMessageBytes = 64 << 20;              // gRPC send/receive limit
 // |u|, |v| accepted, in pattern repeats: at 1024 a float still resolves 1/32 of a cell of a 256-thread repeat.
 constexpr float kMaxTextureCoordinate = 1024.0f;
+// Bytes an Evaluate call holds per query beyond its request: f in double (24), a curtain's transmittance,
+// interaction and split copies (64), the kernel's result (24), the launch's concatenated copy (36) and the
+// response (12), rounded up.
+constexpr size_t kEvaluateBytesPerQuery = 192;
 
-// Resolved and packed materials by their serialized request form, least recently used first out: clients
-// send the same few materials over and over, and resolving a preset (maps of parameter values) and packing
-// it (the tangent curve sampled with cos/sin) costs as much as evaluating a small request.
+// Packed materials by the canonical form of their resolved parameters (model name and every parameter's
+// values, in order), least recently used first out, bounded in bytes: clients send the same few materials
+// over and over, and packing one (the tangent curve sampled with cos/sin, a thin layer's adding-doubling
+// tables) costs far more than resolving it. The key is built from the resolved values, never from the
+// request's bytes, so unknown fields, parameter order or a preset spelled out value by value cannot make
+// new entries.
 class MaterialCache {
  public:
   struct Entry {
@@ -32,19 +42,31 @@ class MaterialCache {
     models::PackedMaterial packed;
     std::shared_ptr<const Entry> transmission;  // the curtain's layer (Material.transmission), or null
   };
-  explicit MaterialCache(size_t capacity) : capacity_(capacity) {}
-  // The cached entry, or one resolved now ("" on success, else the INVALID_ARGUMENT message).
+  explicit MaterialCache(size_t capacity_bytes) : capacity_bytes_(capacity_bytes) {}
+  // The cached entry, or one packed now ("" on success, else the INVALID_ARGUMENT message).
   std::string Get(const v1::Material& material, const models::Registry& registry,
                   std::shared_ptr<const Entry>* out);
+  size_t bytes() const;
+  size_t entries() const;
 
  private:
-  // Resolves and packs one material (and its layer), naming fields under `field`.
-  static std::string Resolve(const v1::Material& material, const models::Registry& registry,
-                             const std::string& field, Entry* out);
-  size_t capacity_;
-  std::mutex mutex_;
-  std::list<std::string> order_;  // most recently used first
-  std::unordered_map<std::string, std::pair<std::shared_ptr<const Entry>, std::list<std::string>::iterator>> map_;
+  struct Slot {
+    std::shared_ptr<const Entry> entry;
+    std::list<std::string>::iterator order;
+    size_t bytes;
+  };
+  const size_t capacity_bytes_;
+  mutable std::mutex mutex_;
+  std::list<std::string> order_;  // keys, most recently used first
+  std::unordered_map<std::string, Slot> map_;
+  size_t bytes_ = 0;
+};
+
+// Limits of one service (README "Limits and admission").
+struct ServiceLimits {
+  size_t memory_budget_bytes = size_t{2} << 30;  // every call's buffers, cached environment maps
+  size_t max_long_running_calls = 16;            // TextureSlice, Tabulate and Render calls at once
+  size_t material_cache_bytes = size_t{64} << 20;
 };
 
 // What the streaming and long-running RPC handlers (TextureSlice, Tabulate, Render) need from the service;
@@ -56,6 +78,10 @@ struct ServiceDeps {
   Metrics* metrics = nullptr;
   MaterialCache* materials = nullptr;
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
+  HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
+  batching::Budget* memory = nullptr;      // bytes every call reserves (server/api/admission.h)
+  batching::Budget* long_calls = nullptr;  // slots of long-running calls
+  assets::EnvironmentMaps* environments = nullptr;
 };
 
 // Finishes a streaming call that never started streaming (a rejected request).
@@ -68,8 +94,16 @@ class RejectedStream final : public grpc::ServerWriteReactor<Message> {
 
 class LoomlightService final : public v1::Loomlight::CallbackService {
  public:
-  LoomlightService(const models::Registry* registry, batching::Batcher* batcher, bool has_fp64, Metrics* metrics)
-      : registry_(registry), batcher_(batcher), has_fp64_(has_fp64), metrics_(metrics) {}
+  // `deps` names the registry, batcher, metrics, budgets and environment maps (owned by the caller, outliving
+  // the service); the service adds its material cache and workers.
+  LoomlightService(const ServiceDeps& deps, const ServiceLimits& limits);
+
+  // Until set, every RPC is answered UNAVAILABLE (health reports NOT_SERVING meanwhile too).
+  void SetServing(bool serving) { serving_ = serving; }
+  // The workers' current task start (max when idle), for the health watchdog.
+  batching::Clock::time_point worker_busy_since() const { return worker_.busy_since(); }
+  batching::Clock::time_point loader_busy_since() const { return loader_.busy_since(); }
+  const MaterialCache& materials() const { return materials_; }
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
                                        v1::ListModelsResponse* response) override;
@@ -86,18 +120,19 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
                                                     const v1::RenderRequest* request) override;
 
  private:
-  ServiceDeps deps() { return {registry_, batcher_, has_fp64_, metrics_, &materials_, &worker_}; }
   // Finishes a call on the default reactor and records it.
   grpc::ServerUnaryReactor* Reply(grpc::CallbackServerContext* context, const char* rpc,
                                   batching::Clock::time_point received, grpc::Status status);
+  // UNAVAILABLE while the service is not serving (warming up or draining), else OK.
+  grpc::Status Serving() const;
 
-  const models::Registry* registry_;
-  batching::Batcher* batcher_;
-  bool has_fp64_;
-  Metrics* metrics_;
-  MaterialCache materials_{1024};
-  // Declared last, so destroyed first: its remaining tasks may still use the members above.
+  ServiceDeps deps_;
+  MaterialCache materials_;
+  std::atomic<bool> serving_{false};
+  // Declared last, so destroyed first (the loader before the worker it posts to): their remaining tasks may
+  // still use the members above.
   HostWorker worker_;
+  HostWorker loader_;
 };
 
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or

@@ -6,6 +6,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include "server/api/admission.h"
 #include "server/api/job_status.h"
 #include "server/api/service.h"
 
@@ -30,11 +31,22 @@ class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
 
  protected:
   WorkerStreamCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, const char* rpc,
-                   batching::Clock::time_point received)
-      : deps_(deps), context_(context), rpc_(rpc), received_(received), deadline_(CallDeadline(context, received)) {}
+                   batching::Clock::time_point received, Admission admission)
+      : deps_(deps), context_(context), rpc_(rpc), received_(received), deadline_(CallDeadline(context, received)),
+        admission_(std::move(admission)) {}
 
   // Advances the call; runs on the host worker only.
   virtual void Pump() = 0;
+
+  // Records why the work should stop, if it should: the deadline passed (checked first: gRPC also cancels a
+  // call whose deadline passed, and that is counted as DEADLINE_EXCEEDED), or the client cancelled or vanished.
+  void NoticeStop() {
+    if (!status_.ok()) return;
+    if (batching::Clock::now() >= deadline_)
+      status_ = {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
+    else if (stream_broken_ || context_->IsCancelled())
+      status_ = {grpc::StatusCode::CANCELLED, "call cancelled"};
+  }
 
   void FinishCall(const grpc::Status& status) {
     finished_ = true;
@@ -48,6 +60,8 @@ class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
   const char* const rpc_;
   const batching::Clock::time_point received_;
   const batching::Clock::time_point deadline_;
+  Admission admission_;  // the call's slot and bytes, released with the call
+  grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
   bool write_in_flight_ = false;
   bool stream_broken_ = false;  // a write failed
   bool finished_ = false;

@@ -172,8 +172,9 @@ class CsvEncoder final : public TableEncoder {
 class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
  public:
   TabulateCall(const TabulateDeps& deps, grpc::CallbackServerContext* context, const v1::TabulateRequest& request,
-               std::shared_ptr<const MaterialCache::Entry> material, TabulationGrid grid, Clock::time_point received)
-      : WorkerStreamCall(deps, context, kRpc, received),
+               std::shared_ptr<const MaterialCache::Entry> material, TabulationGrid grid, Admission admission,
+               Clock::time_point received)
+      : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)),
         material_(std::move(material)),
         grid_(std::move(grid)),
         fp64_(request.precision() == v1::PRECISION_FP64),
@@ -206,15 +207,6 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
       FinishCall(grpc::Status::OK);
   }
 
-  // Records why the work should stop: the client cancelled or vanished, or the deadline passed.
-  void NoticeStop() {
-    if (!status_.ok()) return;
-    if (stream_broken_ || context_->IsCancelled())
-      status_ = {grpc::StatusCode::CANCELLED, "call cancelled"};
-    else if (Clock::now() >= deadline_)
-      status_ = {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
-  }
-
   size_t Unsent() const { return pending_.size() - pending_begin_; }
 
   void MaybeSubmit() {
@@ -227,11 +219,12 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
 
     auto job = NewJob(material_->model, material_->packed, fp64_, deadline_, context_, wi_.data(), wo_.data(),
                       nullptr, count);
+    job->priority = batching::Priority::kBulk;
     job->done = [this, first, count](batching::JobResult result) {
       deps_.worker->Post([this, first, count, result = std::move(result)] { OnJobDone(first, count, result); });
     };
-    if (!deps_.batcher->Submit(std::move(job))) {
-      status_ = {grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"};
+    if (grpc::Status s = SubmitJob(deps_.batcher, std::move(job)); !s.ok()) {
+      status_ = s;
       return;
     }
     job_in_flight_ = true;
@@ -328,7 +321,6 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
   double kernel_seconds_ = 0;
   bool job_in_flight_ = false, sent_first_ = false;
   bool complete_ = false;       // every cell encoded, the file's end in pending_
-  grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
 };
 
 }  // namespace
@@ -482,6 +474,16 @@ std::unique_ptr<TableEncoder> MakeTableEncoder(v1::TableFormat format, const Tab
   }
 }
 
+size_t TabulateBytes(const v1::TabulateRequest& request, const TabulationGrid& grid) {
+  const uint64_t chunk = std::min<uint64_t>(kTabulateChunkQueries, grid.queries());
+  // The job in flight: directions (24 per query), the kernel's result and its copy (48), cell means (24);
+  // unsent bytes up to the flow-control bound plus one chunk message; what the encoder keeps to the end.
+  size_t bytes = chunk * 96 + kMaxBufferedBytes + 2 * kMaxChunkDataBytes;
+  if (request.format() == v1::TABLE_FORMAT_EXR) bytes += grid.cells() * 24;   // the image, then its encoding
+  if (request.format() == v1::TABLE_FORMAT_MERL) bytes += grid.cells() * 16;  // G and B until the end
+  return bytes;
+}
+
 std::string ValidateTabulateRequest(const v1::TabulateRequest& request, const TabulationGrid& grid) {
   if (!v1::Precision_IsValid(request.precision()))
     return "precision: unknown value " + std::to_string(request.precision());
@@ -515,7 +517,11 @@ grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& 
   if (std::string error = ValidateTabulateRequest(*request, grid); !error.empty()) return reject(Invalid(error));
   if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
     return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
-  return new TabulateCall(deps, context, *request, std::move(material), std::move(grid), received);
+  Admission admission;
+  if (grpc::Status s = Admit(deps.memory, deps.long_calls, TabulateBytes(*request, grid), &admission); !s.ok())
+    return reject(s);
+  return new TabulateCall(deps, context, *request, std::move(material), std::move(grid), std::move(admission),
+                          received);
 }
 
 }  // namespace loomlight::api

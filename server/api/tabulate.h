@@ -26,8 +26,9 @@ constexpr uint64_t kMaxExrCells = uint64_t{1} << 22;         // the EXR is encod
 constexpr uint64_t kMaxCsvCells = uint64_t{1} << 16;         // text: about 50 bytes per cell
 constexpr uint32_t kDefaultAnisotropicPhiHSamples = 8;       // MERL grid, anisotropic models, phi_h_samples 0
 constexpr double kMaxAngleDeg = 360.0;                       // |phi_plane_deg|; incidence angles within 180
-// Queries per batcher job (whole cells): no larger than one Evaluate call.
-constexpr size_t kTabulateChunkQueries = kMaxQueriesPerCall;
+// Queries per batcher job (whole cells): a quarter of one Evaluate call, as a render's chunks, so that an
+// interactive call queued behind a bulk launch waits for a short one (server/batching/batcher.h).
+constexpr size_t kTabulateChunkQueries = kMaxQueriesPerCall / 4;
 constexpr size_t kMaxChunkDataBytes = size_t{4} << 20;       // per TabulateChunk, well under kMaxMessageBytes
 // Encoded bytes waiting to be sent beyond which no further chunk is evaluated (flow control: a slow reader
 // holds the evaluation, not the server's memory).
@@ -96,6 +97,9 @@ std::unique_ptr<TableEncoder> MakeTableEncoder(v1::TableFormat format, const Tab
 // Checks the fields that do not depend on the model (format, precision, grid shape, limits are checked
 // with the grid). Returns "" or "field: reason".
 std::string ValidateTabulateRequest(const v1::TabulateRequest& request, const TabulationGrid& grid);
+
+// The bytes a validated request's call holds (its admission).
+size_t TabulateBytes(const v1::TabulateRequest& request, const TabulationGrid& grid);
 
 // Serves one call: validation errors finish at once; otherwise the reactor streams the table.
 grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& deps,

@@ -5,6 +5,7 @@
 #include <memory>
 #include <vector>
 
+#include "server/api/admission.h"
 #include "server/api/job_status.h"
 #include "server/imaging/image_encode.h"
 
@@ -98,8 +99,9 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
  public:
   SliceCall(const TextureSliceDeps& deps, grpc::CallbackServerContext* context,
             const v1::TextureSliceRequest& request, v1::TextureSliceResponse* response,
-            std::shared_ptr<const MaterialCache::Entry> material, Clock::time_point received)
+            std::shared_ptr<const MaterialCache::Entry> material, Admission admission, Clock::time_point received)
       : deps_(deps),
+        admission_(std::move(admission)),
         context_(context),
         reactor_(context->DefaultReactor()),
         response_(response),
@@ -180,8 +182,8 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     job->done = [self = shared_from_this(), index](batching::JobResult result) {
       self->deps_.worker->Post([self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
     };
-    if (!deps_.batcher->Submit(std::move(job))) {
-      Finish({grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"});
+    if (grpc::Status s = SubmitJob(deps_.batcher, std::move(job)); !s.ok()) {
+      Finish(s);
       return false;
     }
     return true;
@@ -268,6 +270,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   }
 
   const TextureSliceDeps deps_;
+  Admission admission_;  // the call's slot and bytes, released with the call
   grpc::CallbackServerContext* const context_;
   grpc::ServerUnaryReactor* const reactor_;
   v1::TextureSliceResponse* const response_;
@@ -304,6 +307,14 @@ grpc::ServerUnaryReactor* Reject(const TextureSliceDeps& deps, grpc::CallbackSer
 std::array<double, 2> PixelSampleOffset(uint64_t pixel, uint32_t sample, uint32_t samples) {
   if (samples <= 1) return {0.5, 0.5};
   return RotatedR2(sample, PixelRotation(pixel));
+}
+
+size_t SliceBytes(const v1::TextureSliceRequest& request) {
+  const uint64_t queries = uint64_t{request.width()} * request.height() * SamplesPerPixel(request);
+  const uint64_t chunk = std::min<uint64_t>(kSliceChunkQueries, queries);
+  // Per chunk query: wi and wo (24), both chunks' uv (16), the kernel's result and its copy (48); per pixel:
+  // the linear image (12) and its encoding (at most 16).
+  return chunk * 88 + uint64_t{request.width()} * request.height() * 28;
 }
 
 std::string ValidateTextureSliceRequest(const v1::TextureSliceRequest& request) {
@@ -349,7 +360,11 @@ grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc:
   if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
     return Reject(deps, context, received, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
 
-  auto call = std::make_shared<SliceCall>(deps, context, *request, response, std::move(material), received);
+  Admission admission;
+  if (grpc::Status s = Admit(deps.memory, deps.long_calls, SliceBytes(*request), &admission); !s.ok())
+    return Reject(deps, context, received, s);
+  auto call = std::make_shared<SliceCall>(deps, context, *request, response, std::move(material),
+                                          std::move(admission), received);
   grpc::ServerUnaryReactor* reactor = call->reactor();
   call->Start();  // on failure it has finished the call itself
   return reactor;

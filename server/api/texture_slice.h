@@ -33,6 +33,8 @@ using TextureSliceDeps = ServiceDeps;
 // but neighbouring pixels do not share one point set.
 std::array<double, 2> PixelSampleOffset(uint64_t pixel, uint32_t sample, uint32_t samples);
 
+// The bytes a validated request's call holds (its admission).
+size_t SliceBytes(const v1::TextureSliceRequest& request);
 // Checks every field except the material and device support. Returns "" or "field: reason".
 std::string ValidateTextureSliceRequest(const v1::TextureSliceRequest& request);
 

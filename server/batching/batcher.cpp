@@ -1,5 +1,7 @@
 #include "server/batching/batcher.h"
 
+#include <algorithm>
+
 namespace loomlight::batching {
 namespace {
 
@@ -24,18 +26,19 @@ Batcher::Batcher(runtime::ClRuntime* runtime, BatcherOptions options)
 
 Batcher::~Batcher() { Stop(); }
 
-bool Batcher::Submit(std::shared_ptr<Job> job) {
+Batcher::Refusal Batcher::Submit(std::shared_ptr<Job> job) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (stopping_) return false;
+    if (stopping_) return Refusal::kStopping;
+    const int p = static_cast<int>(job->priority);
     // An empty queue always accepts, so one request up to the per-call limit can always run.
-    if (!queue_.empty() && queued_queries_ + job->n > options_.max_queued_queries) return false;
+    if (!queue_[p].empty() && queued_queries_[p] + job->n > options_.max_queued_queries) return Refusal::kQueueFull;
     job->enqueued = Clock::now();
-    queued_queries_ += job->n;
-    queue_.push_back(std::move(job));
+    queued_queries_[p] += job->n;
+    queue_[p].push_back(std::move(job));
   }
   wake_.notify_one();
-  return true;
+  return Refusal::kNone;
 }
 
 void Batcher::Stop() {
@@ -44,8 +47,11 @@ void Batcher::Stop() {
     std::lock_guard<std::mutex> lock(mutex_);
     if (stopping_) return;
     stopping_ = true;
-    left.swap(queue_);
-    queued_queries_ = 0;
+    for (int p = 0; p < 2; ++p) {
+      left.insert(left.end(), queue_[p].begin(), queue_[p].end());
+      queue_[p].clear();
+      queued_queries_[p] = 0;
+    }
   }
   wake_.notify_all();
   if (worker_.joinable()) worker_.join();
@@ -55,7 +61,9 @@ void Batcher::Stop() {
 std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
   std::vector<std::shared_ptr<Job>> batch;
   size_t queries = 0;
-  for (auto it = queue_.begin(); it != queue_.end();) {
+  const int p = queue_[0].empty() ? 1 : 0;
+  std::deque<std::shared_ptr<Job>>& queue = queue_[p];
+  for (auto it = queue.begin(); it != queue.end();) {
     const bool first = batch.empty();
     if (!first && (!options_.coalesce || !SameKernel(*batch.front(), **it) ||
                    queries + (*it)->n > options_.max_batch_queries)) {
@@ -63,9 +71,9 @@ std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
       continue;
     }
     queries += (*it)->n;
-    queued_queries_ -= (*it)->n;
+    queued_queries_[p] -= (*it)->n;
     batch.push_back(std::move(*it));
-    it = queue_.erase(it);
+    it = queue.erase(it);
     if (!options_.coalesce) break;
   }
   return batch;
@@ -74,12 +82,15 @@ std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
 void Batcher::Run() {
   std::unique_lock<std::mutex> lock(mutex_);
   while (true) {
-    wake_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+    wake_.wait(lock, [this] { return stopping_ || !Empty(); });
     if (stopping_) return;
     if (options_.max_queue_delay.count() > 0) {
       // Let more requests join until the oldest has waited max_queue_delay or a batch is full.
-      const Clock::time_point until = queue_.front()->enqueued + options_.max_queue_delay;
-      wake_.wait_until(lock, until, [this] { return stopping_ || queued_queries_ >= options_.max_batch_queries; });
+      const std::deque<std::shared_ptr<Job>>& first = queue_[0].empty() ? queue_[1] : queue_[0];
+      const Clock::time_point until = first.front()->enqueued + options_.max_queue_delay;
+      wake_.wait_until(lock, until, [this] {
+        return stopping_ || queued_queries_[0] + queued_queries_[1] >= options_.max_batch_queries;
+      });
       if (stopping_) return;
     }
     std::vector<std::shared_ptr<Job>> batch = TakeBatch();
@@ -145,8 +156,9 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   std::vector<double> f;
   std::string error;
   const Clock::time_point start = Clock::now();
-  const bool ok = runtime_->Run(args, &f, &error);
-  const double kernel_seconds = Seconds(Clock::now() - start);
+  double kernel_seconds = 0;
+  const bool ok = live.front()->priority == Priority::kBulk ? RunBulk(args, &f, &error, &kernel_seconds)
+                                                            : RunKernel(args, &f, &error, &kernel_seconds);
 
   size_t offset = 0;
   for (auto& job : live) {
@@ -163,6 +175,57 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
     r.batch_requests = live.size();
     offset += job->n;
     job->done(std::move(r));
+  }
+}
+
+bool Batcher::RunKernel(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error,
+                        double* seconds) {
+  const Clock::time_point start = Clock::now();
+  busy_since_ = start;
+  const bool ok = runtime_->Run(args, f, error);
+  busy_since_ = Clock::time_point::max();
+  *seconds += Seconds(Clock::now() - start);
+  return ok;
+}
+
+bool Batcher::RunBulk(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error, double* seconds) {
+  f->clear();
+  f->reserve(3 * args.n);
+  std::vector<int> index;
+  std::vector<double> part;
+  size_t slice = kFirstBulkSlice;
+  for (size_t first = 0; first < args.n;) {
+    const size_t m = std::min(slice, args.n - first);
+    index.assign(args.material_index->begin() + first, args.material_index->begin() + first + m);
+    runtime::LaunchArgs a = args;
+    a.material_index = &index;
+    a.wi = args.wi + 3 * first;
+    a.wo = args.wo + 3 * first;
+    a.uv = args.uv ? args.uv + 2 * first : nullptr;
+    a.n = m;
+    double t = 0;
+    if (!RunKernel(a, &part, error, &t)) return false;
+    *seconds += t;
+    f->insert(f->end(), part.begin(), part.end());
+    first += m;
+    // The next slice takes about bulk_slice at the rate just measured.
+    const double rate = m / std::max(t, 1e-6);
+    slice = std::clamp<size_t>(static_cast<size_t>(rate * Seconds(options_.bulk_slice)), kMinBulkSlice,
+                               std::max(kMinBulkSlice, options_.max_batch_queries));
+    if (first < args.n) LaunchWaitingInteractive();
+  }
+  return true;
+}
+
+void Batcher::LaunchWaitingInteractive() {
+  while (true) {
+    std::vector<std::shared_ptr<Job>> batch;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (stopping_ || queue_[static_cast<int>(Priority::kInteractive)].empty()) return;
+      batch = TakeBatch();  // interactive: its queue is not empty
+    }
+    Launch(std::move(batch));
   }
 }
 

@@ -2,8 +2,13 @@
 // with or without uv)
 // are coalesced into one launch, each query carrying its material's index. One launch is in flight at a
 // time (the CPU device already uses every core for one launch); whatever queues meanwhile forms the next.
+// Two priorities: interactive work (Evaluate, TextureSlice) always launches before bulk work (Tabulate,
+// Render chunks), and a bulk launch runs in slices of about `bulk_slice` with waiting interactive work
+// launched between them, so an interactive call waits for one slice, not for a whole bulk launch; each
+// priority has its own queue limit, so bulk work can never fill the queue interactive calls need.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <deque>
@@ -32,8 +37,11 @@ struct JobResult {
   size_t batch_queries = 0, batch_requests = 0;
 };
 
+enum class Priority { kInteractive = 0, kBulk = 1 };
+
 // One request's work. wi, wo (and uv) point at the caller's data, which must outlive the completion callback.
 struct Job {
+  Priority priority = Priority::kInteractive;
   const models::Model* model = nullptr;
   bool fp64 = false;
   models::PackedMaterial material;
@@ -50,32 +58,47 @@ struct Job {
 struct BatcherOptions {
   size_t max_batch_queries = size_t{1} << 20;     // a larger single request still runs, alone
   std::chrono::microseconds max_queue_delay{0};   // 0: batch whatever queued while the last launch ran
-  size_t max_queued_queries = size_t{1} << 23;    // beyond this Submit refuses (RESOURCE_EXHAUSTED)
+  size_t max_queued_queries = size_t{1} << 23;    // per priority; beyond this Submit refuses (RESOURCE_EXHAUSTED)
   bool coalesce = true;                           // false: one request per launch (for comparison)
+  std::chrono::milliseconds bulk_slice{50};       // a bulk launch's slices take about this long each
 };
 
 class Batcher {
  public:
   Batcher(runtime::ClRuntime* runtime, BatcherOptions options);
   ~Batcher();
-  // Queues the job; false when the queue is full (the job is not taken and done is not called).
-  bool Submit(std::shared_ptr<Job> job);
+  enum class Refusal { kNone, kQueueFull, kStopping };
+  // Queues the job; otherwise says why not (the job is not taken and done is not called).
+  Refusal Submit(std::shared_ptr<Job> job);
+  // When the kernel running now started; max when none runs (the health watchdog reads it).
+  Clock::time_point busy_since() const { return busy_since_.load(); }
   // Stops after failing every queued job with kUnavailable.
   void Stop();
   const BatcherOptions& options() const { return options_; }
 
  private:
   void Run();
-  // Takes the next batch from the queue (lock held): the oldest job and every queued job with its key.
+  bool Empty() const { return queue_[0].empty() && queue_[1].empty(); }
+  // Takes the next batch (lock held): the oldest job of the highest priority waiting, and every queued job
+  // of that priority with its key.
   std::vector<std::shared_ptr<Job>> TakeBatch();
   void Launch(std::vector<std::shared_ptr<Job>> batch);
+  // One kernel run, marked busy for the watchdog; adds its time to *seconds.
+  bool RunKernel(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error, double* seconds);
+  // A bulk launch in slices, waiting interactive batches launched between them.
+  bool RunBulk(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error, double* seconds);
+  void LaunchWaitingInteractive();
+
+  static constexpr size_t kFirstBulkSlice = size_t{1} << 14;  // then sized from the measured rate
+  static constexpr size_t kMinBulkSlice = size_t{1} << 12;
 
   runtime::ClRuntime* runtime_;
   BatcherOptions options_;
   std::mutex mutex_;
   std::condition_variable wake_;
-  std::deque<std::shared_ptr<Job>> queue_;
-  size_t queued_queries_ = 0;
+  std::deque<std::shared_ptr<Job>> queue_[2];  // by Priority
+  size_t queued_queries_[2] = {0, 0};
+  std::atomic<Clock::time_point> busy_since_{Clock::time_point::max()};
   bool stopping_ = false;
   std::thread worker_;
 };

@@ -1,5 +1,6 @@
 #include "server/render/environment.h"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
@@ -43,7 +44,7 @@ Environment Environment::Builtin() {
     Environment env;
     env.width_ = 512;
     env.height_ = 256;
-    env.rgb_.resize(size_t{3} * env.width_ * env.height_);
+    std::vector<float> rgb(size_t{3} * env.width_ * env.height_);
     constexpr int kSuper = 4;  // 4 x 4 samples per pixel: the small sun gets smooth pixel values
     for (int y = 0; y < env.height_; ++y)
       for (int x = 0; x < env.width_; ++x) {
@@ -52,39 +53,82 @@ Environment Environment::Builtin() {
           for (int i = 0; i < kSuper; ++i)
             sum = sum + SkyRadiance(env.FromImage(x + (i + 0.5) / kSuper, y + (j + 0.5) / kSuper));
         for (int c = 0; c < 3; ++c)
-          env.rgb_[3 * (size_t(y) * env.width_ + x) + c] = static_cast<float>(sum[c] / (kSuper * kSuper));
+          rgb[3 * (size_t(y) * env.width_ + x) + c] = static_cast<float>(sum[c] / (kSuper * kSuper));
       }
-    env.BuildDistribution();
+    env.map_ = BuildMap(env.width_, env.height_, std::move(rgb));
     return env;
   }();
   return prototype;
 }
 
-std::string Environment::Load(const std::string& path, Environment* out) {
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) return "cannot read '" + path + "': " + OIIO::geterror();
-  const OIIO::ImageSpec& spec = in->spec();
-  if (spec.width < 2 || spec.height < 1 || spec.nchannels < 1)
-    return "'" + path + "' is not an image of at least 2 x 1 pixels";
-  if (static_cast<long long>(spec.width) * spec.height > kMaxPixels)
-    return "'" + path + "' has " + std::to_string(static_cast<long long>(spec.width) * spec.height) +
-           " pixels, more than the limit of " + std::to_string(kMaxPixels);
+size_t Environment::DecodeBytes(long long width, long long height, int channels) {
+  const size_t pixels = size_t(width) * size_t(height);
+  return pixels * (3 * sizeof(float) + sizeof(double) + std::min(channels, 3) * sizeof(float)) +
+         size_t(height) * 2 * sizeof(double);
+}
+
+std::string Environment::Decode(std::string_view bytes, const std::function<bool()>& stop,
+                                const std::function<bool(size_t)>& admit, Environment* out) {
+  if (bytes.size() > kMaxEncodedBytes)
+    return std::to_string(bytes.size()) + " bytes exceed the limit of " + std::to_string(kMaxEncodedBytes);
+  // The format comes from the magic number: a name or extension never picks a reader (OpenImageIO's
+  // pseudo-formats such as "null" would invent an image of any size).
+  const char* format = nullptr;
+  if (bytes.size() >= 4 && bytes.substr(0, 4) == std::string_view("\x76\x2f\x31\x01", 4))
+    format = "openexr";
+  else if (bytes.substr(0, 2) == "#?")
+    format = "hdr";
+  else
+    return "not an OpenEXR or Radiance HDR file";
+  OIIO::Filesystem::IOMemReader memory(bytes.data(), bytes.size());
+  auto in = OIIO::ImageInput::create(format);
+  if (!in || !in->supports("ioproxy") || !in->set_ioproxy(&memory))
+    return std::string("no in-memory ") + format + " reader in OpenImageIO";
+  OIIO::ImageSpec spec;
+  if (!in->open("environment map", spec))
+    return std::string("cannot decode the ") + format + " header: " + in->geterror();
+  // Checked from the header, before any pixel is decoded.
+  if (spec.width < 2 || spec.height < 1 || spec.nchannels < 1 || spec.depth != 1)
+    return "not a 2D image of at least 2 x 1 pixels";
+  const long long pixels = static_cast<long long>(spec.width) * spec.height;
+  if (pixels > kMaxPixels)
+    return std::to_string(spec.width) + " x " + std::to_string(spec.height) + " pixels exceed the limit of " +
+           std::to_string(kMaxPixels);
   const int channels = std::min(spec.nchannels, 3);
-  std::vector<float> pixels(size_t(spec.width) * spec.height * channels);
-  if (!in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, pixels.data()))
-    return "cannot decode '" + path + "': " + in->geterror();
+  if (admit && !admit(DecodeBytes(spec.width, spec.height, channels)))
+    return "the server's memory budget cannot take the decoded map now; retry later";
+  std::vector<float> pixels_in(size_t(pixels) * channels);
+  struct Progress {
+    const std::function<bool()>* stop;
+    bool stopped = false;
+  } progress{&stop};
+  // OpenImageIO polls this between scanlines or tiles; true abandons the read.
+  const OIIO::ProgressCallback poll = [](void* data, float) {
+    auto* p = static_cast<Progress*>(data);
+    if (*p->stop && (*p->stop)()) p->stopped = true;
+    return p->stopped;
+  };
+  const bool ok = in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, pixels_in.data(), OIIO::AutoStride,
+                                 OIIO::AutoStride, OIIO::AutoStride, poll, &progress);
+  if (progress.stopped) return "stopped while decoding (deadline or cancellation)";
+  if (!ok) return std::string("cannot decode the ") + format + " pixels: " + in->geterror();
+  std::vector<float> rgb(size_t{3} * pixels);
+  for (size_t p = 0; p < size_t(pixels); ++p)
+    for (int c = 0; c < 3; ++c) {
+      const float v = pixels_in[p * channels + std::min(c, channels - 1)];  // grey maps replicate their channel
+      rgb[3 * p + c] = std::isfinite(v) && v > 0 ? v : 0.0f;
+    }
   Environment env;
   env.width_ = spec.width;
   env.height_ = spec.height;
-  env.rgb_.resize(size_t{3} * env.width_ * env.height_);
-  for (size_t p = 0; p < size_t(env.width_) * env.height_; ++p)
-    for (int c = 0; c < 3; ++c) {
-      const float v = pixels[p * channels + std::min(c, channels - 1)];  // grey maps replicate their channel
-      env.rgb_[3 * p + c] = std::isfinite(v) && v > 0 ? v : 0.0f;
-    }
-  env.BuildDistribution();
+  env.map_ = BuildMap(env.width_, env.height_, std::move(rgb));
   *out = std::move(env);
   return "";
+}
+
+size_t Environment::bytes() const {
+  if (!map_) return 0;
+  return map_->rgb.size() * sizeof(float) + (map_->row_cdf.size() + map_->column_cdf.size()) * sizeof(double);
 }
 
 void Environment::SetTransform(double intensity, double rotation_deg) {
@@ -110,7 +154,7 @@ Vec3 Environment::FromImage(double x, double y) const {
 }
 
 Rgb Environment::Pixel(int x, int y) const {
-  const float* p = &rgb_[3 * (size_t(y) * width_ + x)];
+  const float* p = &map_->rgb[3 * (size_t(y) * width_ + x)];
   return intensity_ * Rgb{p[0], p[1], p[2]};
 }
 
@@ -120,29 +164,36 @@ Rgb Environment::Radiance(Vec3 direction) const {
   return Pixel(static_cast<int>(x), static_cast<int>(y));
 }
 
-void Environment::BuildDistribution() {
-  row_cdf_.assign(height_ + 1, 0.0);
-  column_cdf_.assign(size_t(height_) * (width_ + 1), 0.0);
-  for (int y = 0; y < height_; ++y) {
-    const double sin_theta = std::sin((y + 0.5) / height_ * kPi);
-    double* cdf = &column_cdf_[size_t(y) * (width_ + 1)];
-    for (int x = 0; x < width_; ++x) {
-      const float* p = &rgb_[3 * (size_t(y) * width_ + x)];
+std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int height, std::vector<float> rgb) {
+  auto map = std::make_shared<Map>();
+  map->width = width;
+  map->height = height;
+  map->rgb = std::move(rgb);
+  map->row_cdf.assign(height + 1, 0.0);
+  map->column_cdf.assign(size_t(height) * (width + 1), 0.0);
+  for (int y = 0; y < height; ++y) {
+    const double sin_theta = std::sin((y + 0.5) / height * kPi);
+    double* cdf = &map->column_cdf[size_t(y) * (width + 1)];
+    for (int x = 0; x < width; ++x) {
+      const float* p = &map->rgb[3 * (size_t(y) * width + x)];
       cdf[x + 1] = cdf[x] + Luminance({p[0], p[1], p[2]}) * sin_theta;
     }
-    row_cdf_[y + 1] = row_cdf_[y] + cdf[width_];
+    map->row_cdf[y + 1] = map->row_cdf[y] + cdf[width];
   }
-  total_weight_ = row_cdf_[height_];
+  map->total_weight = map->row_cdf[height];
+  return map;
 }
 
 Environment::Sample Environment::Draw(double u1, double u2, double u3) const {
   Sample sample;
   if (black() || intensity_ <= 0) return sample;
   // The row, then the column within it; the remainder of u2 places the point inside the pixel.
-  const double row_target = u1 * total_weight_;
-  const int y = std::clamp(int(std::upper_bound(row_cdf_.begin(), row_cdf_.end(), row_target) - row_cdf_.begin()) - 1,
-                           0, height_ - 1);
-  const double* cdf = &column_cdf_[size_t(y) * (width_ + 1)];
+  const Map& map = *map_;
+  const double row_target = u1 * map.total_weight;
+  const int y = std::clamp(
+      int(std::upper_bound(map.row_cdf.begin(), map.row_cdf.end(), row_target) - map.row_cdf.begin()) - 1, 0,
+      height_ - 1);
+  const double* cdf = &map.column_cdf[size_t(y) * (width_ + 1)];
   const double row_weight = cdf[width_];
   if (row_weight <= 0) return sample;
   const double column_target = u2 * row_weight;
@@ -155,7 +206,7 @@ Environment::Sample Environment::Draw(double u1, double u2, double u3) const {
   const double sin_theta = std::sin(py / height_ * kPi);
   if (sin_theta < 1e-6) return sample;  // at a pole: the density is singular, drop the sample
   // pdf(pixel) W H over the pixel's (u, v) area, divided by the Jacobian 2 pi^2 sin(theta) to steradians.
-  const double pdf = pixel_weight / total_weight_ * width_ * height_ / (2 * kPi * kPi * sin_theta);
+  const double pdf = pixel_weight / map.total_weight * width_ * height_ / (2 * kPi * kPi * sin_theta);
   sample.radiance_over_pdf = (1.0 / pdf) * Pixel(x, y);
   return sample;
 }

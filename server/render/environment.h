@@ -1,10 +1,14 @@
-// Environment lighting: an equirectangular (latitude-longitude) radiance map, read with OpenImageIO (EXR, HDR)
-// or the built-in procedural sky, importance sampled by a 2D CDF over its pixels (luminance x sin theta).
+// Environment lighting: an equirectangular (latitude-longitude) radiance map, decoded with OpenImageIO from
+// bytes in memory (OpenEXR or Radiance HDR, told apart by their magic numbers, never by a name) or the built-in
+// procedural sky, importance sampled by a 2D CDF over its pixels (luminance x sin theta).
 // Convention: column 0.5 W looks along -z, +x at 0.75 W; row 0 is straight up (+y). The map is piecewise
 // constant per pixel, so lookups and the sampling density agree exactly.
 #pragma once
 
+#include <functional>
+#include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "server/render/vec.h"
@@ -13,14 +17,24 @@ namespace loomlight::render {
 
 class Environment {
  public:
-  // Documented limits for files: at most kMaxPixels pixels; non-finite or negative values read as 0.
-  static constexpr long long kMaxPixels = 1LL << 26;
+  // Documented limits (README "Limits"): encoded bytes, and pixels checked from the header before any pixel
+  // is decoded (a small file can declare a huge image). Non-finite or negative values read as 0.
+  static constexpr size_t kMaxEncodedBytes = size_t{32} << 20;
+  static constexpr long long kMaxPixels = 1LL << 22;  // e.g. 2048 x 2048 or 4096 x 1024: ~80 MB decoded
 
   // A blue sky with a warm sun (2.5 degrees across, elevation 35 degrees, behind the default cameras on the
   // left) over a dim ground: lights every scene with a soft key light and a sky fill, no file needed.
   static Environment Builtin();
-  // Reads `path`. Returns "" or the reason it cannot be used.
-  static std::string Load(const std::string& path, Environment* out);
+  // Decodes an OpenEXR or Radiance HDR file's bytes. `stop` is polled while decoding (a passed deadline or a
+  // cancelled call); returning true abandons the work. `admit` (may be empty) is asked for the bytes the
+  // decoded map and its decoding will hold, once the header is read and before any pixel is; false
+  // abandons the work. Returns "" or the reason the bytes cannot be used, which never quotes them.
+  static std::string Decode(std::string_view bytes, const std::function<bool()>& stop,
+                            const std::function<bool(size_t)>& admit, Environment* out);
+  // The bytes Decode asks `admit` for: the map, its sampling tables and the decoder's buffer.
+  static size_t DecodeBytes(long long width, long long height, int channels);
+  // Decoded bytes held (shared between copies of this environment).
+  size_t bytes() const;
 
   // Radiance scale and a rotation about +y (degrees) applied to the map.
   void SetTransform(double intensity, double rotation_deg);
@@ -33,21 +47,28 @@ class Environment {
   };
   // Draws a direction with probability proportional to the map's luminance (u1, u2, u3 uniform in [0, 1)).
   Sample Draw(double u1, double u2, double u3) const;
-  bool black() const { return total_weight_ <= 0; }
+  bool black() const { return !map_ || map_->total_weight <= 0; }
 
  private:
-  void BuildDistribution();
   // Pixel coordinates (continuous) of a world direction, and back.
   void ToImage(Vec3 direction, double* x, double* y) const;
   Vec3 FromImage(double x, double y) const;
   Rgb Pixel(int x, int y) const;
 
-  int width_ = 0, height_ = 0;
-  std::vector<float> rgb_;
+  // The decoded map and its sampling tables: immutable once built, so copies (each with its own transform)
+  // share one, and a cached map costs its bytes once however many renders use it.
+  struct Map {
+    int width = 0, height = 0;
+    std::vector<float> rgb;
+    std::vector<double> row_cdf;     // height + 1 values
+    std::vector<double> column_cdf;  // height x (width + 1)
+    double total_weight = 0;
+  };
+  static std::shared_ptr<const Map> BuildMap(int width, int height, std::vector<float> rgb);
+
+  std::shared_ptr<const Map> map_;
+  int width_ = 0, height_ = 0;  // of map_ (ToImage and FromImage need them before the map exists)
   double intensity_ = 1, cos_rotation_ = 1, sin_rotation_ = 0;
-  std::vector<double> row_cdf_;     // height + 1 values
-  std::vector<double> column_cdf_;  // height x (width + 1)
-  double total_weight_ = 0;
 };
 
 }  // namespace loomlight::render

@@ -1,0 +1,580 @@
+// What a hostile or careless client tried against a real server on loopback (issue 10), each reproducer
+// kept: environment maps named by path, URL, device, FIFO, pseudo-format or decompression bomb are refused
+// within a second while other clients' work completes, and nothing outside the operator's directory can be
+// probed; the material cache and unread streams keep the server's memory under a bound; bulk work never
+// makes interactive calls wait long; health and SIGTERM behave as an operator expects.
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <future>
+#include <sstream>
+#include <thread>
+
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/server.h"
+#include "server/models/accuracy.h"
+#include "tests/testing.h"
+
+namespace loomlight {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+namespace fs = std::filesystem;
+
+double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// A Radiance HDR header declaring `width` x `height` pixels and no pixel data: a few dozen bytes that
+// would decode to width x height x 12 bytes.
+std::string HdrBomb(int width, int height) {
+  return "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y " + std::to_string(height) + " +X " + std::to_string(width) + "\n";
+}
+
+v1::RenderRequest SmallRender() {
+  v1::RenderRequest r;
+  r.mutable_material()->set_preset("linen_plain");
+  r.set_scene(v1::SCENE_SPHERE);
+  r.set_width(16);
+  r.set_height(16);
+  r.set_samples_per_pixel(1);
+  r.set_format(v1::RENDER_FORMAT_EXR);
+  return r;
+}
+
+struct Rendered {
+  grpc::Status status;
+  std::string image;
+};
+
+Rendered Render(v1::Loomlight::Stub& stub, const v1::RenderRequest& request, double timeout_s = 60) {
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() +
+                       std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000)));
+  auto reader = stub.Render(&context, request);
+  Rendered out;
+  v1::RenderUpdate update;
+  while (reader->Read(&update))
+    if (!update.image().empty()) out.image = update.image();
+  out.status = reader->Finish();
+  return out;
+}
+
+grpc::Status Health(const std::string& address, grpc::health::v1::HealthCheckResponse::ServingStatus* status) {
+  auto stub = grpc::health::v1::Health::NewStub(grpc::CreateChannel(address, grpc::InsecureChannelCredentials()));
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  grpc::health::v1::HealthCheckRequest request;
+  grpc::health::v1::HealthCheckResponse response;
+  const grpc::Status s = stub->Check(&context, request, &response);
+  *status = response.status();
+  return s;
+}
+
+// A texture slice of about a million queries: other clients' work that must complete meanwhile.
+std::future<grpc::Status> StartSlice(v1::Loomlight::Stub& stub) {
+  return std::async(std::launch::async, [&stub] {
+    v1::TextureSliceRequest r;
+    r.mutable_material()->set_preset("cotton_twill");
+    for (float v : {0.0f, 0.6f, 0.8f}) r.add_wi(v);
+    for (float v : {0.0f, -0.6f, 0.8f}) r.add_wo(v);
+    r.set_width(512);
+    r.set_height(512);
+    r.set_samples_per_pixel(4);
+    r.set_format(v1::IMAGE_FORMAT_RAW);
+    grpc::ClientContext context;
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    v1::TextureSliceResponse response;
+    return stub.TextureSlice(&context, r, &response);
+  });
+}
+
+// The operator's environment directory, with a good map and every kind of bad entry.
+class EnvironmentDir {
+ public:
+  EnvironmentDir() : dir_(::testing::TempDir() + "/loomlight_env_" + std::to_string(getpid())) {
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    fs::copy_file(std::string(LOOMLIGHT_SOURCE_DIR) + "/deploy/environments/studio.hdr", dir_ + "/sky.hdr");
+    mkfifo((dir_ + "/fifo.hdr").c_str(), 0600);
+    {  // 1 GB, sparse: costs no disk, would cost a gigabyte to read
+      const int fd = ::open((dir_ + "/huge.exr").c_str(), O_CREAT | O_WRONLY, 0600);
+      EXPECT_EQ(ftruncate(fd, off_t{1} << 30), 0);
+      ::close(fd);
+    }
+    std::ofstream(dir_ + "/bomb.hdr", std::ios::binary) << HdrBomb(100000, 100000);
+    fs::create_symlink("/etc/passwd", dir_ + "/link.hdr");
+    fs::create_symlink("/dev/zero", dir_ + "/zero.hdr");
+    fs::create_symlink(dir_ + "/sky.hdr", dir_ + "/alias.hdr");
+  }
+  ~EnvironmentDir() { fs::remove_all(dir_); }
+  const std::string& path() const { return dir_; }
+
+ private:
+  std::string dir_;
+};
+
+class HostileEnvironment : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new EnvironmentDir;
+    server_ = new testing::ServerProcess({"--environment-dir", dir_->path()});
+  }
+  static void TearDownTestSuite() {
+    delete server_;
+    delete dir_;
+  }
+  static EnvironmentDir* dir_;
+  static testing::ServerProcess* server_;
+};
+EnvironmentDir* HostileEnvironment::dir_ = nullptr;
+testing::ServerProcess* HostileEnvironment::server_ = nullptr;
+
+TEST_F(HostileEnvironment, BadMapsAreRefusedWithinASecondWhileASliceCompletes) {
+  ASSERT_GT(server_->port(), 0);
+  auto stub = testing::Connect(server_->port());
+  // A loopback listener: a URL handed to an image library would connect to it.
+  const int listener = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(bind(listener, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+  ASSERT_EQ(listen(listener, 4), 0);
+  socklen_t len = sizeof addr;
+  getsockname(listener, reinterpret_cast<sockaddr*>(&addr), &len);
+  const std::string url = "http://127.0.0.1:" + std::to_string(ntohs(addr.sin_port)) + "/sky.exr";
+
+  auto slice = StartSlice(*stub);
+  struct Case {
+    const char* what;
+    std::function<void(v1::RenderEnvironment*)> set;
+    const char* field;
+  };
+  const std::string pseudo = "x.null?RES=8192x8192&CHANNELS=3&TYPE=float";
+  const Case cases[] = {
+      {"absolute path", [](auto* e) { e->set_path("/etc/passwd"); }, "environment.path"},
+      {"pseudo-format path", [&](auto* e) { e->set_path(pseudo); }, "environment.path"},
+      {"URL path", [&](auto* e) { e->set_path(url); }, "environment.path"},
+      {"absolute name", [](auto* e) { e->set_name("/etc/shadow"); }, "environment.name"},
+      {"dot-dot name", [](auto* e) { e->set_name("../sky.hdr"); }, "environment.name"},
+      {"dot-dot", [](auto* e) { e->set_name(".."); }, "environment.name"},
+      {"device", [](auto* e) { e->set_name("/dev/zero"); }, "environment.name"},
+      {"pseudo-format name", [&](auto* e) { e->set_name(pseudo); }, "environment.name"},
+      {"URL name", [&](auto* e) { e->set_name(url); }, "environment.name"},
+      {"FIFO in the directory", [](auto* e) { e->set_name("fifo.hdr"); }, "environment.name"},
+      {"1 GB sparse file", [](auto* e) { e->set_name("huge.exr"); }, "environment.name"},
+      {"link out of the directory", [](auto* e) { e->set_name("link.hdr"); }, "environment.name"},
+      {"link to /dev/zero", [](auto* e) { e->set_name("zero.hdr"); }, "environment.name"},
+      {"header of 10^10 pixels", [](auto* e) { e->set_name("bomb.hdr"); }, "environment.name"},
+      {"bytes of no format", [](auto* e) { e->set_data(std::string(1 << 20, '\0')); }, "environment.data"},
+      {"sent header of 10^10 pixels", [](auto* e) { e->set_data(HdrBomb(100000, 100000)); }, "environment.data"},
+      {"name and bytes", [](auto* e) { e->set_name("sky.hdr"); e->set_data(HdrBomb(4, 4)); }, "environment.data"},
+  };
+  for (const Case& c : cases) {
+    v1::RenderRequest r = SmallRender();
+    c.set(r.mutable_environment());
+    const auto start = Clock::now();
+    const Rendered result = Render(*stub, r);
+    const double seconds = SecondsSince(start);
+    EXPECT_EQ(result.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.what << ": " << result.status.error_message();
+    EXPECT_EQ(result.status.error_message().rfind(std::string(c.field) + ":", 0), 0u)
+        << c.what << ": " << result.status.error_message();
+    EXPECT_LT(seconds, 1.0) << c.what;
+    std::printf("  %-28s refused in %.3f s: %s\n", c.what, seconds, result.status.error_message().c_str());
+  }
+  EXPECT_TRUE(slice.get().ok());
+  sockaddr_in peer{};
+  socklen_t peer_len = sizeof peer;
+  EXPECT_LT(accept(listener, reinterpret_cast<sockaddr*>(&peer), &peer_len), 0) << "the server connected to " << url;
+  close(listener);
+  EXPECT_TRUE(server_->running());
+}
+
+TEST_F(HostileEnvironment, NothingOutsideTheDirectoryCanBeProbed) {
+  auto stub = testing::Connect(server_->port());
+  const auto message = [&](const std::function<void(v1::RenderEnvironment*)>& set) {
+    v1::RenderRequest r = SmallRender();
+    set(r.mutable_environment());
+    return Render(*stub, r).status.error_message();
+  };
+  // An existing and a missing file outside: the same answer, which names neither.
+  const std::string shadow = message([](auto* e) { e->set_name("/etc/shadow"); });
+  EXPECT_EQ(shadow, message([](auto* e) { e->set_name("/etc/shadowX"); }));
+  EXPECT_EQ(shadow.find("shadow"), std::string::npos) << shadow;
+  EXPECT_EQ(message([](auto* e) { e->set_path("/etc/shadow"); }), message([](auto* e) { e->set_path("/etc/shadowX"); }));
+  // Inside: a link to an existing file reads exactly as a name that is not there.
+  std::string link = message([](auto* e) { e->set_name("link.hdr"); });
+  std::string missing = message([](auto* e) { e->set_name("nope.hdr"); });
+  link.replace(link.find("link.hdr"), 8, "NAME");
+  missing.replace(missing.find("nope.hdr"), 8, "NAME");
+  EXPECT_EQ(link, missing);
+}
+
+TEST_F(HostileEnvironment, NamedAndSentMapsLightTheSceneAlike) {
+  auto stub = testing::Connect(server_->port());
+  v1::ListModelsResponse models;
+  {
+    grpc::ClientContext context;
+    ASSERT_TRUE(stub->ListModels(&context, v1::ListModelsRequest(), &models).ok());
+  }
+  // Listed: regular files within the byte cap; not the FIFO, the links or the 1 GB file.
+  const std::vector<std::string> listed(models.environment_maps().begin(), models.environment_maps().end());
+  EXPECT_EQ(listed, (std::vector<std::string>{"bomb.hdr", "sky.hdr"}));
+
+  v1::RenderRequest named = SmallRender();
+  named.set_seed(7);
+  named.mutable_environment()->set_name("sky.hdr");
+  v1::RenderRequest sent = named;
+  sent.mutable_environment()->clear_name();
+  sent.mutable_environment()->set_data(ReadFile(dir_->path() + "/sky.hdr"));
+  v1::RenderRequest builtin = named;
+  builtin.mutable_environment()->clear_name();
+  const Rendered a = Render(*stub, named), b = Render(*stub, sent), c = Render(*stub, builtin);
+  ASSERT_TRUE(a.status.ok()) << a.status.error_message();
+  ASSERT_TRUE(b.status.ok()) << b.status.error_message();
+  ASSERT_TRUE(c.status.ok()) << c.status.error_message();
+  EXPECT_EQ(a.image, b.image);  // the same map, by name (cached after the first use) or by bytes
+  EXPECT_NE(a.image, c.image);  // and not the built-in sky
+  EXPECT_EQ(Render(*stub, named).image, a.image);  // from the cache: the same bytes
+}
+
+TEST(ShippedEnvironments, WorkOutOfTheBox) {
+  testing::ServerProcess server({"--environment-dir", std::string(LOOMLIGHT_SOURCE_DIR) + "/deploy/environments"});
+  auto stub = testing::Connect(server.port());
+  for (const char* name : {"studio.hdr", "sunset.exr"}) {
+    v1::RenderRequest r = SmallRender();
+    r.set_width(96);
+    r.set_height(64);
+    r.set_samples_per_pixel(4);
+    r.set_scene(v1::SCENE_CYLINDERS);
+    r.set_format(v1::RENDER_FORMAT_PNG);
+    r.mutable_environment()->set_name(name);
+    const Rendered result = Render(*stub, r);
+    ASSERT_TRUE(result.status.ok()) << name << ": " << result.status.error_message();
+    const testing::DecodedImage image = testing::DecodeImage(result.image, "x.png");
+    double mean = 0;
+    for (float v : image.pixels) mean += v / image.pixels.size();
+    EXPECT_GT(mean, 0.05) << name;  // lit, not black
+    std::ofstream(::testing::TempDir() + "/shipped_" + std::string(name) + ".png", std::ios::binary) << result.image;
+  }
+}
+
+// ---- Memory: the cache and unread streams (D4, D5) ----
+
+TEST(BoundedMemory, UnknownFieldsNeverReachTheMaterialCache) {
+  testing::ServerProcess server;
+  auto stub = testing::Connect(server.port());
+  const accuracy::Pairs pairs = accuracy::RandomPairs(1, 1);
+  const auto evaluate = [&](int variant) {
+    v1::EvaluateRequest r;
+    r.mutable_material()->set_preset("velvet");
+    // A different 4 MiB unknown field each time (field 999 is not in Material).
+    r.mutable_material()->GetReflection()->MutableUnknownFields(r.mutable_material())->AddLengthDelimited(
+        999, std::string(4 << 20, static_cast<char>('a' + variant % 26)) + std::to_string(variant));
+    r.mutable_wi()->Add(pairs.wi.begin(), pairs.wi.end());
+    r.mutable_wo()->Add(pairs.wo.begin(), pairs.wo.end());
+    grpc::ClientContext context;
+    v1::EvaluateResponse response;
+    return stub->Evaluate(&context, r, &response);
+  };
+  ASSERT_TRUE(evaluate(0).ok());
+  const size_t before = server.RssBytes();
+  for (int i = 1; i <= 300; ++i) ASSERT_TRUE(evaluate(i).ok()) << i;
+  const size_t after = server.RssBytes();
+  std::printf("  RSS %.0f MB before, %.0f MB after 300 materials with distinct 4 MiB unknown fields\n", before / 1e6,
+              after / 1e6);
+  EXPECT_LT(after, before + (size_t{256} << 20));  // was +2.45 GB, never released
+}
+
+TEST(BoundedMemory, MaterialCacheIsBoundedInBytesAndKeyedOnTheResolvedMaterial) {
+  api::MaterialCache cache(size_t{256} << 10);
+  const models::Registry& registry = models::Registry::Global();
+  std::shared_ptr<const api::MaterialCache::Entry> entry;
+  // The preset, the same values given explicitly, and unknown fields: one entry.
+  v1::Material preset;
+  preset.set_preset("velvet");
+  ASSERT_EQ(cache.Get(preset, registry, &entry), "");
+  v1::Material spelled;
+  spelled.set_model("microcylinder");
+  const models::PresetSpec* spec = nullptr;
+  const models::Model* model = registry.FindPreset("velvet", &spec);
+  for (const auto& [name, values] : model->PresetValues(*spec)) {
+    v1::Param* p = spelled.add_params();
+    p->set_name(name);
+    p->mutable_values()->Add(values.begin(), values.end());
+  }
+  ASSERT_EQ(cache.Get(spelled, registry, &entry), "");
+  preset.GetReflection()->MutableUnknownFields(&preset)->AddVarint(777, 1);
+  ASSERT_EQ(cache.Get(preset, registry, &entry), "");
+  EXPECT_EQ(cache.entries(), 1u);
+  // Thousands of distinct materials stay within the bytes.
+  for (int i = 0; i < 3000; ++i) {
+    v1::Material m;
+    m.set_preset("velvet");
+    v1::Param* p = m.add_params();
+    p->set_name("tangent_samples");
+    p->add_values(1 + i % 256);
+    v1::Param* q = m.add_params();
+    q->set_name("eta");
+    q->add_values(1.2 + i * 1e-4);
+    ASSERT_EQ(cache.Get(m, registry, &entry), "");
+    ASSERT_LE(cache.bytes(), size_t{256} << 10);
+  }
+  EXPECT_LT(cache.entries(), 3000u);
+  EXPECT_GT(cache.entries(), 10u);
+}
+
+v1::TabulateRequest BigTable() {
+  v1::TabulateRequest r;
+  r.mutable_material()->set_preset("velvet");
+  v1::AnisotropicGrid* g = r.mutable_anisotropic();
+  g->set_theta_i_count(64);
+  g->set_phi_i_count(64);
+  g->set_theta_o_count(64);
+  g->set_phi_o_count(128);  // 33.5 M cells: 400 MB of RAW output
+  r.set_format(v1::TABLE_FORMAT_RAW);
+  return r;
+}
+
+// p50 and p99 of sequential 64-query Evaluate calls while `keep_going`.
+std::pair<double, double> EvaluateLatency(v1::Loomlight::Stub& stub, int calls, int* failures) {
+  std::vector<double> seconds;
+  const accuracy::Pairs pairs = accuracy::RandomPairs(64, 3);
+  for (int i = 0; i < calls; ++i) {
+    v1::EvaluateRequest r;
+    r.mutable_material()->set_preset("linen_plain");
+    r.mutable_wi()->Add(pairs.wi.begin(), pairs.wi.end());
+    r.mutable_wo()->Add(pairs.wo.begin(), pairs.wo.end());
+    grpc::ClientContext context;
+    v1::EvaluateResponse response;
+    const auto start = Clock::now();
+    if (!stub.Evaluate(&context, r, &response).ok()) ++*failures;
+    seconds.push_back(SecondsSince(start));
+  }
+  std::sort(seconds.begin(), seconds.end());
+  return {seconds[seconds.size() / 2], seconds[std::min(seconds.size() - 1, seconds.size() * 99 / 100)]};
+}
+
+TEST(BoundedMemory, UnreadStreamsAreAdmittedUpToTheLimitAndHoldLittle) {
+  testing::ServerProcess server;
+  auto stub = testing::Connect(server.port());
+  const size_t before = server.RssBytes();
+  struct Stream {
+    grpc::ClientContext context;
+    std::unique_ptr<grpc::ClientReader<v1::TabulateChunk>> reader;
+  };
+  std::vector<std::unique_ptr<Stream>> streams;
+  for (int i = 0; i < 120; ++i) {
+    auto s = std::make_unique<Stream>();
+    s->reader = stub->Tabulate(&s->context, BigTable());
+    streams.push_back(std::move(s));
+  }
+  std::this_thread::sleep_for(std::chrono::seconds(8));  // the admitted ones fill their buffers and stall
+  const size_t loaded = server.RssBytes();
+  int failures = 0;
+  const auto [p50, p99] = EvaluateLatency(*stub, 50, &failures);
+  // Read one message of each: the refused ones end at once with RESOURCE_EXHAUSTED.
+  int refused = 0, admitted = 0;
+  for (auto& s : streams) {
+    v1::TabulateChunk chunk;
+    if (s->reader->Read(&chunk)) {
+      ++admitted;
+      s->context.TryCancel();
+    } else {
+      const grpc::Status status = s->reader->Finish();
+      EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << status.error_message();
+      ++refused;
+    }
+  }
+  std::printf("  120 unread 33.5M-cell tabulations: %d admitted, %d refused; RSS %.0f MB -> %.0f MB; "
+              "Evaluate (64 queries) p50 %.1f ms, p99 %.1f ms, %d failed\n",
+              admitted, refused, before / 1e6, loaded / 1e6, p50 * 1e3, p99 * 1e3, failures);
+  EXPECT_EQ(admitted, 16);  // --max-long-calls' default
+  EXPECT_EQ(refused, 104);
+  EXPECT_LT(loaded, before + (size_t{1} << 30));  // was 4.3 GB for 120 streams
+  EXPECT_EQ(failures, 0);
+  EXPECT_LT(p99, 1.0);
+  for (auto& s : streams) s->context.TryCancel();
+  streams.clear();
+}
+
+TEST(BoundedMemory, InteractiveCallsGoAheadOfBulkWork) {
+  testing::ServerProcess server;
+  auto stub = testing::Connect(server.port());
+  int idle_failures = 0;
+  const auto idle = EvaluateLatency(*stub, 30, &idle_failures);
+  // Eight tabulations read as fast as they come: the device is never idle.
+  std::atomic<bool> stop{false};
+  std::vector<std::thread> readers;
+  std::atomic<uint64_t> bytes{0};
+  std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
+  for (int i = 0; i < 8; ++i) contexts.push_back(std::make_unique<grpc::ClientContext>());
+  for (int i = 0; i < 8; ++i)
+    readers.emplace_back([&, i] {
+      auto reader = stub->Tabulate(contexts[i].get(), BigTable());
+      v1::TabulateChunk chunk;
+      while (!stop && reader->Read(&chunk)) bytes += chunk.data().size();
+      contexts[i]->TryCancel();
+      reader->Finish();
+    });
+  std::this_thread::sleep_for(std::chrono::seconds(2));
+  int failures = 0;
+  const auto [p50, p99] = EvaluateLatency(*stub, 50, &failures);
+  stop = true;
+  for (auto& c : contexts) c->TryCancel();
+  for (auto& t : readers) t.join();
+  std::printf("  Evaluate (64 queries) idle p50 %.1f ms p99 %.1f ms; beside 8 busy tabulations (%.0f MB streamed) "
+              "p50 %.1f ms p99 %.1f ms\n",
+              idle.first * 1e3, idle.second * 1e3, bytes / 1e6, p50 * 1e3, p99 * 1e3);
+  EXPECT_GT(bytes.load(), 0u);
+  EXPECT_EQ(failures, 0);
+  EXPECT_LT(p99, 1.0);  // waits for at most the one bulk launch running
+}
+
+// ---- Health and shutdown (D2, D6) ----
+
+TEST(Shutdown, SigtermDrainsALongTabulation) {
+  testing::ServerProcess server({"--shutdown-grace", "60"});
+  auto stub = testing::Connect(server.port());
+  v1::TabulateRequest r;
+  r.mutable_material()->set_preset("velvet");
+  r.mutable_merl()->set_phi_h_samples(4);  // 5.8 M queries: seconds of work
+  r.set_format(v1::TABLE_FORMAT_RAW);
+  grpc::ClientContext context;
+  auto reader = stub->Tabulate(&context, r);
+  v1::TabulateChunk chunk;
+  ASSERT_TRUE(reader->Read(&chunk));
+  uint64_t bytes = chunk.data().size(), total = chunk.cells_total(), done = chunk.cells_done();
+  ASSERT_LT(done, total);
+  kill(server.pid(), SIGTERM);
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  // Draining: health says NOT_SERVING and no new call is taken.
+  grpc::health::v1::HealthCheckResponse::ServingStatus health;
+  const grpc::Status h = Health(server.address(), &health);
+  EXPECT_TRUE(!h.ok() || health == grpc::health::v1::HealthCheckResponse::NOT_SERVING);
+  {
+    grpc::ClientContext c;
+    v1::ListModelsResponse models;
+    c.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(2));
+    EXPECT_FALSE(stub->ListModels(&c, v1::ListModelsRequest(), &models).ok());
+  }
+  while (reader->Read(&chunk)) {
+    bytes += chunk.data().size();
+    done = chunk.cells_done();
+  }
+  const grpc::Status status = reader->Finish();
+  EXPECT_TRUE(status.ok()) << status.error_message();
+  EXPECT_EQ(done, total);
+  EXPECT_EQ(bytes, 40 + total * 12);  // the RAW header and every cell
+  EXPECT_EQ(server.Terminate(std::chrono::seconds(10)), 0);
+}
+
+TEST(Shutdown, GraceRunsOutThenCallsAreCancelledAndTheProcessExits) {
+  testing::ServerProcess server({"--shutdown-grace", "1"});
+  auto stub = testing::Connect(server.port());
+  grpc::ClientContext context;
+  auto reader = stub->Tabulate(&context, BigTable());
+  v1::TabulateChunk chunk;
+  ASSERT_TRUE(reader->Read(&chunk));
+  const auto start = Clock::now();
+  kill(server.pid(), SIGTERM);
+  while (reader->Read(&chunk)) {
+  }
+  const grpc::Status status = reader->Finish();
+  EXPECT_FALSE(status.ok());
+  EXPECT_EQ(server.Terminate(std::chrono::seconds(10)), 0);
+  const double seconds = SecondsSince(start);
+  std::printf("  grace 1 s: stream ended with %d (%s); process exited after %.2f s\n", status.error_code(),
+              status.error_message().c_str(), seconds);
+  EXPECT_LT(seconds, 6.0);
+}
+
+TEST(Health, NotServingWhileALaunchIsStuckAndServingAfter) {
+  testing::ServerProcess server({"--stall-seconds", "1"});
+  auto stub = testing::Connect(server.port());
+  // One launch of 2^20 velvet queries at 256 tangent samples in double: several seconds on one launch.
+  v1::EvaluateRequest r;
+  r.mutable_material()->set_preset("velvet");
+  v1::Param* t = r.mutable_material()->add_params();
+  t->set_name("tangent_samples");
+  t->add_values(256);
+  r.set_precision(v1::PRECISION_FP64);
+  const accuracy::Pairs pairs = accuracy::RandomPairs(size_t{1} << 20, 5);
+  r.mutable_wi()->Add(pairs.wi.begin(), pairs.wi.end());
+  r.mutable_wo()->Add(pairs.wo.begin(), pairs.wo.end());
+  auto call = std::async(std::launch::async, [&] {
+    grpc::ClientContext context;
+    v1::EvaluateResponse response;
+    return stub->Evaluate(&context, r, &response);
+  });
+  bool saw_not_serving = false, refused_meanwhile = false;
+  while (call.wait_for(std::chrono::milliseconds(100)) != std::future_status::ready) {
+    grpc::health::v1::HealthCheckResponse::ServingStatus health;
+    if (Health(server.address(), &health).ok() && health == grpc::health::v1::HealthCheckResponse::NOT_SERVING &&
+        !saw_not_serving) {
+      saw_not_serving = true;
+      grpc::ClientContext c;
+      v1::ListModelsResponse models;
+      refused_meanwhile = stub->ListModels(&c, v1::ListModelsRequest(), &models).error_code() ==
+                          grpc::StatusCode::UNAVAILABLE;
+    }
+  }
+  const auto finished = Clock::now();
+  EXPECT_TRUE(call.get().ok());
+  EXPECT_TRUE(saw_not_serving);
+  EXPECT_TRUE(refused_meanwhile);
+  grpc::health::v1::HealthCheckResponse::ServingStatus health = grpc::health::v1::HealthCheckResponse::UNKNOWN;
+  while (SecondsSince(finished) < 3 &&
+         (!Health(server.address(), &health).ok() || health != grpc::health::v1::HealthCheckResponse::SERVING))
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(health, grpc::health::v1::HealthCheckResponse::SERVING);
+}
+
+// ---- Metrics: a passed deadline is a DEADLINE_EXCEEDED ----
+
+TEST(Metrics, AStreamWhoseDeadlinePassedCountsAsDeadlineExceeded) {
+  api::ServerOptions options;
+  options.address = "127.0.0.1:0";
+  options.metrics_address = "127.0.0.1:0";
+  std::string error;
+  auto server = api::LoomlightServer::Start(options, &error);
+  ASSERT_NE(server, nullptr) << error;
+  auto stub = testing::Connect(server->port());
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(500));
+  auto reader = stub->Tabulate(&context, BigTable());
+  v1::TabulateChunk chunk;
+  while (reader->Read(&chunk)) {
+  }
+  EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  std::string text;
+  for (int i = 0; i < 50 && text.find("rpc=\"Tabulate\"") == std::string::npos; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    text = testing::HttpGet(server->metrics_port(), "/metrics");
+  }
+  EXPECT_NE(text.find("loomlight_calls_total{code=\"DEADLINE_EXCEEDED\",rpc=\"Tabulate\"} 1"), std::string::npos)
+      << text;
+  EXPECT_EQ(text.find("loomlight_calls_total{code=\"CANCELLED\",rpc=\"Tabulate\"}"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace loomlight

@@ -58,9 +58,17 @@ int main(int argc, char** argv) {
       }
       return n;
     };
-    auto mebibytes = [&]() -> size_t {
+    auto positive = [&]() -> unsigned long long {
       const unsigned long long n = number();
-      if (n == 0 || n > (1ull << 24)) {
+      if (n == 0) {
+        std::fprintf(stderr, "error: %s must be at least 1\n", arg.c_str());
+        std::exit(2);
+      }
+      return n;
+    };
+    auto mebibytes = [&]() -> size_t {
+      const unsigned long long n = positive();
+      if (n > (1ull << 24)) {
         std::fprintf(stderr, "error: %s takes 1..16777216 MiB\n", arg.c_str());
         std::exit(2);
       }
@@ -78,11 +86,11 @@ int main(int argc, char** argv) {
     else if (arg == "--metrics-address") options.metrics_address = value();
     else if (arg == "--environment-dir") options.environment_dir = value();
     else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
-    else if (arg == "--max-long-calls") options.limits.max_long_running_calls = number();
+    else if (arg == "--max-long-calls") options.limits.max_long_running_calls = positive();
     else if (arg == "--material-cache-mb") options.limits.material_cache_bytes = mebibytes();
     else if (arg == "--environment-cache-mb") options.environment_cache_bytes = mebibytes();
     else if (arg == "--grpc-memory-mb") options.grpc_memory_bytes = mebibytes();
-    else if (arg == "--stall-seconds") options.stall_limit = std::chrono::seconds(number());
+    else if (arg == "--stall-seconds") options.stall_limit = std::chrono::seconds(positive());
     else if (arg == "--shutdown-grace") options.shutdown_grace = std::chrono::seconds(number());
     else if (arg == "--help" || arg == "-h") { Usage(); return 0; }
     else { std::fprintf(stderr, "error: unknown option '%s'\n", arg.c_str()); Usage(); return 2; }

@@ -460,10 +460,11 @@ TEST_F(TabulateTest, BadFieldsAndOverLimitGridsAreNamed) {
   EXPECT_EQ(server_->metrics().tabulated_cells(), before);
 }
 
-// A server shut down with tabulations streaming neither crashes nor hangs.
+// A server shut down with tabulations streaming neither crashes nor hangs (a short grace: they are cancelled).
 TEST(TabulateShutdown, ServerShutsDownWithTabulationsInFlight) {
   api::ServerOptions options;
   options.address = "127.0.0.1:0";
+  options.shutdown_grace = std::chrono::milliseconds(200);
   std::string error;
   auto server = api::LoomlightServer::Start(options, &error);
   ASSERT_NE(server, nullptr) << error;

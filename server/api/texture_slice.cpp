@@ -251,14 +251,15 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     Finish(grpc::Status::OK);
   }
 
-  // False (and the call finished) once the client went away or the deadline passed: no further work.
+  // False (and the call finished) once the client went away or the deadline passed: no further work. The
+  // deadline is checked first: gRPC also cancels a call whose deadline passed, and that is a DEADLINE_EXCEEDED.
   bool StillWanted() {
-    if (context_->IsCancelled()) {
-      Finish({grpc::StatusCode::CANCELLED, "call cancelled"});
-      return false;
-    }
     if (Clock::now() >= deadline_) {
       Finish({grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"});
+      return false;
+    }
+    if (context_->IsCancelled()) {
+      Finish({grpc::StatusCode::CANCELLED, "call cancelled"});
       return false;
     }
     return true;

@@ -574,6 +574,10 @@ TEST(Metrics, AStreamWhoseDeadlinePassedCountsAsDeadlineExceeded) {
   EXPECT_NE(text.find("loomlight_calls_total{code=\"DEADLINE_EXCEEDED\",rpc=\"Tabulate\"} 1"), std::string::npos)
       << text;
   EXPECT_EQ(text.find("loomlight_calls_total{code=\"CANCELLED\",rpc=\"Tabulate\"}"), std::string::npos);
+  // The admission resources are exported too (sampled by the watchdog).
+  EXPECT_NE(text.find("loomlight_resource{name=\"long_calls_limit\"} 16"), std::string::npos) << text;
+  EXPECT_NE(text.find("loomlight_resource{name=\"memory_bytes_limit\"} 2147483648"), std::string::npos);
+  EXPECT_NE(text.find("loomlight_resource{name=\"serving\"} 1"), std::string::npos);
 }
 
 }  // namespace

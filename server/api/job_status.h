@@ -19,6 +19,18 @@ inline batching::Clock::time_point CallDeadline(grpc::CallbackServerContext* con
   return received + (deadline - std::chrono::system_clock::now());
 }
 
+// Why a call's work should stop now, or OK: its deadline passed, or the client cancelled or went away
+// (`stream_broken`: a write failed). A cancellation that arrives within batching::kDeadlineSlack of the
+// deadline is the deadline (the client's own timer cancels first), so it is counted as DEADLINE_EXCEEDED.
+inline grpc::Status StopStatus(grpc::CallbackServerContext* context, batching::Clock::time_point deadline,
+                               bool stream_broken = false) {
+  const auto now = batching::Clock::now();
+  if (now >= deadline) return {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
+  if (!stream_broken && !context->IsCancelled()) return grpc::Status::OK;
+  if (now + batching::kDeadlineSlack >= deadline) return {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
+  return {grpc::StatusCode::CANCELLED, "call cancelled"};
+}
+
 // A job evaluating n queries (uv nullptr: f(wi, wo)) of one packed material, stopped before launch by the
 // call's deadline or cancellation; the caller sets `done`. The arrays must outlive the job.
 inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const models::PackedMaterial& material,

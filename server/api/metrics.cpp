@@ -69,7 +69,12 @@ Metrics::Metrics()
                           .Name("loomlight_kernel_seconds")
                           .Help("Duration of the launch each request rode in")
                           .Register(*registry_)
-                          .Add({}, Geometric(1e-5, 4, 10))) {}
+                          .Add({}, Geometric(1e-5, 4, 10))),
+      resources_(prometheus::BuildGauge()
+                     .Name("loomlight_resource")
+                     .Help("Admission resources, sampled every half second: memory budget bytes and long-running "
+                           "call slots (in use and limit), material cache bytes, serving (1) or not (0)")
+                     .Register(*registry_)) {}
 
 std::string Metrics::Serve(const std::string& address) {
   try {
@@ -104,6 +109,14 @@ void Metrics::Evaluated(const std::string& model, bool fp64, size_t queries, siz
 void Metrics::Tabulated(const std::string& model, bool fp64, uint64_t cells) {
   tabulated_cells_.Add({{"model", model}, {"precision", fp64 ? "fp64" : "fp32"}}).Increment(static_cast<double>(cells));
   tabulated_cells_total_ += cells;
+}
+
+void Metrics::Resources(const ResourceSample& r) {
+  const std::pair<const char*, double> values[] = {
+      {"memory_bytes_in_use", double(r.memory_in_use)}, {"memory_bytes_limit", double(r.memory_limit)},
+      {"long_calls_in_use", double(r.long_calls_in_use)}, {"long_calls_limit", double(r.long_calls_limit)},
+      {"material_cache_bytes", double(r.material_cache_bytes)}, {"serving", r.serving ? 1.0 : 0.0}};
+  for (const auto& [name, value] : values) resources_.Add({{"name", name}}).Set(value);
 }
 
 void Metrics::Rendered(uint64_t queries) {

@@ -3,6 +3,7 @@
 
 #include <prometheus/counter.h>
 #include <prometheus/exposer.h>
+#include <prometheus/gauge.h>
 #include <prometheus/histogram.h>
 #include <prometheus/registry.h>
 
@@ -14,6 +15,13 @@
 #include <string>
 
 namespace loomlight::api {
+
+// Admission resources at one moment (server/api/admission.h).
+struct ResourceSample {
+  size_t memory_in_use = 0, memory_limit = 0, long_calls_in_use = 0, long_calls_limit = 0;
+  size_t material_cache_bytes = 0;
+  bool serving = false;
+};
 
 class Metrics {
  public:
@@ -31,6 +39,8 @@ class Metrics {
   void Tabulated(const std::string& model, bool fp64, uint64_t cells);
   // Every tabulated cell since start, all models: the work tabulations did (tests compare it).
   uint64_t tabulated_cells() const { return tabulated_cells_total_.load(); }
+  // The admission resources now (the server's watchdog samples them).
+  void Resources(const ResourceSample& sample);
   // Kernel queries a Render call finished evaluating.
   void Rendered(uint64_t queries);
   // Every rendered query since start: the work renders did (tests compare it).
@@ -49,6 +59,7 @@ class Metrics {
   prometheus::Histogram& launch_requests_;
   prometheus::Histogram& queue_seconds_;
   prometheus::Histogram& kernel_seconds_;
+  prometheus::Family<prometheus::Gauge>& resources_;
   std::unique_ptr<prometheus::Exposer> exposer_;
 };
 

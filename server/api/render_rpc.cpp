@@ -183,8 +183,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       environment_ = std::move(decoded);
     }
     if (error.empty()) return grpc::Status::OK;
-    if (Clock::now() >= deadline_) return {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
-    if (context_->IsCancelled()) return {grpc::StatusCode::CANCELLED, "call cancelled"};
+    if (grpc::Status stop = StopStatus(context_, deadline_); !stop.ok()) return stop;
     if (refused) return {grpc::StatusCode::RESOURCE_EXHAUSTED, field + ": " + error};
     return Invalid(field + ": " + error);
   }

@@ -85,6 +85,8 @@ void LoomlightServer::Watch() {
   while (!draining_) {
     wake_.wait_for(lock, period, [this] { return draining_; });
     if (draining_) return;
+    metrics_->Resources({memory_->in_use(), memory_->limit(), long_calls_->in_use(), long_calls_->limit(),
+                         service_->materials().bytes(), warm_ && !stuck_});
     const auto now = batching::Clock::now();
     std::string reason;
     const std::pair<const char*, batching::Clock::time_point> busy[] = {

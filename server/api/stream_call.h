@@ -38,14 +38,9 @@ class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
   // Advances the call; runs on the host worker only.
   virtual void Pump() = 0;
 
-  // Records why the work should stop, if it should: the deadline passed (checked first: gRPC also cancels a
-  // call whose deadline passed, and that is counted as DEADLINE_EXCEEDED), or the client cancelled or vanished.
+  // Records why the work should stop, if it should (StopStatus).
   void NoticeStop() {
-    if (!status_.ok()) return;
-    if (batching::Clock::now() >= deadline_)
-      status_ = {grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"};
-    else if (stream_broken_ || context_->IsCancelled())
-      status_ = {grpc::StatusCode::CANCELLED, "call cancelled"};
+    if (status_.ok()) status_ = StopStatus(context_, deadline_, stream_broken_);
   }
 
   void FinishCall(const grpc::Status& status) {

@@ -251,18 +251,11 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     Finish(grpc::Status::OK);
   }
 
-  // False (and the call finished) once the client went away or the deadline passed: no further work. The
-  // deadline is checked first: gRPC also cancels a call whose deadline passed, and that is a DEADLINE_EXCEEDED.
+  // False (and the call finished) once the client went away or the deadline passed: no further work.
   bool StillWanted() {
-    if (Clock::now() >= deadline_) {
-      Finish({grpc::StatusCode::DEADLINE_EXCEEDED, "deadline passed"});
-      return false;
-    }
-    if (context_->IsCancelled()) {
-      Finish({grpc::StatusCode::CANCELLED, "call cancelled"});
-      return false;
-    }
-    return true;
+    const grpc::Status stop = StopStatus(context_, deadline_);
+    if (!stop.ok()) Finish(stop);
+    return stop.ok();
   }
 
   void Finish(const grpc::Status& status) {

@@ -105,9 +105,10 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   // Requests whose deadline passed or whose client went away are dropped before launch.
   std::vector<std::shared_ptr<Job>> live;
   for (auto& job : batch) {
-    if (job->deadline <= now)
+    const bool cancelled = job->cancelled && job->cancelled();
+    if (job->deadline <= now || (cancelled && job->deadline <= now + kDeadlineSlack))
       job->done(Failed(JobStatus::kDeadlineExceeded, "deadline passed while queued"));
-    else if (job->cancelled && job->cancelled())
+    else if (cancelled)
       job->done(Failed(JobStatus::kCancelled, "cancelled while queued"));
     else
       live.push_back(std::move(job));

@@ -25,6 +25,10 @@
 namespace loomlight::batching {
 
 using Clock = std::chrono::steady_clock;
+// A client whose deadline passes cancels the call from its side a little before the server's copy of the
+// deadline passes (the grpc-timeout header is relative, measured when it was sent): a cancellation within
+// this much of the deadline is the deadline.
+constexpr Clock::duration kDeadlineSlack = std::chrono::milliseconds(100);
 
 // kResourceExhausted: never set by the batcher; callers use it for a job Submit refused.
 enum class JobStatus { kOk, kDeadlineExceeded, kCancelled, kInternal, kUnavailable, kResourceExhausted };

@@ -627,20 +627,20 @@ TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) 
   // that holds two of them.
   size_t entry_bytes = 0;
   {
-    api::MaterialCache probe(size_t{1} << 20);
-    std::shared_ptr<const api::MaterialCache::Entry> entry;
+    models::MaterialCache probe(size_t{1} << 20);
+    std::shared_ptr<const models::PreparedMaterial> entry;
     ASSERT_EQ(probe.Get(material("velvet", -1.0), registry, &entry), "");
     entry_bytes = probe.bytes();
   }
   ASSERT_GT(entry_bytes, 0u);
-  api::MaterialCache cache(2 * entry_bytes + entry_bytes / 2);
-  std::vector<std::shared_ptr<const api::MaterialCache::Entry>> first;
+  models::MaterialCache cache(2 * entry_bytes + entry_bytes / 2);
+  std::vector<std::shared_ptr<const models::PreparedMaterial>> first;
   const std::pair<const char*, double> materials[] = {{"velvet", -1.0}, {"velvet", 1.3}, {"silk_shot", -1.0}};
   for (int round = 0; round < 2; ++round)
     for (size_t k = 0; k < 3; ++k) {
       const auto [preset, eta] = materials[k];
       const v1::Material m = material(preset, eta);
-      std::shared_ptr<const api::MaterialCache::Entry> entry;
+      std::shared_ptr<const models::PreparedMaterial> entry;
       ASSERT_EQ(cache.Get(m, registry, &entry), "");
       models::ResolvedMaterial resolved;
       ASSERT_EQ(models::ResolveMaterial(m, registry, &resolved), "");
@@ -651,12 +651,12 @@ TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) 
       EXPECT_LE(cache.entries(), 2u);
     }
   // Capacity 2 with three materials cycling: every lookup of round two missed (above); a repeat hits.
-  std::shared_ptr<const api::MaterialCache::Entry> again;
+  std::shared_ptr<const models::PreparedMaterial> again;
   ASSERT_EQ(cache.Get(material("silk_shot", -1.0), registry, &again), "");
-  std::shared_ptr<const api::MaterialCache::Entry> hit;
+  std::shared_ptr<const models::PreparedMaterial> hit;
   ASSERT_EQ(cache.Get(material("silk_shot", -1.0), registry, &hit), "");
   EXPECT_EQ(hit.get(), again.get());  // a hit shares the entry
-  std::shared_ptr<const api::MaterialCache::Entry> bad;
+  std::shared_ptr<const models::PreparedMaterial> bad;
   EXPECT_NE(cache.Get(material("velvet", 7.0), registry, &bad), "");  // out of range: an error, not cached
   EXPECT_EQ(bad, nullptr);
 }

@@ -306,9 +306,9 @@ TEST(BoundedMemory, UnknownFieldsNeverReachTheMaterialCache) {
 }
 
 TEST(BoundedMemory, MaterialCacheIsBoundedInBytesAndKeyedOnTheResolvedMaterial) {
-  api::MaterialCache cache(size_t{256} << 10);
+  models::MaterialCache cache(size_t{256} << 10);
   const models::Registry& registry = models::Registry::Global();
-  std::shared_ptr<const api::MaterialCache::Entry> entry;
+  std::shared_ptr<const models::PreparedMaterial> entry;
   // The preset, the same values given explicitly, and unknown fields: one entry.
   v1::Material preset;
   preset.set_preset("velvet");

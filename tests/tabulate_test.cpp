@@ -297,6 +297,38 @@ TEST_F(TabulateTest, RawRoundTripEqualsEvaluateFp64IncludingBackLitDirections) {
   }
 }
 
+// A curtain (reflection plus a thin layer behind it) tabulates as Evaluate evaluates it, on both sides of the
+// cloth: the material plan is one definition for both RPCs (it once gave zeros below the surface here).
+TEST_F(TabulateTest, CurtainTableEqualsEvaluateOnBothSides) {
+  const std::vector<double> theta_i = {30, 150};  // lit from the front, and from behind
+  constexpr uint32_t kThetaO = 72;
+  const Queries q = InPlaneQueries(theta_i, kThetaO, 0, true);
+  v1::Material curtain;
+  curtain.set_preset("linen_plain");
+  curtain.mutable_transmission()->set_preset("cotton_curtain");
+  for (v1::Precision precision : {v1::PRECISION_FP32, v1::PRECISION_FP64}) {
+    v1::TabulateRequest r = Request(curtain, v1::TABLE_FORMAT_RAW, precision);
+    auto* grid = r.mutable_in_plane();
+    grid->mutable_theta_i_deg()->Add(theta_i.begin(), theta_i.end());
+    grid->set_theta_o_count(kThetaO);
+    grid->set_full_circle(true);
+    const Table t = Tabulate(*stub_, r);
+    ASSERT_TRUE(t.status.ok()) << t.status.error_message();
+    const uint32_t header = ReadLe<uint32_t>(t.file, 8);
+    ASSERT_EQ(t.file.size(), header + 4 * 3 * q.size());
+    const std::vector<float> f = Evaluate(*stub_, curtain, precision, q);
+    ASSERT_EQ(f.size(), 3 * q.size());
+    double transmitted = 0, reflected = 0;
+    for (size_t i = 0; i < f.size(); ++i) {
+      ExpectClose(ReadLe<float>(t.file, header + 4 * i), f[i], 1e-6, "value " + std::to_string(i));
+      const size_t query = i / 3;
+      (q.wi[3 * query + 2] * q.wo[3 * query + 2] < 0 ? transmitted : reflected) += f[i];
+    }
+    EXPECT_GT(transmitted, 0);  // light through the cloth, both ways
+    EXPECT_GT(reflected, 0);
+  }
+}
+
 TEST_F(TabulateTest, CsvParsesToTheGridAnglesAndEvaluate) {
   const v1::ModelInfo& model = models_.models(0);
   v1::TabulateRequest r = Request(MaterialOf(model), v1::TABLE_FORMAT_CSV);

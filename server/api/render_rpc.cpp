@@ -86,7 +86,7 @@ render::SceneKind ToSceneKind(v1::ScenePreset scene) {
 // validates and keeps them); the variants stay alive as long as this object.
 class CachedVariants final : public render::MaterialVariants {
  public:
-  CachedVariants(const v1::Material& material, const models::Registry& registry, MaterialCache& cache)
+  CachedVariants(const v1::Material& material, const models::Registry& registry, models::MaterialCache& cache)
       : registry_(registry), cache_(cache), base_(material) {
     base_.clear_transmission();  // the layer is packed once, with the request's material
   }
@@ -105,15 +105,15 @@ class CachedVariants final : public render::MaterialVariants {
 
  private:
   const models::PackedMaterial* Get(const v1::Material& material) {
-    std::shared_ptr<const MaterialCache::Entry> entry;
+    std::shared_ptr<const models::PreparedMaterial> entry;
     if (!cache_.Get(material, registry_, &entry).empty()) return nullptr;
     kept_.push_back(entry);
     return &entry->packed;
   }
   const models::Registry& registry_;
-  MaterialCache& cache_;
+  models::MaterialCache& cache_;
   v1::Material base_;
-  std::vector<std::shared_ptr<const MaterialCache::Entry>> kept_;
+  std::vector<std::shared_ptr<const models::PreparedMaterial>> kept_;
 };
 
 // One Render call in flight, on the host worker (server/api/stream_call.h); batcher completions post there
@@ -126,7 +126,7 @@ class CachedVariants final : public render::MaterialVariants {
 class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
-             std::shared_ptr<const MaterialCache::Entry> material, Admission admission, Clock::time_point received)
+             std::shared_ptr<const models::PreparedMaterial> material, Admission admission, Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), request_(request),
         material_(std::move(material)), fp64_(request.precision() == v1::PRECISION_FP64) {
     const v1::RenderEnvironment& env = request_.environment();
@@ -471,7 +471,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   }
 
   const v1::RenderRequest request_;
-  const std::shared_ptr<const MaterialCache::Entry> material_;
+  const std::shared_ptr<const models::PreparedMaterial> material_;
   const bool fp64_;
   bool loading_ = false;  // the asset loader is reading the environment map
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
@@ -557,7 +557,7 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
     deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
     return new RejectedStream<v1::RenderUpdate>(std::move(status));
   };
-  std::shared_ptr<const MaterialCache::Entry> material;
+  std::shared_ptr<const models::PreparedMaterial> material;
   if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
     return reject(Invalid(error));
   if (std::string error = ValidateRenderRequest(*request); !error.empty()) return reject(Invalid(error));

@@ -12,6 +12,7 @@
 #include "server/api/tabulate.h"
 #include "server/api/texture_slice.h"
 #include "server/models/material.h"
+#include "server/models/material_plan.h"
 
 namespace loomlight::api {
 namespace {
@@ -39,46 +40,35 @@ double SecondsSince(batching::Clock::time_point t) {
   return std::chrono::duration<double>(batching::Clock::now() - t).count();
 }
 
-// The kernel work of one Evaluate call: one part per kernel (the material alone, or a curtain's reflection
-// and its layer), joined into the response when the last part is done. Parts complete on the batcher's
-// thread; a part that never reaches a kernel (queue full, no queries) completes at once.
+// One Evaluate call: its plan's parts (server/models/material_plan.h) joined into the response when the
+// last is done. Parts complete on the batcher's thread; a part that never reaches a kernel (queue full, no
+// queries) completes at once.
 struct EvaluateCall {
-  struct Part {
-    const MaterialCache::Entry* material = nullptr;  // kept alive by the request's cache entry below
-    std::vector<size_t> index;                      // the part's queries in the request (curtains only)
-    std::vector<float> wi, wo, uv;                  // their directions (curtains only)
-    bool scale_by_interaction = false;              // a curtain's reflection
-  };
   Admission admission;  // the call's bytes, held until the last part is done
-  std::shared_ptr<const MaterialCache::Entry> entry;
-  std::vector<Part> parts;
+  std::shared_ptr<const models::PreparedMaterial> material;
+  std::unique_ptr<models::EvaluationPlan> plan;  // refers to the request's arrays (alive until Finish)
   std::vector<double> f;              // 3 per query
-  std::vector<double> transmittance;  // per query, for materials with transmission
-  std::vector<double> interaction;    // curtains: sqrt((1 - T(wi)) (1 - T(wo))) per query
   std::string approximation;          // what the parts' models approximated (EvaluateResponse.approximation)
   grpc::ServerUnaryReactor* reactor = nullptr;
   v1::EvaluateResponse* response = nullptr;
   Metrics* metrics = nullptr;
   batching::Clock::time_point received;
   bool fp64 = false;
-  std::string model;
-  size_t n = 0;
 
   std::mutex mutex;
   size_t remaining = 0;
   batching::JobResult outcome;  // the first failure; the slowest part's timing; the largest launch
 
   void PartDone(size_t k, batching::JobResult r) {
-    const Part& part = parts[k];
-    if (r.status == batching::JobStatus::kOk) {
-      for (size_t i = 0; i < r.f.size() / 3; ++i) {
-        const size_t q = part.index.empty() ? i : part.index[i];
-        const double scale = part.scale_by_interaction ? interaction[q] : 1.0;
-        for (int c = 0; c < 3; ++c) f[3 * q + c] = scale * r.f[3 * i + c];
-      }
+    if (r.status == batching::JobStatus::kOk && r.f.size() == 3 * plan->size(k)) {
+      plan->Merge(k, r.f.data(), f.data());
       if (r.batch_queries > 0)
-        metrics->Evaluated(part.material->model->name(), fp64, r.f.size() / 3, r.batch_queries, r.batch_requests,
+        metrics->Evaluated(plan->model(k).name(), fp64, plan->size(k), r.batch_queries, r.batch_requests,
                            r.queue_seconds, r.kernel_seconds);
+    } else if (r.status == batching::JobStatus::kOk) {
+      r.status = batching::JobStatus::kInternal;
+      r.message = "kernel returned " + std::to_string(r.f.size()) + " values for " +
+                  std::to_string(plan->size(k)) + " queries";
     }
     std::lock_guard<std::mutex> lock(mutex);
     if (r.status != batching::JobStatus::kOk && outcome.status == batching::JobStatus::kOk) {
@@ -99,8 +89,8 @@ struct EvaluateCall {
       auto* out = response->mutable_f();
       out->Resize(static_cast<int>(f.size()), 0.0f);
       std::copy(f.begin(), f.end(), out->mutable_data());  // double to float: rounded once
-      response->mutable_transmittance()->Add(transmittance.begin(), transmittance.end());
-      response->set_model(model);
+      response->mutable_transmittance()->Add(plan->transmittance().begin(), plan->transmittance().end());
+      response->set_model(material->model->name());
       response->set_approximation(approximation);
       response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
       response->set_queue_seconds(outcome.queue_seconds);
@@ -115,96 +105,7 @@ struct EvaluateCall {
   }
 };
 
-// Resolves a material and its curtain layer (Material.transmission), naming fields under "material".
-std::string ResolveComposition(const v1::Material& material, const models::Registry& registry,
-                               models::ResolvedMaterial* top, models::ResolvedMaterial* layer) {
-  if (std::string error = models::ResolveMaterial(material, registry, top, "material"); !error.empty()) return error;
-  if (!material.has_transmission()) return "";
-  const std::string layer_field = "material.transmission";
-  if (top->model->transmission())
-    return layer_field + ": model '" + top->model->name() + "' already transmits; add a layer to a reflection model";
-  if (material.transmission().has_transmission()) return layer_field + ".transmission: layers do not nest";
-  if (std::string error = models::ResolveMaterial(material.transmission(), registry, layer, layer_field); !error.empty())
-    return error;
-  if (!layer->model->transmission())
-    return layer_field + ": model '" + layer->model->name() + "' has no transmission (use a thin_layer material)";
-  return "";
-}
-
-// The model's name and every parameter's values in the map's (sorted) order, bytes exactly.
-void AppendCanonical(const models::ResolvedMaterial& m, std::string* key) {
-  key->append(m.model->name());
-  key->push_back('\0');
-  for (const auto& [name, values] : m.values) {
-    key->append(name);
-    key->push_back('\0');
-    const uint64_t count = values.size();
-    key->append(reinterpret_cast<const char*>(&count), sizeof count);
-    key->append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(double));
-  }
-}
-
-size_t EntryBytes(const MaterialCache::Entry& e) {
-  return sizeof e + e.packed.data.size() * sizeof(double) + (e.transmission ? EntryBytes(*e.transmission) : 0);
-}
-
 }  // namespace
-
-std::string MaterialCache::Get(const v1::Material& material, const models::Registry& registry,
-                               std::shared_ptr<const Entry>* out) {
-  models::ResolvedMaterial top, layer;
-  if (std::string error = ResolveComposition(material, registry, &top, &layer); !error.empty())
-    return error;  // bad materials are not cached: they are cheap to reject again
-  std::string key;
-  AppendCanonical(top, &key);
-  if (layer.model) {
-    key.append("\0+layer\0", 8);
-    AppendCanonical(layer, &key);
-  }
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    auto it = map_.find(key);
-    if (it != map_.end()) {
-      order_.splice(order_.begin(), order_, it->second.order);
-      *out = it->second.entry;
-      return "";
-    }
-  }
-  auto entry = std::make_shared<Entry>();
-  entry->model = top.model;
-  entry->packed = top.model->Pack(top.values);
-  if (layer.model) {
-    auto packed_layer = std::make_shared<Entry>();
-    packed_layer->model = layer.model;
-    packed_layer->packed = layer.model->Pack(layer.values);
-    entry->transmission = std::move(packed_layer);
-  }
-  *out = entry;
-  // Keys count twice (the map's and the order list's copy).
-  const size_t bytes = 2 * key.size() + EntryBytes(*entry);
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (bytes > capacity_bytes_ || map_.count(key)) return "";
-  while (!order_.empty() && bytes_ + bytes > capacity_bytes_) {
-    auto last = map_.find(order_.back());
-    bytes_ -= last->second.bytes;
-    map_.erase(last);
-    order_.pop_back();
-  }
-  order_.push_front(key);
-  map_.emplace(std::move(key), Slot{entry, order_.begin(), bytes});
-  bytes_ += bytes;
-  return "";
-}
-
-size_t MaterialCache::bytes() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return bytes_;
-}
-
-size_t MaterialCache::entries() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return map_.size();
-}
 
 LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits& limits)
     : deps_(deps), materials_(limits.material_cache_bytes) {
@@ -294,7 +195,7 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
                                                      v1::EvaluateResponse* response) {
   const auto received = batching::Clock::now();
   if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "Evaluate", received, s);
-  std::shared_ptr<const MaterialCache::Entry> material;
+  std::shared_ptr<const models::PreparedMaterial> material;
   std::string error = materials_.Get(request->material(), *deps_.registry, &material);
   if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
   if (!v1::Precision_IsValid(request->precision()))
@@ -326,62 +227,21 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   auto call = std::make_shared<EvaluateCall>();
   if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission); !s.ok())
     return Reply(context, "Evaluate", received, s);
-  call->entry = material;
+  call->material = material;
   call->f.assign(3 * n, 0.0);
-  const MaterialCache::Entry* layer = material->transmission.get();
-  const float* wi = request->wi().data();
-  const float* wo = request->wo().data();
-  const float* uv = request->uv_size() > 0 ? request->uv().data() : nullptr;
-  if (material->model->transmission()) {
-    call->transmittance.resize(n);
-    material->model->DirectTransmittance(material->packed, wo, n, call->transmittance.data());
-  }
-  if (!layer) {
-    call->parts.push_back({material.get(), {}, {}, {}, {}, false});  // the request's arrays, all queries
-  } else {
-    // A curtain: pairs on one side go to the reflection model (a pair below the cloth is mirrored to the
-    // front: the cloth is two-sided), pairs on opposite sides to the layer.
-    call->parts.resize(2);
-    EvaluateCall::Part& reflect = call->parts[0];
-    EvaluateCall::Part& transmit = call->parts[1];
-    reflect.material = material.get();
-    reflect.scale_by_interaction = true;
-    transmit.material = layer;
-    for (size_t q = 0; q < n; ++q) {
-      const bool front_i = wi[3 * q + 2] >= 0, front_o = wo[3 * q + 2] >= 0;
-      EvaluateCall::Part& part = front_i == front_o ? reflect : transmit;
-      const float flip = &part == &reflect && !front_i ? -1.0f : 1.0f;
-      part.index.push_back(q);
-      part.wi.insert(part.wi.end(), {wi[3 * q], wi[3 * q + 1], flip * wi[3 * q + 2]});
-      part.wo.insert(part.wo.end(), {wo[3 * q], wo[3 * q + 1], flip * wo[3 * q + 2]});
-      if (uv && &part == &reflect) part.uv.insert(part.uv.end(), {uv[2 * q], uv[2 * q + 1]});
-    }
-    // Light the layer lets straight through cannot be reflected: reflection is scaled by
-    // sqrt((1 - T(wi)) (1 - T(wo))), symmetric so the curtain stays reciprocal (README "Curtains").
-    std::vector<double> ti(n);
-    call->transmittance.resize(n);
-    layer->model->DirectTransmittance(layer->packed, wi, n, ti.data());
-    layer->model->DirectTransmittance(layer->packed, wo, n, call->transmittance.data());
-    call->interaction.resize(n);
-    for (size_t q = 0; q < n; ++q) call->interaction[q] = std::sqrt((1 - ti[q]) * (1 - call->transmittance[q]));
-  }
-
+  call->plan = std::make_unique<models::EvaluationPlan>(*material, request->wi().data(), request->wo().data(),
+                                                        request->uv_size() > 0 ? request->uv().data() : nullptr, n);
   call->reactor = context->DefaultReactor();
   call->response = response;
   call->metrics = deps_.metrics;
   call->received = received;
   call->fp64 = fp64;
-  call->model = material->model->name();
-  call->n = n;
-  call->remaining = call->parts.size();
+  call->remaining = call->plan->parts();
   const batching::Clock::time_point job_deadline = CallDeadline(context, received);
-  for (size_t k = 0; k < call->parts.size(); ++k) {
-    const EvaluateCall::Part& part = call->parts[k];
-    const bool whole = !layer;
-    auto job = NewJob(part.material->model, part.material->packed, fp64, job_deadline, context,
-                      whole ? wi : part.wi.data(), whole ? wo : part.wo.data(),
-                      whole ? uv : (uv && part.material->model->spatially_varying() ? part.uv.data() : nullptr),
-                      whole ? n : part.index.size());
+  const models::EvaluationPlan& plan = *call->plan;
+  for (size_t k = 0; k < plan.parts(); ++k) {
+    auto job = NewJob(&plan.model(k), plan.packed(k), fp64, job_deadline, context, plan.wi(k), plan.wo(k),
+                      plan.uv(k), plan.size(k));
     const std::string approximation = job->model->ChooseApproximation(request->error_target(), &job->material);
     if (!approximation.empty())
       call->approximation += (call->approximation.empty() ? "" : "; ") + approximation;

@@ -14,6 +14,7 @@
 #include "server/assets/environment_maps.h"
 #include "server/batching/batcher.h"
 #include "server/batching/budget.h"
+#include "server/models/material_cache.h"
 #include "server/models/registry.h"
 
 namespace loomlight::api {
@@ -29,39 +30,6 @@ constexpr float kMaxTextureCoordinate = 1024.0f;
 // response (12), rounded up.
 constexpr size_t kEvaluateBytesPerQuery = 192;
 
-// Packed materials by the canonical form of their resolved parameters (model name and every parameter's
-// values, in order), least recently used first out, bounded in bytes: clients send the same few materials
-// over and over, and packing one (the tangent curve sampled with cos/sin, a thin layer's adding-doubling
-// tables) costs far more than resolving it. The key is built from the resolved values, never from the
-// request's bytes, so unknown fields, parameter order or a preset spelled out value by value cannot make
-// new entries.
-class MaterialCache {
- public:
-  struct Entry {
-    const models::Model* model = nullptr;
-    models::PackedMaterial packed;
-    std::shared_ptr<const Entry> transmission;  // the curtain's layer (Material.transmission), or null
-  };
-  explicit MaterialCache(size_t capacity_bytes) : capacity_bytes_(capacity_bytes) {}
-  // The cached entry, or one packed now ("" on success, else the INVALID_ARGUMENT message).
-  std::string Get(const v1::Material& material, const models::Registry& registry,
-                  std::shared_ptr<const Entry>* out);
-  size_t bytes() const;
-  size_t entries() const;
-
- private:
-  struct Slot {
-    std::shared_ptr<const Entry> entry;
-    std::list<std::string>::iterator order;
-    size_t bytes;
-  };
-  const size_t capacity_bytes_;
-  mutable std::mutex mutex_;
-  std::list<std::string> order_;  // keys, most recently used first
-  std::unordered_map<std::string, Slot> map_;
-  size_t bytes_ = 0;
-};
-
 // Limits of one service (README "Limits and admission").
 struct ServiceLimits {
   size_t memory_budget_bytes = size_t{2} << 30;  // every call's buffers, cached environment maps
@@ -76,7 +44,7 @@ struct ServiceDeps {
   batching::Batcher* batcher = nullptr;
   bool has_fp64 = false;
   Metrics* metrics = nullptr;
-  MaterialCache* materials = nullptr;
+  models::MaterialCache* materials = nullptr;
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
   HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
   batching::Budget* memory = nullptr;      // bytes every call reserves (server/api/admission.h)
@@ -103,7 +71,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // The workers' current task start (max when idle), for the health watchdog.
   batching::Clock::time_point worker_busy_since() const { return worker_.busy_since(); }
   batching::Clock::time_point loader_busy_since() const { return loader_.busy_since(); }
-  const MaterialCache& materials() const { return materials_; }
+  const models::MaterialCache& materials() const { return materials_; }
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
                                        v1::ListModelsResponse* response) override;
@@ -127,7 +95,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   grpc::Status Serving() const;
 
   ServiceDeps deps_;
-  MaterialCache materials_;
+  models::MaterialCache materials_;
   std::atomic<bool> serving_{false};
   // Declared last, so destroyed first (the loader before the worker it posts to): their remaining tasks may
   // still use the members above.

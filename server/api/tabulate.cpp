@@ -9,6 +9,7 @@
 #include "server/api/job_status.h"
 #include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
+#include "server/models/material_plan.h"
 
 namespace loomlight::api {
 namespace {
@@ -172,7 +173,7 @@ class CsvEncoder final : public TableEncoder {
 class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
  public:
   TabulateCall(const TabulateDeps& deps, grpc::CallbackServerContext* context, const v1::TabulateRequest& request,
-               std::shared_ptr<const MaterialCache::Entry> material, TabulationGrid grid, Admission admission,
+               std::shared_ptr<const models::PreparedMaterial> material, TabulationGrid grid, Admission admission,
                Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)),
         material_(std::move(material)),
@@ -197,7 +198,7 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     NoticeStop();
     MaybeSubmit();  // does nothing once stopping
     if (!status_.ok()) {
-      if (!job_in_flight_ && !write_in_flight_) FinishCall(status_);
+      if (jobs_in_flight_ == 0 && !write_in_flight_) FinishCall(status_);
       return;
     }
     if (write_in_flight_) return;
@@ -209,42 +210,61 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
 
   size_t Unsent() const { return pending_.size() - pending_begin_; }
 
+  // Sends the next chunk's jobs (one per part of its plan: a curtain's reflection and layer) when none is in
+  // flight and the output buffer allows.
   void MaybeSubmit() {
-    if (!status_.ok() || job_in_flight_ || next_query_ >= grid_.queries() || Unsent() > kMaxBufferedBytes) return;
-    const uint64_t first = next_query_;
-    const size_t count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, grid_.queries() - first));
+    if (!status_.ok() || jobs_in_flight_ > 0 || next_query_ >= grid_.queries() || Unsent() > kMaxBufferedBytes)
+      return;
+    chunk_first_ = next_query_;
+    const size_t count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, grid_.queries() - chunk_first_));
     wi_.resize(3 * count);
     wo_.resize(3 * count);
-    for (size_t i = 0; i < count; ++i) grid_.Directions(first + i, &wi_[3 * i], &wo_[3 * i]);
-
-    auto job = NewJob(material_->model, material_->packed, fp64_, deadline_, context_, wi_.data(), wo_.data(),
-                      nullptr, count);
-    job->priority = batching::Priority::kBulk;
-    job->done = [this, first, count](batching::JobResult result) {
-      deps_.worker->Post([this, first, count, result = std::move(result)] { OnJobDone(first, count, result); });
-    };
-    if (grpc::Status s = SubmitJob(deps_.batcher, std::move(job)); !s.ok()) {
-      status_ = s;
-      return;
-    }
-    job_in_flight_ = true;
+    for (size_t i = 0; i < count; ++i) grid_.Directions(chunk_first_ + i, &wi_[3 * i], &wo_[3 * i]);
+    plan_ = std::make_unique<models::EvaluationPlan>(*material_, wi_.data(), wo_.data(), nullptr, count);
+    chunk_f_.assign(3 * count, 0.0);
     next_query_ += count;
+    for (size_t k = 0; k < plan_->parts(); ++k) {
+      if (plan_->size(k) == 0) continue;
+      auto job = NewJob(&plan_->model(k), plan_->packed(k), fp64_, deadline_, context_, plan_->wi(k), plan_->wo(k),
+                        nullptr, plan_->size(k));
+      job->priority = batching::Priority::kBulk;
+      job->done = [this, k](batching::JobResult result) {
+        deps_.worker->Post([this, k, result = std::move(result)] { OnJobDone(k, result); });
+      };
+      if (grpc::Status s = SubmitJob(deps_.batcher, std::move(job)); !s.ok()) {
+        status_ = s;
+        return;  // the parts already submitted still return
+      }
+      ++jobs_in_flight_;
+    }
   }
 
-  // The next job goes to the device first, then this one is averaged and encoded while it runs.
-  void OnJobDone(uint64_t first, size_t count, const batching::JobResult& result) {
-    job_in_flight_ = false;
+  // A part of the chunk in flight returned; when it was the last, the next chunk goes to the device first,
+  // then this one is averaged and encoded while it runs.
+  void OnJobDone(size_t part, const batching::JobResult& result) {
+    --jobs_in_flight_;
     if (result.status != batching::JobStatus::kOk) {
       if (status_.ok()) status_ = ToStatus(result);
       return Pump();
     }
-    deps_.metrics->Evaluated(material_->model->name(), fp64_, count, result.batch_queries, result.batch_requests,
-                             result.queue_seconds, result.kernel_seconds);
+    if (result.f.size() != 3 * plan_->size(part)) {
+      if (status_.ok())
+        status_ = {grpc::StatusCode::INTERNAL, "kernel returned " + std::to_string(result.f.size()) + " values for " +
+                                                   std::to_string(plan_->size(part)) + " queries"};
+      return Pump();
+    }
+    deps_.metrics->Evaluated(plan_->model(part).name(), fp64_, plan_->size(part), result.batch_queries,
+                             result.batch_requests, result.queue_seconds, result.kernel_seconds);
     kernel_seconds_ += result.kernel_seconds;
+    plan_->Merge(part, result.f.data(), chunk_f_.data());
+    if (jobs_in_flight_ > 0 || !status_.ok()) return Pump();
+    std::vector<double> f;
+    f.swap(chunk_f_);  // the next chunk reuses the buffers
+    const uint64_t first = chunk_first_;
     NoticeStop();
     MaybeSubmit();
     if (status_.ok()) {
-      if (std::string error = AddCells(first, count, result.f); !error.empty())
+      if (std::string error = AddCells(first, f.size() / 3, f); !error.empty())
         status_ = {grpc::StatusCode::INTERNAL, error};
     }
     Pump();
@@ -306,20 +326,24 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     StartWrite(&chunk_);
   }
 
-  const std::shared_ptr<const MaterialCache::Entry> material_;
+  const std::shared_ptr<const models::PreparedMaterial> material_;
   const TabulationGrid grid_;
   const bool fp64_;
   const std::unique_ptr<TableEncoder> encoder_;
   const uint64_t chunk_queries_;
 
-  std::vector<float> wi_, wo_;  // the job in flight (the batcher reads them until its done callback)
+  std::vector<float> wi_, wo_;  // the chunk in flight (the batcher reads them until its done callbacks)
+  std::unique_ptr<models::EvaluationPlan> plan_;  // the chunk's parts (a curtain: reflection and layer)
+  std::vector<double> chunk_f_;  // the chunk's f, merged from its parts
+  uint64_t chunk_first_ = 0;
   std::vector<double> cell_rgb_;
   uint64_t next_query_ = 0, cells_done_ = 0, cells_sent_ = 0;
   std::string pending_;  // encoded bytes; those from pending_begin_ on are not sent yet
   size_t pending_begin_ = 0;
   v1::TabulateChunk chunk_;  // the write in flight
   double kernel_seconds_ = 0;
-  bool job_in_flight_ = false, sent_first_ = false;
+  size_t jobs_in_flight_ = 0;
+  bool sent_first_ = false;
   bool complete_ = false;       // every cell encoded, the file's end in pending_
 };
 
@@ -476,9 +500,10 @@ std::unique_ptr<TableEncoder> MakeTableEncoder(v1::TableFormat format, const Tab
 
 size_t TabulateBytes(const v1::TabulateRequest& request, const TabulationGrid& grid) {
   const uint64_t chunk = std::min<uint64_t>(kTabulateChunkQueries, grid.queries());
-  // The job in flight: directions (24 per query), the kernel's result and its copy (48), cell means (24);
+  // The chunk in flight: directions (24 per query; a curtain's parts copy them, with a scale and a
+  // transmittance: 40), the kernels' results and their copy (48), cell means (24);
   // unsent bytes up to the flow-control bound plus one chunk message; what the encoder keeps to the end.
-  size_t bytes = chunk * 96 + kMaxBufferedBytes + 2 * kMaxChunkDataBytes;
+  size_t bytes = chunk * 136 + kMaxBufferedBytes + 2 * kMaxChunkDataBytes;
   if (request.format() == v1::TABLE_FORMAT_EXR) bytes += grid.cells() * 24;   // the image, then its encoding
   if (request.format() == v1::TABLE_FORMAT_MERL) bytes += grid.cells() * 16;  // G and B until the end
   return bytes;
@@ -508,7 +533,7 @@ grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& 
     deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
     return new RejectedStream<v1::TabulateChunk>(std::move(status));
   };
-  std::shared_ptr<const MaterialCache::Entry> material;
+  std::shared_ptr<const models::PreparedMaterial> material;
   if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
     return reject(Invalid(error));
   TabulationGrid grid;

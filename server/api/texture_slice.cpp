@@ -99,7 +99,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
  public:
   SliceCall(const TextureSliceDeps& deps, grpc::CallbackServerContext* context,
             const v1::TextureSliceRequest& request, v1::TextureSliceResponse* response,
-            std::shared_ptr<const MaterialCache::Entry> material, Admission admission, Clock::time_point received)
+            std::shared_ptr<const models::PreparedMaterial> material, Admission admission, Clock::time_point received)
       : deps_(deps),
         admission_(std::move(admission)),
         context_(context),
@@ -268,7 +268,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   grpc::CallbackServerContext* const context_;
   grpc::ServerUnaryReactor* const reactor_;
   v1::TextureSliceResponse* const response_;
-  const std::shared_ptr<const MaterialCache::Entry> material_;
+  const std::shared_ptr<const models::PreparedMaterial> material_;
   const Clock::time_point received_;
   Clock::time_point deadline_ = Clock::time_point::max();
   const bool fp64_;
@@ -338,7 +338,7 @@ grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc:
                                              const v1::TextureSliceRequest* request,
                                              v1::TextureSliceResponse* response) {
   const auto received = Clock::now();
-  std::shared_ptr<const MaterialCache::Entry> material;
+  std::shared_ptr<const models::PreparedMaterial> material;
   if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
     return Reject(deps, context, received, Invalid(error));
   if (!material->model->spatially_varying())

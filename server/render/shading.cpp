@@ -4,6 +4,8 @@
 #include <cmath>
 #include <numbers>
 
+#include "server/models/material_plan.h"
+
 namespace loomlight::render {
 namespace {
 
@@ -116,7 +118,7 @@ Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const
     Rgb weight = light.weight;
     if (!behind && shading.layer) {
       const double wi_transmittance = SingleTransmittance(*shading.layer_model, *shading.layer, light.wi);
-      weight = std::sqrt((1 - wi_transmittance) * (1 - wo_transmittance)) * weight;
+      weight = models::CurtainReflectionScale(wi_transmittance, wo_transmittance) * weight;
     }
     QueryBucket& bucket = (*buckets)[index];
     bucket.wi.insert(bucket.wi.end(), {float(light.wi.x), float(light.wi.y), float(light.wi.z)});

@@ -1,0 +1,72 @@
+// The material plan: how a material the service was sent (a model and its parameters, possibly with a
+// thin layer behind it: a curtain) is evaluated by the kernels. Defined once here and used by every RPC:
+// which queries go to which kernel, on which directions, and how the kernels' results combine into f.
+//
+// A curtain (README "Curtains"): pairs on one side of the cloth go to the reflection model (a pair below the
+// cloth is mirrored to the front: the cloth is two-sided), pairs on opposite sides to the layer; reflection
+// is scaled by sqrt((1 - T(wi)) (1 - T(wo))), T the layer's direct transmittance, because light the layer
+// lets straight through cannot be reflected (symmetric, so the curtain stays reciprocal).
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "loomlight/v1/loomlight.pb.h"
+#include "server/models/material.h"
+#include "server/models/registry.h"
+
+namespace loomlight::models {
+
+// A material resolved and packed, ready for the kernels; immutable and shared (the material cache keeps it).
+struct PreparedMaterial {
+  const Model* model = nullptr;
+  PackedMaterial packed;
+  std::shared_ptr<const PreparedMaterial> transmission;  // a curtain's layer (Material.transmission), or null
+};
+
+// Resolves a material and its curtain layer, checking the composition (a layer only behind a reflection
+// model, layers do not nest), naming fields under "material". Returns "" or the INVALID_ARGUMENT message.
+std::string ResolveComposition(const v1::Material& material, const Registry& registry, ResolvedMaterial* top,
+                               ResolvedMaterial* layer);
+
+// A curtain's reflection scale for one pair, from the layer's direct transmittance toward wi and wo.
+double CurtainReflectionScale(double transmittance_wi, double transmittance_wo);
+
+// The kernel work for n queries of one prepared material: one part per kernel (the material alone, or a
+// curtain's reflection and its layer), and how their results combine. The request's arrays must outlive it.
+class EvaluationPlan {
+ public:
+  EvaluationPlan(const PreparedMaterial& material, const float* wi, const float* wo, const float* uv, size_t n);
+
+  size_t parts() const { return parts_.size(); }
+  const Model& model(size_t k) const { return *parts_[k].material->model; }
+  const PackedMaterial& packed(size_t k) const { return parts_[k].material->packed; }
+  // Part k's queries and their directions (uv nullptr when the request has none or the part's model does not
+  // vary over the surface).
+  size_t size(size_t k) const { return parts_[k].whole ? n_ : parts_[k].index.size(); }
+  const float* wi(size_t k) const { return parts_[k].whole ? wi_ : parts_[k].wi.data(); }
+  const float* wo(size_t k) const { return parts_[k].whole ? wo_ : parts_[k].wo.data(); }
+  const float* uv(size_t k) const;
+  // Writes part k's kernel results (3 per part query) into f (3 per request query), scaled as the part needs.
+  void Merge(size_t k, const double* part_f, double* f) const;
+  // Per query, the direct transmittance toward wo, for materials that transmit (empty otherwise).
+  const std::vector<double>& transmittance() const { return transmittance_; }
+
+ private:
+  struct Part {
+    const PreparedMaterial* material = nullptr;
+    bool whole = false;               // every query, the request's own arrays
+    std::vector<size_t> index;        // the part's queries in the request
+    std::vector<float> wi, wo, uv;    // their directions
+    bool scaled = false;              // a curtain's reflection: times scale_[query]
+  };
+  const float *wi_, *wo_, *uv_;
+  size_t n_;
+  std::vector<Part> parts_;
+  std::vector<double> transmittance_;
+  std::vector<double> scale_;  // curtains: the reflection scale per query
+};
+
+}  // namespace loomlight::models

@@ -118,23 +118,29 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
         // Whole pixels per chunk, so each pixel's mean comes from one chunk.
         chunk_queries_(std::min<uint64_t>(kSliceChunkQueries / samples_ * samples_, total_queries_)) {
     deadline_ = CallDeadline(context, received);
+    for (int c = 0; c < 3; ++c) {
+      wi_one_[c] = request.wi(c);
+      wo_one_[c] = request.wo(c);
+    }
+  }
+
+  grpc::ServerUnaryReactor* reactor() const { return reactor_; }
+
+  // On the host worker (never a gRPC callback thread: these are megabytes of work): the direction buffers,
+  // the image, both chunk buffers, then the first chunk submitted (nothing else touches them yet).
+  void Start() {
+    if (!StillWanted()) return;
     // The kernel takes a direction per query: the one wi and wo, repeated, shared by both chunk buffers.
     wi_.resize(3 * chunk_queries_);
     wo_.resize(3 * chunk_queries_);
     for (size_t q = 0; q < chunk_queries_; ++q)
       for (int c = 0; c < 3; ++c) {
-        wi_[3 * q + c] = request.wi(c);
-        wo_[3 * q + c] = request.wo(c);
+        wi_[3 * q + c] = wi_one_[c];
+        wo_[3 * q + c] = wo_one_[c];
       }
     image_.width = static_cast<int>(width_);
     image_.height = static_cast<int>(height_);
     image_.rgb.resize(size_t{3} * width_ * height_);
-  }
-
-  grpc::ServerUnaryReactor* reactor() const { return reactor_; }
-
-  // On the gRPC thread: fills both chunk buffers, then submits the first (nothing else touches them yet).
-  void Start() {
     Prepare(chunks_[0]);
     Prepare(chunks_[1]);
     Submit(0);
@@ -279,6 +285,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   const uint64_t total_queries_;
   const uint64_t chunk_queries_;
 
+  float wi_one_[3], wo_one_[3];  // the request's directions
   std::vector<float> wi_, wo_;  // read by the batcher for every chunk
   Chunk chunks_[2];
   uint64_t next_query_ = 0;     // the first query not yet in a chunk
@@ -360,7 +367,7 @@ grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc:
   auto call = std::make_shared<SliceCall>(deps, context, *request, response, std::move(material),
                                           std::move(admission), received);
   grpc::ServerUnaryReactor* reactor = call->reactor();
-  call->Start();  // on failure it has finished the call itself
+  deps.worker->Post([call] { call->Start(); });  // on failure it finishes the call itself
   return reactor;
 }
 

@@ -10,7 +10,7 @@
 #                                     answer for it) until `loomlight health` reports SERVING; then SIGTERM,
 #                                     and the server must exit 0.
 # The root is unmounted and removed on exit, also on failure. Needs root (re-runs itself with sudo) and a few
-# GiB of disk (about 10-13 minutes on 2 cores, most of it the build and the tests). Used by .ci/run;
+# GiB of disk (10-20 minutes on 2 cores, most of it the build and the tests). Used by .ci/run;
 # developers can run it too.
 #
 # Environment:

@@ -78,10 +78,21 @@ const OptionList& connection_options() {
 }
 
 Client::Client(const ParsedOptions& options)
-    : stub_(v1::Loomlight::NewStub(make_channel(server_target(options)))), timeout_(call_timeout(options)) {}
+    : channel_(make_channel(server_target(options))), stub_(v1::Loomlight::NewStub(channel_)),
+      timeout_(call_timeout(options)) {}
 
 void Client::prepare(grpc::ClientContext& context) const {
   if (timeout_.count() > 0) context.set_deadline(std::chrono::system_clock::now() + timeout_);
+}
+
+grpc::health::v1::HealthCheckResponse::ServingStatus Client::health(const std::string& service) {
+  grpc::ClientContext context;
+  prepare(context);
+  grpc::health::v1::HealthCheckRequest request;
+  request.set_service(service);
+  grpc::health::v1::HealthCheckResponse response;
+  check(grpc::health::v1::Health::NewStub(channel_)->Check(&context, request, &response));
+  return response.status();
 }
 
 v1::ListModelsResponse Client::list_models() {

@@ -11,6 +11,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include "client/cli.h"
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "loomlight/v1/loomlight.grpc.pb.h"
 
 namespace loomlight::client {
@@ -37,6 +38,8 @@ class Client {
   // Target from --server, else $LOOMLIGHT_SERVER, else 127.0.0.1:50051.
   explicit Client(const ParsedOptions& options);
 
+  // grpc.health.v1.Health/Check of `service` ("" = the whole server).
+  grpc::health::v1::HealthCheckResponse::ServingStatus health(const std::string& service);
   v1::ListModelsResponse list_models();
   // Checks that the response holds one RGB triple per query before returning it.
   v1::EvaluateResponse evaluate(const v1::EvaluateRequest& request);
@@ -51,6 +54,7 @@ class Client {
  private:
   void prepare(grpc::ClientContext& context) const;
 
+  std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<v1::Loomlight::Stub> stub_;
   std::chrono::milliseconds timeout_;
 };

@@ -165,6 +165,8 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
     info->set_description(model->description());
     info->set_spatially_varying(model->spatially_varying());
     info->set_transmission(model->transmission());
+    info->set_reciprocal(model->reciprocal());
+    info->set_energy_conserving(model->energy_conserving());
     for (const models::ParamSpec& p : model->params()) {
       v1::ParamSchema* s = info->add_params();
       s->set_name(p.name);

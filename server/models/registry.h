@@ -90,6 +90,13 @@ class Model {
   // True when f depends only on the angles between wi, wo and the normal (not on the azimuth of the
   // pair): Tabulate's MERL grid then needs one half-vector azimuth sample instead of an average.
   virtual bool isotropic() const { return false; }
+  // Physical properties a model declares when they hold for every parameter set its schema accepts (not only
+  // its presets); ListModels serves them and tests/model_contract_test.cpp checks them on every preset.
+  // Reciprocal: f(wi, wo) = f(wo, wi) for every pair (Helmholtz reciprocity; a tabulation may then fold by it).
+  virtual bool reciprocal() const { return false; }
+  // Energy conserving: for every wi the directional albedo, the integral of f(wi, wo) |n.wo| over the sphere
+  // of wo (SPEC.md section 1's f), is at most 1: the material scatters no more light than reaches it.
+  virtual bool energy_conserving() const { return false; }
 
   const ParamSpec* FindParam(const std::string& name) const;
   // Defaults completed with the preset's values.

@@ -154,6 +154,10 @@ class WovenModel : public Model {
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
   KernelSpec kernel() const override { return {"models/woven.cl", "woven_brdf", "woven_btf"}; }
+  // BTF and BRDF: h, Fresnel and the masking term come from the commutative wi + wo, the rest from both
+  // directions alike (bit-exact). Not energy conserving: kd alone may reach 10 / sr, and the paper's specular
+  // term ks Fr G / (n.wi n.wo) is not normalised (cotton_satin's albedo exceeds 1 at grazing light).
+  bool reciprocal() const override { return true; }
 
   std::string ApplyText(const std::string& name, const std::string& text, ParamValues* v) const override {
     if (name != "pattern.wif") return Model::ApplyText(name, text, v);

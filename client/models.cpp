@@ -103,6 +103,10 @@ void print_model(std::ostream& out, const v1::ModelInfo& model, bool preset_valu
   out << "  " << (model.transmission() ? "reflection and transmission" : "reflection only") << ", "
       << (model.spatially_varying() ? "spatially varying (takes uv)" : "uniform") << '\n';
   print_parameters(out, model);
+  if (model.has_accuracy_knob() && !model.accuracy_knob().param().empty())
+    out << "  accuracy knob: " << model.accuracy_knob().param() << " = "
+        << format_values(model.accuracy_knob().settings(), kAllValues) << " (cheapest to exact; "
+        << model.accuracy_knob().error_estimate() << ")\n";
   print_presets(out, model, preset_values);
 }
 

@@ -332,7 +332,9 @@ std::string vector_text(const Vec3& v) {
 // Two panels in one PNG: the longitudinal lobe above, the azimuthal lobe below.
 int run_fiber(const PlotSettings& s, const ParsedOptions& options, Client& client, v1::EvaluateRequest request,
               const MaterialModel& model) {
-  const FiberFrame frame = fiber_frame(parameter_values(model, request.material(), "axis"));
+  const std::string& axis_param = model.info.fiber_axis_param();
+  const FiberFrame frame = fiber_frame(axis_param.empty() ? std::vector<double>{}
+                                                          : parameter_values(model, request.material(), axis_param));
   Sweep longitudinal = fiber_longitudinal_sweep(s, frame), azimuthal = fiber_azimuthal_sweep(s, frame);
   add_queries(longitudinal, request);
   add_queries(azimuthal, request);
@@ -372,7 +374,8 @@ int run_plot(const ParsedOptions& options) {
   v1::EvaluateRequest request = material_request(options);
   Client client(options);
   const MaterialModel model = find_material_model(client, request.material());
-  if (view.value_or(model.info.name() == "fiber" ? "fiber" : "polar") == "fiber")
+  const bool fiber_model = !model.info.fiber_axis_param().empty();
+  if (view.value_or(fiber_model ? "fiber" : "polar") == "fiber")
     return run_fiber(settings, options, client, request, model);
   const bool transmits = request.material().has_transmission() || model.info.transmission();
   return run_polar(settings, options, client, request, settings.full_circle || transmits);

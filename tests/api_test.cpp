@@ -949,5 +949,47 @@ TEST_F(ApiTest, TextParametersAreNeverCombinedWithTheParametersTheySet) {
   const grpc::Status s = Call(*stub, other, &resp);
   EXPECT_TRUE(s.ok()) << s.error_message();
 }
+
+// Capabilities are declared as data: the accuracy knob names a parameter of the schema with ascending
+// settings inside its range, and a fiber model names its axis parameter (three values); the client's views
+// and Render's fidelity chooser read these, never model names.
+TEST_F(ApiTest, ListModelsDeclaresKnobsAndFiberAxesAsData) {
+  auto stub = testing::Connect(server_->port());
+  grpc::ClientContext ctx;
+  v1::ListModelsResponse models;
+  ASSERT_TRUE(stub->ListModels(&ctx, v1::ListModelsRequest(), &models).ok());
+  int knobs = 0, fibers = 0;
+  for (const v1::ModelInfo& model : models.models()) {
+    SCOPED_TRACE(model.name());
+    const auto param = [&](const std::string& name) -> const v1::ParamSchema* {
+      for (const v1::ParamSchema& p : model.params())
+        if (p.name() == name) return &p;
+      return nullptr;
+    };
+    if (!model.accuracy_knob().param().empty()) {
+      ++knobs;
+      const v1::ParamSchema* p = param(model.accuracy_knob().param());
+      ASSERT_NE(p, nullptr);
+      const auto& settings = model.accuracy_knob().settings();
+      ASSERT_GE(settings.size(), 2);
+      for (int i = 0; i < settings.size(); ++i) {
+        EXPECT_GE(settings[i], p->min());
+        EXPECT_LE(settings[i], p->max());
+        if (i > 0) EXPECT_GT(settings[i], settings[i - 1]);
+      }
+      EXPECT_FALSE(model.accuracy_knob().error_estimate().empty());
+    }
+    if (!model.fiber_axis_param().empty()) {
+      ++fibers;
+      const v1::ParamSchema* p = param(model.fiber_axis_param());
+      ASSERT_NE(p, nullptr);
+      EXPECT_EQ(p->type(), v1::ParamSchema::TYPE_REAL_LIST);
+      EXPECT_EQ(p->min_count(), 3u);
+      EXPECT_EQ(p->max_count(), 3u);
+    }
+  }
+  EXPECT_GE(knobs, 1);
+  EXPECT_GE(fibers, 1);
+}
 }  // namespace
 }  // namespace loomlight

@@ -167,6 +167,12 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
     info->set_transmission(model->transmission());
     info->set_reciprocal(model->reciprocal());
     info->set_energy_conserving(model->energy_conserving());
+    info->set_fiber_axis_param(model->fiber_axis_param());
+    if (const models::AccuracyKnob knob = model->accuracy_knob(); !knob.param.empty()) {
+      info->mutable_accuracy_knob()->set_param(knob.param);
+      info->mutable_accuracy_knob()->mutable_settings()->Add(knob.settings.begin(), knob.settings.end());
+      info->mutable_accuracy_knob()->set_error_estimate(knob.error_estimate);
+    }
     for (const models::ParamSpec& p : model->params()) {
       v1::ParamSchema* s = info->add_params();
       s->set_name(p.name);

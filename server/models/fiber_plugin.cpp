@@ -164,6 +164,8 @@ class FiberModel : public Model {
   const std::vector<PresetSpec>& presets() const override { return presets_; }
   KernelSpec kernel() const override { return {"models/fiber.cl", "fiber_eval", ""}; }
 
+  std::string fiber_axis_param() const override { return "axis"; }
+
   std::string Validate(const ParamValues& v) const override {
     if (Norm(v.at("axis")) < 1e-6) return "axis: must not be the zero vector";
     return "";

@@ -52,6 +52,15 @@ struct KernelSpec {
   std::string uv_function;  // "" when the model does not vary over the surface
 };
 
+// A model's accuracy knob, declared as data: a parameter whose settings trade speed for accuracy, cheapest
+// first and exact last, and how the error of a cheaper setting is estimated. Render's fidelity chooser
+// searches it; ListModels serves it.
+struct AccuracyKnob {
+  std::string param;              // "" = the model has none
+  std::vector<double> settings;   // ascending cost; the last is full fidelity
+  std::string error_estimate;     // how a setting's error is measured, for people
+};
+
 class Model {
  public:
   virtual ~Model() = default;
@@ -97,6 +106,13 @@ class Model {
   // Energy conserving: for every wi the directional albedo, the integral of f(wi, wo) |n.wo| over the sphere
   // of wo (SPEC.md section 1's f), is at most 1: the material scatters no more light than reaches it.
   virtual bool energy_conserving() const { return false; }
+  // A fiber model (f about a fiber's axis, not about the surface normal) names the parameter holding the
+  // axis; "" for surface models. Served by ListModels, so clients choose views without knowing model names.
+  virtual std::string fiber_axis_param() const { return ""; }
+  virtual AccuracyKnob accuracy_knob() const { return {}; }
+  // Threads across one repeat of the material's pattern, the larger of its two directions (the fidelity
+  // chooser compares a thread's width with a pixel's footprint); 1 for materials without a pattern.
+  virtual double ThreadsPerRepeat(const ParamValues& values) const { return 1; }
 
   const ParamSpec* FindParam(const std::string& name) const;
   // Defaults completed with the preset's values.

@@ -169,6 +169,12 @@ class WovenModel : public Model {
     return "";
   }
 
+  double ThreadsPerRepeat(const ParamValues& v) const override {
+    weave::WeavePattern pattern;
+    if (!PatternOf(v, &pattern).empty()) return 1;
+    return std::max(pattern.warps, pattern.picks);
+  }
+
   std::string Validate(const ParamValues& v) const override {
     weave::WeavePattern pattern;
     return PatternOf(v, &pattern);

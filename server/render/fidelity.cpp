@@ -9,21 +9,6 @@
 namespace loomlight::render {
 namespace {
 
-// ---- The model-specific knobs, in one table, found by parameter name (a new model with such a parameter
-// gets the knob without a change here). ----
-// An accuracy parameter: full fidelity is the schema's maximum; the cheaper candidates are `cheapest`,
-// 2 x cheapest, ... below it.
-struct AccuracyParam {
-  const char* name;
-  double cheapest;
-};
-constexpr AccuracyParam kAccuracyParams[] = {
-    {"tangent_samples", 8},  // microcylinder: tangent curve samples per thread (README: 9% at 16, 1% at 32)
-};
-// A weave pattern's threads per repeat: pattern.warps along u, the picks (cells / warps) along v.
-constexpr const char* kWarpsParam = "pattern.warps";
-constexpr const char* kCellsParam = "pattern.cells";
-
 std::string Format(const char* format, ...) __attribute__((format(printf, 1, 2)));
 std::string Format(const char* format, ...) {
   char buffer[256];
@@ -40,23 +25,13 @@ struct Knob {
   double full = 0;
 };
 
-// The model's accuracy knob, or a knob with an empty name.
+// The model's declared accuracy knob (models::AccuracyKnob), or a knob with an empty name.
 Knob FindKnob(const models::Model& model) {
-  for (const AccuracyParam& p : kAccuracyParams)
-    if (const models::ParamSpec* spec = model.FindParam(p.name)) {
-      Knob knob{p.name, {}, spec->max};
-      for (double v = std::max(p.cheapest, spec->min); v < spec->max; v *= 2) knob.candidates.push_back(v);
-      return knob;
-    }
-  return {};
-}
-
-// Threads per pattern repeat (the larger of the two directions); 1 when the model has no weave pattern.
-double ThreadsPerRepeat(const models::ParamValues& values) {
-  const auto warps = values.find(kWarpsParam), cells = values.find(kCellsParam);
-  if (warps == values.end() || cells == values.end() || warps->second.empty() || warps->second[0] < 1) return 1;
-  const double w = warps->second[0];
-  return std::max(w, std::floor(cells->second.size() / w));
+  const models::AccuracyKnob declared = model.accuracy_knob();
+  if (declared.param.empty() || declared.settings.empty()) return {};
+  Knob knob{declared.param, declared.settings, declared.settings.back()};
+  knob.candidates.pop_back();
+  return knob;
 }
 
 // One object's modelling choice during the search.
@@ -170,7 +145,7 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
   const Knob knob = FindKnob(*m.model);
   const bool varying = m.model->spatially_varying(), transmits = Transmits(m);
   const Config full{varying, knob.full, transmits};
-  const double segment = 1.0 / (setup.texture_scale * ThreadsPerRepeat(m.values));  // scene units
+  const double segment = 1.0 / (setup.texture_scale * m.model->ThreadsPerRepeat(m.values));  // scene units
   const Pilot pilot(setup);
   const std::string failed = "cannot pack a variant of the material for the fidelity choice";
 

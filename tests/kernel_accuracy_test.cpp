@@ -240,30 +240,12 @@ std::vector<models::PackedMaterial> WovenPresets(const Model** model) {
 // the highlight ellipse, so a float rounding of a sample lying within ~1e-7 of an ellipse edge flips it: such
 // values differ by ks Fr G/(n.wi n.wo), while every other value agrees to float rounding. The test bounds the
 // share of flips (ellipse perimeter x ~1e-7 relative position error: ~1e-5 expected) and the error of the rest.
-// Pairs mirrored about half vectors within 0.35 rad of the normal: the highlights then lie in their windows.
-Pairs NearSpecularPairs(size_t n, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> U(0, 1);
-  Pairs p;
-  while (p.size() < n) {
-    const double tilt = 0.35 * U(rng), az = 6.283185307179586 * U(rng);
-    const double h[3] = {std::sin(tilt) * std::cos(az), std::sin(tilt) * std::sin(az), std::cos(tilt)};
-    float wi[3];
-    accuracy::RandomHemisphere(rng, wi);
-    const double d = 2 * (wi[0] * h[0] + wi[1] * h[1] + wi[2] * h[2]);
-    const float wo[3] = {float(d * h[0] - wi[0]), float(d * h[1] - wi[1]), float(d * h[2] - wi[2])};
-    if (wo[2] <= 0.01f) continue;
-    Push(p, wi[0], wi[1], wi[2], wo[0], wo[1], wo[2]);
-  }
-  return p;
-}
-
 TEST(Woven, BtfKernelsMatchDoubleReference) {
   const Model* model = nullptr;
   const auto packed = WovenPresets(&model);
   ASSERT_EQ(packed.size(), 3u);
   Pairs p = RandomPairs(50000, 99);
-  const Pairs near = NearSpecularPairs(50000, 98);
+  const Pairs near = accuracy::NearSpecularPairs(50000, 98);
   p.wi.insert(p.wi.end(), near.wi.begin(), near.wi.end());
   p.wo.insert(p.wo.end(), near.wo.begin(), near.wo.end());
   const std::vector<float> uv = TexturePositions(p.size(), 17);
@@ -320,9 +302,10 @@ TEST(Woven, MixedPatternsInOneBtfLaunchEqualSeparateLaunches) {
   ASSERT_TRUE(testing::SharedRuntime().Run(args, &mixed, &error)) << error;
   for (size_t j = 0; j < packed.size(); ++j) {
     const std::vector<double> alone = testing::RunKernel(*model, packed[j], false, p.wi, p.wo, uv);
-    for (size_t q = 0; q < p.size(); ++q)
-      if (index[q] == int(j))
-        for (int c = 0; c < 3; ++c) ASSERT_EQ(mixed[3 * q + c], alone[3 * q + c]) << "material " << j << " query " << q;
+    for (size_t q = 0; q < p.size(); ++q) {
+      if (index[q] != int(j)) continue;
+      for (int c = 0; c < 3; ++c) ASSERT_EQ(mixed[3 * q + c], alone[3 * q + c]) << "material " << j << " query " << q;
+    }
   }
 }
 

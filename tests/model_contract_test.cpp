@@ -169,21 +169,6 @@ Pairs RandomDirections(size_t n, unsigned seed) {
   return p;
 }
 
-// Pairs mirrored about half vectors within 0.35 rad of the normal: the peaks of specular lobes and highlights.
-Pairs NearSpecular(size_t n, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> U(0, 1);
-  Pairs p;
-  while (p.size() < n) {
-    const Vec h = WithCosine(std::cos(0.35 * U(rng)), 2 * kPi * U(rng));
-    const Vec wi = RandomUpper(rng);
-    const double d = 2 * (wi[0] * h[0] + wi[1] * h[1] + wi[2] * h[2]);
-    const Vec wo = {d * h[0] - wi[0], d * h[1] - wi[1], d * h[2] - wi[2]};
-    if (wo[2] > 0.01) Push(p, wi, wo);
-  }
-  return p;
-}
-
 // SPEC.md's hard cases that every model shares: normal incidence; grazing n.w = 1e-6, 1e-7 (the horizon
 // threshold) and exactly 0; wi = wo, wi = mirror(wo), wi = -wo (straight through, for models that transmit);
 // directions along the thread axes x and y and their negatives (in the surface, and lifted 1e-6 above and
@@ -238,7 +223,7 @@ Pairs HardDirections() {
         Push(p, t, Below(b));
       }
     }
-  Append(p, NearSpecular(600, 77));
+  Append(p, accuracy::NearSpecularPairs(600, 77));
   return p;
 }
 
@@ -330,7 +315,7 @@ class ModelContract : public ::testing::TestWithParam<Case> {
   static const Pairs& BtfDirections() {
     static const Pairs p = [] {
       Pairs all = RandomDirections(10000, 4321);
-      Append(all, NearSpecular(10000, 98));
+      Append(all, accuracy::NearSpecularPairs(10000, 98));
       Append(all, Hard());
       return all;
     }();
@@ -647,7 +632,7 @@ TEST_P(SpatiallyVaryingModel, BtfMeanIsBrdf) {
   const PackedMaterial m = Packed();
   constexpr int kN = 1024;
   Pairs dirs = accuracy::RandomPairs(4, 55);  // mostly the diffuse part
-  Append(dirs, NearSpecular(8, 56));          // highlights lit, partly clipped by their windows
+  Append(dirs, accuracy::NearSpecularPairs(8, 56));          // highlights lit, partly clipped by their windows
   const std::vector<double> brdf = Reference(model(), m, dirs);
   std::mt19937 rng(9);
   std::uniform_real_distribution<float> U(0, 1);

@@ -31,6 +31,24 @@ Pairs RandomPairs(size_t n, unsigned seed) {
   return p;
 }
 
+Pairs NearSpecularPairs(size_t n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  Pairs p;
+  while (p.size() < n) {
+    const double tilt = 0.35 * u(rng), az = 2 * M_PI * u(rng);
+    const double h[3] = {std::sin(tilt) * std::cos(az), std::sin(tilt) * std::sin(az), std::cos(tilt)};
+    float wi[3];
+    RandomHemisphere(rng, wi);
+    const double d = 2 * (wi[0] * h[0] + wi[1] * h[1] + wi[2] * h[2]);
+    const float wo[3] = {float(d * h[0] - wi[0]), float(d * h[1] - wi[1]), float(d * h[2] - wi[2])};
+    if (wo[2] <= 0.01f) continue;
+    p.wi.insert(p.wi.end(), wi, wi + 3);
+    p.wo.insert(p.wo.end(), wo, wo + 3);
+  }
+  return p;
+}
+
 double Percentile(std::vector<double> values, double q) {
   if (values.empty()) return 0;
   const size_t k = std::min(values.size() - 1, static_cast<size_t>(q * static_cast<double>(values.size())));

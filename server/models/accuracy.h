@@ -19,6 +19,9 @@ struct Pairs {
   Pairs Head(size_t n) const;  // the first n pairs
 };
 Pairs RandomPairs(size_t n, unsigned seed);
+// n pairs mirrored about half vectors within 0.35 rad of the normal (wo at least 0.01 above the surface): the
+// peaks of specular lobes, where highlights lie in their windows.
+Pairs NearSpecularPairs(size_t n, unsigned seed);
 
 // The q-quantile (0..1) of the values, nearest rank; 0 when empty.
 double Percentile(std::vector<double> values, double q);

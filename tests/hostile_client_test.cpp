@@ -296,13 +296,16 @@ TEST(BoundedMemory, UnknownFieldsNeverReachTheMaterialCache) {
     v1::EvaluateResponse response;
     return stub->Evaluate(&context, r, &response);
   };
-  ASSERT_TRUE(evaluate(0).ok());
+  // A first 100 settle the allocators (and a sanitizer build's quarantine of freed memory, 256 MB).
+  const size_t start = server.RssBytes();
+  for (int i = 0; i < 100; ++i) ASSERT_TRUE(evaluate(i).ok()) << i;
   const size_t before = server.RssBytes();
-  for (int i = 1; i <= 300; ++i) ASSERT_TRUE(evaluate(i).ok()) << i;
+  for (int i = 100; i < 400; ++i) ASSERT_TRUE(evaluate(i).ok()) << i;
   const size_t after = server.RssBytes();
-  std::printf("  RSS %.0f MB before, %.0f MB after 300 materials with distinct 4 MiB unknown fields\n", before / 1e6,
-              after / 1e6);
-  EXPECT_LT(after, before + (size_t{256} << 20));  // was +2.45 GB, never released
+  std::printf("  RSS %.0f MB at start, %.0f MB after 100 and %.0f MB after 400 materials with distinct 4 MiB unknown "
+              "fields\n", start / 1e6, before / 1e6, after / 1e6);
+  EXPECT_LT(after, before + (size_t{128} << 20));  // 300 more: was +2.45 GB, never released
+  EXPECT_LT(after, start + (size_t{512} << 20));
 }
 
 TEST(BoundedMemory, MaterialCacheIsBoundedInBytesAndKeyedOnTheResolvedMaterial) {

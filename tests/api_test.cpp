@@ -623,8 +623,8 @@ TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) 
     }
     return m;
   };
-  // The bytes of one entry (these materials all have the same parameters, so the same size), then a cache
-  // that holds two of them.
+  // The bytes of one material (its entry and the alias of its request's bytes; these materials all have the
+  // same parameters, so about the same size), then a cache that holds two of them.
   size_t entry_bytes = 0;
   {
     models::MaterialCache probe(size_t{1} << 20);
@@ -633,7 +633,7 @@ TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) 
     entry_bytes = probe.bytes();
   }
   ASSERT_GT(entry_bytes, 0u);
-  models::MaterialCache cache(2 * entry_bytes + entry_bytes / 2);
+  models::MaterialCache cache(2 * entry_bytes + entry_bytes / 4);
   std::vector<std::shared_ptr<const models::PreparedMaterial>> first;
   const std::pair<const char*, double> materials[] = {{"velvet", -1.0}, {"velvet", 1.3}, {"silk_shot", -1.0}};
   for (int round = 0; round < 2; ++round)

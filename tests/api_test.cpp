@@ -31,12 +31,8 @@ using v1::EvaluateResponse;
 
 std::unique_ptr<api::LoomlightServer> StartServer(batching::BatcherOptions batcher = {}) {
   api::ServerOptions options;
-  options.address = "127.0.0.1:0";
   options.batcher = batcher;
-  std::string error;
-  auto server = api::LoomlightServer::Start(options, &error);
-  EXPECT_NE(server, nullptr) << error;
-  return server;
+  return testing::StartInProcessServer(options);
 }
 
 EvaluateRequest Request(const std::string& preset, size_t n, unsigned seed) {
@@ -702,11 +698,9 @@ TEST(Batching, NoCoalescingRunsOneRequestPerLaunch) {
 
 TEST(Metrics, PrometheusEndpointCountsCallsAndQueries) {
   api::ServerOptions options;
-  options.address = "127.0.0.1:0";
   options.metrics_address = "127.0.0.1:0";
-  std::string error;
-  auto server = api::LoomlightServer::Start(options, &error);
-  ASSERT_NE(server, nullptr) << error;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
   ASSERT_GT(server->metrics_port(), 0);
   auto stub = testing::Connect(server->port());
   EvaluateResponse resp;

@@ -556,11 +556,9 @@ TEST(Health, NotServingWhileALaunchIsStuckAndServingAfter) {
 
 TEST(Metrics, AStreamWhoseDeadlinePassedCountsAsDeadlineExceeded) {
   api::ServerOptions options;
-  options.address = "127.0.0.1:0";
   options.metrics_address = "127.0.0.1:0";
-  std::string error;
-  auto server = api::LoomlightServer::Start(options, &error);
-  ASSERT_NE(server, nullptr) << error;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
   auto stub = testing::Connect(server->port());
   grpc::ClientContext context;
   context.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(500));

@@ -105,6 +105,14 @@ std::string HttpGet(int port, const std::string& path) {
   return body == std::string::npos ? "" : response.substr(body + 4);
 }
 
+std::unique_ptr<api::LoomlightServer> StartInProcessServer(api::ServerOptions options) {
+  options.address = "127.0.0.1:0";
+  std::string error;
+  auto server = api::LoomlightServer::Start(options, &error);
+  EXPECT_NE(server, nullptr) << error;
+  return server;
+}
+
 ServerProcess::ServerProcess(std::vector<std::string> extra_args) {
   int fds[2];
   if (pipe(fds) != 0) return;

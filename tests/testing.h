@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/server.h"
 #include "server/models/accuracy.h"
 #include "server/models/registry.h"
 #include "server/runtime/cl_runtime.h"
@@ -45,6 +46,10 @@ struct DecodedImage {
 };
 // Decodes PNG, JPEG or EXR bytes in memory; `name` (e.g. "x.png") picks the reader. Failures are test failures.
 DecodedImage DecodeImage(const std::string& bytes, const char* name);
+
+// A server in this process on 127.0.0.1 with a free port (options.address is replaced); a test failure and
+// nullptr when it cannot start.
+std::unique_ptr<api::LoomlightServer> StartInProcessServer(api::ServerOptions options = {});
 
 // The loomlight-server binary started on 127.0.0.1 with a free port; killed on destruction.
 class ServerProcess {

@@ -643,7 +643,9 @@ TEST(MaterialCache, ReturnsTheSamePackingAsResolvingAndEvictsLeastRecentlyUsed) 
       EXPECT_EQ(entry->model, resolved.model);
       EXPECT_EQ(entry->packed.data, resolved.model->Pack(resolved.values).data) << preset << " eta " << eta;
       if (round == 0) first.push_back(entry);
-      if (round == 1) EXPECT_NE(entry.get(), first[k].get()) << "round two should have missed: " << preset;
+      if (round == 1) {
+        EXPECT_NE(entry.get(), first[k].get()) << "round two should have missed: " << preset;
+      }
       EXPECT_LE(cache.entries(), 2u);
     }
   // Capacity 2 with three materials cycling: every lookup of round two missed (above); a repeat hits.
@@ -969,7 +971,9 @@ TEST_F(ApiTest, ListModelsDeclaresKnobsAndFiberAxesAsData) {
       for (int i = 0; i < settings.size(); ++i) {
         EXPECT_GE(settings[i], p->min());
         EXPECT_LE(settings[i], p->max());
-        if (i > 0) EXPECT_GT(settings[i], settings[i - 1]);
+        if (i > 0) {
+          EXPECT_GT(settings[i], settings[i - 1]);
+        }
       }
       EXPECT_FALSE(model.accuracy_knob().error_estimate().empty());
     }

@@ -165,7 +165,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // On the asset loader: the request's map (by name or from its bytes) into environment_, within the call's
   // deadline, while the client is there, and within the memory budget.
   grpc::Status LoadEnvironment() {
-    const auto stop = [this] { return context_->IsCancelled() || Clock::now() >= deadline_; };
+    const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
     bool refused = false;
     const auto admit = [this, &refused](size_t bytes) {
       refused = !admission_.bytes.Grow(bytes);

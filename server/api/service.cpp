@@ -1,10 +1,8 @@
 #include "server/api/service.h"
 
-#include <google/protobuf/io/coded_stream.h>
-#include <google/protobuf/io/zero_copy_stream_impl_lite.h>
-
 #include <algorithm>
 #include <cmath>
+#include <mutex>
 
 #include "server/api/admission.h"
 #include "server/api/job_status.h"

@@ -3,10 +3,7 @@
 #pragma once
 
 #include <atomic>
-#include <list>
 #include <memory>
-#include <mutex>
-#include <unordered_map>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/host_worker.h"

@@ -143,7 +143,7 @@ Sweep in_plane_sweep(const PlotSettings& s, bool full_circle) {
   return sweep;
 }
 
-// The fiber's frame as the server builds it (server/models/fiber_plugin.cpp): t the normalised axis, u = +z
+// The fiber's frame as the server builds it (server/models/plugins/fiber.cpp): t the normalised axis, u = +z
 // made perpendicular to t (+x when t is along z), v = t x u.
 struct FiberFrame {
   Vec3 t, u, v;

@@ -5,12 +5,17 @@
 #include <array>
 #include <cmath>
 
-#include "server/models/host_models.h"
 #include "server/models/registry.h"
 #include "tests/testing.h"
 
 namespace loomlight {
 namespace {
+// The material layout (mc_material_stride) of the shared source.
+namespace mc_source {
+typedef double real;
+#include "common/shim.h"
+#include "models/microcylinder.h"
+}  // namespace mc_source
 
 using models::Model;
 using models::ParamValues;
@@ -86,7 +91,7 @@ TEST(MicrocylinderCurve, SamplesArcLengthMidpointsAndJumps) {
   ParamValues v = Preset("velvet");
   v["tangent_samples"] = {4};
   const models::PackedMaterial m = Microcylinder().Pack(v);
-  ASSERT_EQ(m.data.size(), size_t(reference::MicrocylinderMaterialStride(4)));
+  ASSERT_EQ(m.data.size(), size_t(mc_source::mc_material_stride(4)));
   // Thread 2: -90 -> -55 over [0, 0.5], jump, 55 -> 90 over [0.5, 1]; midpoints 1/8, 3/8, 5/8, 7/8.
   const double expected[4] = {-81.25, -63.75, 63.75, 81.25};
   for (int k = 0; k < 4; ++k) {

@@ -31,6 +31,7 @@
 #include <thread>
 #include <vector>
 
+#include "server/models/host_kernels.h"
 #include "server/models/registry.h"
 #include "tests/testing.h"
 
@@ -417,6 +418,29 @@ TEST(RegistryContract, NamesUniqueAndEveryModelHasPresets) {
       EXPECT_TRUE(preset_names.insert(preset.name).second) << "preset " << preset.name << " of " << model->name()
                                                            << " is not unique across the registry";
       EXPECT_EQ(models::Registry::Global().FindPreset(preset.name, nullptr), model.get()) << preset.name;
+    }
+  }
+}
+
+// The generated host-kernel table (cmake/ModelList.cmake): every kernel a model names is built for the host,
+// from that model's own .cl; no two entries share a name (OpenCL would accept it in separate programs, the
+// host table by name would not); a model lets light through exactly when it names a transmittance kernel.
+TEST(RegistryContract, EveryNamedKernelHasHostBuilds) {
+  std::set<std::string> names;
+  for (const models::host::HostKernel& k : models::host::AllKernels()) {
+    EXPECT_TRUE(names.insert(k.name).second) << "duplicate kernel entry " << k.name;
+    EXPECT_NE(k.reference, nullptr) << k.name;
+    EXPECT_NE(k.native, nullptr) << k.name;
+    EXPECT_NE(models::Registry::Global().FindModel(k.model), nullptr) << k.name << " of unregistered " << k.model;
+  }
+  for (const auto& model : models::Registry::Global().models()) {
+    const models::KernelSpec spec = model->kernel();
+    EXPECT_EQ(spec.source, "models/" + model->name() + ".cl") << model->name();
+    for (const std::string& name : {spec.function, spec.uv_function, spec.transmittance_function}) {
+      if (name.empty()) continue;
+      const models::host::HostKernel* k = models::host::FindKernel(name);
+      ASSERT_NE(k, nullptr) << model->name() << " names " << name;
+      EXPECT_EQ(k->model, model->name()) << name;
     }
   }
 }

@@ -1,5 +1,10 @@
 #include "server/models/registry.h"
 
+#include <cstdio>
+#include <cstdlib>
+
+#include "server/models/host_kernels.h"
+
 namespace loomlight::models {
 
 const ParamSpec* Model::FindParam(const std::string& name) const {
@@ -21,13 +26,56 @@ ParamValues Model::PresetValues(const PresetSpec& preset) const {
   return values;
 }
 
+namespace {
+// A kernel entry the model names, which its .cl must define (the host builds list every entry by name).
+const host::HostKernel& HostKernelOf(const Model& model, const std::string& name) {
+  const host::HostKernel* kernel = host::FindKernel(name);
+  if (!kernel) {
+    std::fprintf(stderr, "model '%s' names kernel '%s', which no kernels/models/*.cl defines\n", model.name().c_str(),
+                 name.c_str());
+    std::abort();
+  }
+  return *kernel;
+}
+}  // namespace
+
+PackedMaterial Model::Pack(const ParamValues& values) const {
+  PackedMaterial m = PackLayout(values);
+  m.data32.assign(m.data.begin(), m.data.end());
+  return m;
+}
+
+void Model::ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
+                          double* f) const {
+  const KernelSpec spec = kernel();
+  const bool with_uv = uv && spatially_varying();
+  host::RunReference(HostKernelOf(*this, with_uv ? spec.uv_function : spec.function), m.data.data(), m.uniform, wi,
+                     wo, with_uv ? uv : nullptr, n, f);
+}
+
+void Model::NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
+                       float* f) const {
+  const KernelSpec spec = kernel();
+  const bool with_uv = uv && spatially_varying();
+  host::RunNative(HostKernelOf(*this, with_uv ? spec.uv_function : spec.function), m.data32.data(), m.uniform, wi,
+                  wo, with_uv ? uv : nullptr, n, f);
+}
+
+void Model::DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const {
+  const std::string name = kernel().transmittance_function;
+  if (name.empty()) {
+    std::fill(t, t + n, 0.0);
+    return;
+  }
+  std::vector<double> rgb(3 * n);
+  host::RunReference(HostKernelOf(*this, name), m.data.data(), m.uniform, wo, wo, nullptr, n, rgb.data());
+  for (size_t q = 0; q < n; ++q) t[q] = rgb[3 * q];
+}
+
 Registry& Registry::Global() {
   static Registry* registry = [] {
     auto* r = new Registry;
-    r->Add(MakeMicrocylinderModel());
-    r->Add(MakeWovenModel());
-    r->Add(MakeThinLayerModel());
-    r->Add(MakeFiberModel());
+    AddBuiltinModels(r);
     return r;
   }();
   return *registry;

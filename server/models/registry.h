@@ -35,21 +35,26 @@ struct PresetSpec {
   ParamValues values;  // overrides of the defaults; the registry completes them
 };
 
-// Device layout of one material, in double (converted to the kernel's precision at launch). Its size may
-// depend on the parameters (a woven material carries its pattern); a launch concatenates materials.
+// Device layout of one material, packed once per precision: `data` in double (fp64 kernels, the reference),
+// `data32` the same rounded once to float (fp32 kernels, the native baseline). Its size may depend on the
+// parameters (a woven material carries its pattern); a launch concatenates materials.
 struct PackedMaterial {
   std::vector<double> data;
+  std::vector<float> data32;
   int uniform = 0;  // launch-uniform integer (e.g. tangent samples); only equal ones share a launch
   double approximation_error = 0;  // max relative error of a cheaper mode vs the exact one (thin layer: single)
 };
 
 // A model's kernels: the entry file under kernels/ and its kernel functions, all with the signature of
 // kernels/common/eval_kernel.h. `function` evaluates f(wi, wo); a spatially varying model also names
-// `uv_function`, f(wi, wo, uv) (its BTF), used when a request carries texture coordinates.
+// `uv_function`, f(wi, wo, uv) (its BTF), used when a request carries texture coordinates; a model that lets
+// light through names `transmittance_function`, the direct (unscattered) transmittance toward each wo in
+// every channel (wi ignored).
 struct KernelSpec {
   std::string source;
   std::string function;
-  std::string uv_function;  // "" when the model does not vary over the surface
+  std::string uv_function = "";             // "" when the model does not vary over the surface
+  std::string transmittance_function = "";  // "" when the model lets no light through
 };
 
 // A model's accuracy knob, declared as data: a parameter whose settings trade speed for accuracy, cheapest
@@ -71,31 +76,32 @@ class Model {
   virtual KernelSpec kernel() const = 0;
   // Cross-parameter checks beyond the schema's per-value ranges; returns "" or "field: reason".
   virtual std::string Validate(const ParamValues& values) const = 0;
-  virtual PackedMaterial Pack(const ParamValues& values) const = 0;
+  // The material in its kernel layout, in both precisions (PackLayout's doubles, and data32 from them).
+  PackedMaterial Pack(const ParamValues& values) const;
   // Sets the parameters a kText parameter stands for (e.g. a WIF draft -> the weave pattern). Returns ""
   // or the reason, e.g. "line 12: ...". Models without text parameters keep this default.
   virtual std::string ApplyText(const std::string& name, const std::string& text, ParamValues* values) const {
     return "parameter '" + name + "' takes no text";
   }
-  // Double-precision host reference: f for n queries (RGB), same source as the kernel. uv (pairs) is
-  // nullptr for f(wi, wo) and given only to spatially varying models.
-  virtual void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv,
-                             size_t n, double* f) const = 0;
+  // Double-precision host reference: f for n queries (RGB), the kernel's own source built for the host
+  // (server/models/host_kernels.h). uv (pairs) selects the spatially varying kernel; nullptr: f(wi, wo).
+  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
+                     double* f) const;
   // Float native baseline (same source, -O3 -march=native, all cores).
-  virtual void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
-                          float* f) const = 0;
+  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
+                  float* f) const;
 
   bool spatially_varying() const { return !kernel().uv_function.empty(); }
   // Models that let light through the cloth (non-zero f with wi and wo on opposite sides) also report the
-  // direct (unscattered) transmittance toward each wo, in [0, 1]; n values into t.
-  virtual bool transmission() const { return false; }
+  // direct (unscattered) transmittance toward each wo, in [0, 1].
+  bool transmission() const { return !kernel().transmittance_function.empty(); }
   // Adapts a packed material to a request's error target (relative error of f; 0 = none given, keep the
   // material's own choice) and describes the approximation in use with its estimated error, or "" when the
   // model makes none.
   virtual std::string ChooseApproximation(double error_target, PackedMaterial* m) const { return ""; }
-  virtual void DirectTransmittance(const PackedMaterial&, const float* wo, size_t n, double* t) const {
-    std::fill(t, t + n, 0.0);
-  }
+  // The direct transmittance toward each of n directions wo into t (the reference build); 0 for models
+  // without transmission.
+  void DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const;
   // True when f depends only on the angles between wi, wo and the normal (not on the azimuth of the
   // pair): Tabulate's MERL grid then needs one half-vector azimuth sample instead of an average.
   virtual bool isotropic() const { return false; }
@@ -118,6 +124,10 @@ class Model {
   // Defaults completed with the preset's values.
   ParamValues PresetValues(const PresetSpec& preset) const;
   ParamValues DefaultValues() const;
+
+ protected:
+  // The plugin's packing: the material's values in its kernel's layout (double), and its launch-uniform value.
+  virtual PackedMaterial PackLayout(const ParamValues& values) const = 0;
 };
 
 class Registry {
@@ -133,11 +143,16 @@ class Registry {
   std::vector<std::unique_ptr<Model>> models_;
 };
 
-// The built-in models, added by Registry::Global() (an explicit list: static registrars in a static
-// library would be dropped by the linker).
-std::unique_ptr<Model> MakeMicrocylinderModel();
-std::unique_ptr<Model> MakeWovenModel();
-std::unique_ptr<Model> MakeThinLayerModel();
-std::unique_ptr<Model> MakeFiberModel();
+// The models of LOOMLIGHT_MODELS (CMakeLists.txt), in its order: generated by cmake/ModelList.cmake, which
+// calls each plugin's factory (an explicit list: static registrars in a static library would be dropped by
+// the linker). Registry::Global() starts with them.
+void AddBuiltinModels(Registry* registry);
 
 }  // namespace loomlight::models
+
+// Ends a plugin's source (server/models/plugins/NAME.cpp, outside any namespace): the factory the generated
+// model list calls for NAME.
+#define LOOMLIGHT_REGISTER_MODEL(NAME, CLASS)                                         \
+  namespace loomlight::models {                                                       \
+  std::unique_ptr<Model> MakeModel_##NAME() { return std::make_unique<CLASS>(); }    \
+  }

@@ -9,7 +9,6 @@
 #include <cmath>
 #include <functional>
 
-#include "server/models/host_models.h"
 #include "server/models/registry.h"
 
 namespace loomlight::models {
@@ -171,7 +170,7 @@ class FiberModel : public Model {
     return "";
   }
 
-  PackedMaterial Pack(const ParamValues& v) const override {
+  PackedMaterial PackLayout(const ParamValues& v) const override {
     PackedMaterial m;
     m.uniform = static_cast<int>(v.at("mode")[0]);
     m.data.assign(FB_MATERIAL_SIZE, 0.0);
@@ -226,15 +225,6 @@ class FiberModel : public Model {
     return m;
   }
 
-  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
-                     double* f) const override {
-    reference::FiberEval(m.data.data(), m.uniform, wi, wo, n, f);
-  }
-  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
-                  float* f) const override {
-    const std::vector<float> data(m.data.begin(), m.data.end());
-    native::FiberEval(data.data(), m.uniform, wi, wo, n, f);
-  }
 
  private:
   std::vector<ParamSpec> schema_ = Schema();
@@ -243,6 +233,6 @@ class FiberModel : public Model {
 
 }  // namespace
 
-std::unique_ptr<Model> MakeFiberModel() { return std::make_unique<FiberModel>(); }
-
 }  // namespace loomlight::models
+
+LOOMLIGHT_REGISTER_MODEL(fiber, FiberModel)

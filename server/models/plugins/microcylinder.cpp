@@ -3,11 +3,16 @@
 #include <cmath>
 #include <numeric>
 
-#include "server/models/host_models.h"
 #include "server/models/registry.h"
 
 namespace loomlight::models {
 namespace {
+// The tangent curve (mc_curve_offset) of the shared source, in double.
+namespace mc_source {
+typedef double real;
+#include "common/shim.h"
+#include "models/microcylinder.h"
+}  // namespace mc_source
 
 constexpr int kDefaultTangentSamples = 32;
 constexpr int kMaxTangentSamples = 256;  // MC_MAX_TANGENT_SAMPLES
@@ -132,7 +137,7 @@ class MicrocylinderModel : public Model {
     return "";
   }
 
-  PackedMaterial Pack(const ParamValues& v) const override {
+  PackedMaterial PackLayout(const ParamValues& v) const override {
     const int T = static_cast<int>(v.at("tangent_samples")[0]);
     PackedMaterial m;
     m.uniform = T;
@@ -149,8 +154,7 @@ class MicrocylinderModel : public Model {
         // Arc-length midpoints s_m = (m + 1/2) L / T (SPEC.md section 2).
         const double s = (k + 0.5) * total / T;
         double c, sn;
-        CosSinDegrees(reference::MicrocylinderCurveOffset(offsets.data(), lengths.data(),
-                                                          static_cast<int>(offsets.size()), s),
+        CosSinDegrees(mc_source::mc_curve_offset(offsets.data(), lengths.data(), static_cast<int>(offsets.size()), s),
                       &c, &sn);
         m.data.push_back(c);
         m.data.push_back(sn);
@@ -159,15 +163,6 @@ class MicrocylinderModel : public Model {
     return m;
   }
 
-  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
-                     double* f) const override {
-    reference::MicrocylinderEval(m.data.data(), m.uniform, wi, wo, n, f);
-  }
-  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
-                  float* f) const override {
-    const std::vector<float> data(m.data.begin(), m.data.end());
-    native::MicrocylinderEval(data.data(), m.uniform, wi, wo, n, f);
-  }
 
  private:
   std::vector<ParamSpec> schema_ = Schema();
@@ -176,6 +171,6 @@ class MicrocylinderModel : public Model {
 
 }  // namespace
 
-std::unique_ptr<Model> MakeMicrocylinderModel() { return std::make_unique<MicrocylinderModel>(); }
-
 }  // namespace loomlight::models
+
+LOOMLIGHT_REGISTER_MODEL(microcylinder, MicrocylinderModel)

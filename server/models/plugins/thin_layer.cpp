@@ -11,13 +11,12 @@
 #include <future>
 #include <utility>
 
-#include "server/models/host_models.h"
 #include "server/models/registry.h"
 #include "server/models/slab/adding_doubling.h"
 
 namespace loomlight::models {
 namespace {
-// The layout constants (TL_*) of the shared source; evaluation goes through reference.cpp and native.cpp.
+// The layout constants (TL_*) of the shared source; evaluation goes through server/models/host_kernels.h.
 namespace tl_layout {
 typedef double real;
 #include "common/shim.h"
@@ -118,11 +117,11 @@ class ThinLayerModel : public Model {
   }
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
-  KernelSpec kernel() const override { return {"models/thin_layer.cl", "thin_layer_eval", ""}; }
+  KernelSpec kernel() const override { return {"models/thin_layer.cl", "thin_layer_eval", "", "thin_layer_transmittance"}; }
 
   std::string Validate(const ParamValues&) const override { return ""; }  // the schema's ranges suffice
 
-  PackedMaterial Pack(const ParamValues& v) const override {
+  PackedMaterial PackLayout(const ParamValues& v) const override {
     PackedMaterial m;
     m.uniform = static_cast<int>(v.at("scattering")[0]);
     m.data.assign(TL_PACKED_SIZE, 0.0);
@@ -133,11 +132,6 @@ class ThinLayerModel : public Model {
     return m;
   }
 
-  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
-                     double* f) const override {
-    reference::ThinLayerEval(m.data.data(), m.uniform, wi, wo, n, f);
-  }
-  bool transmission() const override { return true; }
   bool isotropic() const override { return true; }  // f depends on |n.wi|, |n.wo| and the side only
   // Both modes are symmetric in mu and mu0 and evaluated symmetrically (the all-orders tables are symmetrised
   // and read at (larger, smaller)): bit-exact. Single scattering with albedo <= 1 is part of the exact slab's
@@ -156,14 +150,6 @@ class ThinLayerModel : public Model {
                     100 * m->approximation_error);
     return text;
   }
-  void DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const override {
-    reference::ThinLayerTransmittance(m.data.data(), wo, n, t);
-  }
-  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float*, size_t n,
-                  float* f) const override {
-    const std::vector<float> data(m.data.begin(), m.data.end());
-    native::ThinLayerEval(data.data(), m.uniform, wi, wo, n, f);
-  }
 
  private:
   std::vector<ParamSpec> schema_ = Schema();
@@ -172,6 +158,6 @@ class ThinLayerModel : public Model {
 
 }  // namespace
 
-std::unique_ptr<Model> MakeThinLayerModel() { return std::make_unique<ThinLayerModel>(); }
-
 }  // namespace loomlight::models
+
+LOOMLIGHT_REGISTER_MODEL(thin_layer, ThinLayerModel)

@@ -3,7 +3,6 @@
 // packing. Served as the BTF (queries with uv) and as the BRDF (the mean of the BTF over one pattern repeat).
 #include <cmath>
 
-#include "server/models/host_models.h"
 #include "server/models/registry.h"
 #include "server/models/weave/pattern.h"
 #include "server/models/weave/wif.h"
@@ -180,7 +179,7 @@ class WovenModel : public Model {
     return PatternOf(v, &pattern);
   }
 
-  PackedMaterial Pack(const ParamValues& v) const override {
+  PackedMaterial PackLayout(const ParamValues& v) const override {
     weave::WeavePattern pattern;
     PatternOf(v, &pattern);
     PackedMaterial m;
@@ -200,15 +199,6 @@ class WovenModel : public Model {
     return m;
   }
 
-  void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
-                     double* f) const override {
-    reference::WovenEval(m.data.data(), wi, wo, uv, n, f);
-  }
-  void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
-                  float* f) const override {
-    const std::vector<float> data(m.data.begin(), m.data.end());
-    native::WovenEval(data.data(), wi, wo, uv, n, f);
-  }
 
  private:
   std::vector<ParamSpec> schema_ = Schema();
@@ -217,6 +207,6 @@ class WovenModel : public Model {
 
 }  // namespace
 
-std::unique_ptr<Model> MakeWovenModel() { return std::make_unique<WovenModel>(); }
-
 }  // namespace loomlight::models
+
+LOOMLIGHT_REGISTER_MODEL(woven, WovenModel)

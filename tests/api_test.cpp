@@ -494,9 +494,9 @@ TEST_F(ApiTest, CurtainsCombineReflectionAndLayerTransmission) {
   }
 }
 
-// error_target picks the thin layer's mode: a loose target keeps single scattering, a tight one switches to
-// all orders (more light: multiple scattering only adds), and the response says which; without a target
-// the material's own `scattering` parameter decides.
+// error_target picks the thin layer's accuracy knob (`scattering`): a loose target keeps single scattering,
+// a tight one switches to all orders (more light: multiple scattering only adds), and the response says which;
+// without a target the material's own `scattering` parameter decides.
 TEST_F(ApiTest, ErrorTargetChoosesTheThinLayersScatteringMode) {
   auto stub = testing::Connect(server_->port());
   EvaluateRequest req = Request("cotton_curtain", 200, 17);
@@ -506,9 +506,11 @@ TEST_F(ApiTest, ErrorTargetChoosesTheThinLayersScatteringMode) {
   ASSERT_TRUE(Call(*stub, req, &loose).ok());
   req.set_error_target(1e-3);
   ASSERT_TRUE(Call(*stub, req, &tight).ok());
-  EXPECT_NE(none.approximation().find("single scattering"), std::string::npos) << none.approximation();
-  EXPECT_NE(loose.approximation().find("single scattering"), std::string::npos) << loose.approximation();
-  EXPECT_NE(tight.approximation().find("all scattering orders"), std::string::npos) << tight.approximation();
+  EXPECT_NE(none.approximation().find("thin_layer: scattering 0 (the material's own"), std::string::npos)
+      << none.approximation();
+  EXPECT_NE(loose.approximation().find("thin_layer: scattering 0 (estimated error"), std::string::npos)
+      << loose.approximation();
+  EXPECT_EQ(tight.approximation(), "thin_layer: scattering 1 (exact)");
   double single = 0, all = 0;
   for (int i = 0; i < none.f_size(); ++i) {
     EXPECT_EQ(loose.f(i), none.f(i)) << i;
@@ -517,9 +519,38 @@ TEST_F(ApiTest, ErrorTargetChoosesTheThinLayersScatteringMode) {
     all += tight.f(i);
   }
   EXPECT_GT(all, 1.05 * single);  // tau 0.8, albedo ~0.8: multiple scattering is far from negligible
-  EvaluateResponse reflective;
-  ASSERT_TRUE(Call(*stub, Request("velvet", 10, 1), &reflective).ok());
-  EXPECT_EQ(reflective.approximation(), "");
+}
+
+// The same mechanism for the microcylinder's knob (tangent_samples): the chosen setting's estimated error is
+// within the target, and the f it gives is within about that of the exact setting's on other pairs.
+TEST_F(ApiTest, ErrorTargetChoosesTangentSamples) {
+  auto stub = testing::Connect(server_->port());
+  EvaluateRequest req = Request("velvet", 400, 23);
+  EvaluateResponse own, chosen, exact;
+  ASSERT_TRUE(Call(*stub, req, &own).ok());
+  EXPECT_NE(own.approximation().find("microcylinder: tangent_samples 32 (the material's own; exact: 256)"),
+            std::string::npos) << own.approximation();
+  req.set_error_target(0.03);
+  ASSERT_TRUE(Call(*stub, req, &chosen).ok());
+  EXPECT_NE(chosen.approximation().find("microcylinder: tangent_samples "), std::string::npos);
+  const size_t at = chosen.approximation().find("estimated error ");
+  ASSERT_NE(at, std::string::npos) << chosen.approximation();
+  const double estimate = std::stod(chosen.approximation().substr(at + 16)) / 100;
+  EXPECT_LE(estimate, 0.03);
+  EvaluateRequest full = Request("velvet", 400, 23);
+  v1::Param* t = full.mutable_material()->add_params();
+  t->set_name("tangent_samples");
+  t->add_values(256);
+  ASSERT_TRUE(Call(*stub, full, &exact).ok());
+  EXPECT_EQ(exact.approximation(), "");
+  double diff = 0, total = 0;
+  for (int i = 0; i < exact.f_size(); ++i) {
+    diff += std::fabs(chosen.f(i) - exact.f(i));
+    total += exact.f(i);
+  }
+  std::printf("error target 0.03: %s; measured relative L1 against 256 samples %.3g\n",
+              chosen.approximation().c_str(), diff / total);
+  EXPECT_LE(diff / total, 2 * 0.03);  // other pairs than the estimate's (and some near the horizon)
 }
 
 TEST_F(ApiTest, MoreQueriesThanTheLimitAreRejected) {

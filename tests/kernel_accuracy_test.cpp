@@ -163,20 +163,14 @@ TEST(MaterialIndex, MixedMaterialsInOneLaunchEqualSeparateLaunches) {
   std::vector<models::PackedMaterial> mats;
   for (const auto& preset : model.presets()) mats.push_back(model.Pack(model.PresetValues(preset)));
   const Pairs p = RandomPairs(6 * 1000, 77);
-  std::vector<double> all;
-  std::vector<size_t> offsets;
+  std::vector<const models::PackedMaterial*> all;
+  for (const auto& m : mats) all.push_back(&m);
   std::vector<int> index;
   for (size_t q = 0; q < p.wi.size() / 3; ++q) index.push_back(static_cast<int>(q % mats.size()));
-  for (const auto& m : mats) {
-    offsets.push_back(all.size());
-    all.insert(all.end(), m.data.begin(), m.data.end());
-  }
   const runtime::LaunchArgs args{.model = &model, .fp64 = false, .uniform = mats[0].uniform, .materials = &all,
-                                 .material_offset = &offsets, .material_index = &index, .wi = p.wi.data(),
-                                 .wo = p.wo.data(), .n = p.wi.size() / 3};
-  std::vector<double> mixed;
-  std::string error;
-  ASSERT_TRUE(testing::SharedRuntime().Run(args, &mixed, &error)) << error;
+                                 .material_index = &index, .wi = p.wi.data(), .wo = p.wo.data(),
+                                 .n = p.wi.size() / 3};
+  const std::vector<double> mixed = testing::RunLaunch(args);
   for (size_t j = 0; j < mats.size(); ++j) {
     const std::vector<double> alone = testing::RunKernel(model, mats[j], false, p.wi, p.wo);
     for (size_t q = j; q < p.wi.size() / 3; q += mats.size())
@@ -286,20 +280,14 @@ TEST(Woven, MixedPatternsInOneBtfLaunchEqualSeparateLaunches) {
   const auto packed = WovenPresets(&model);
   const Pairs p = RandomPairs(3 * 2000, 7);
   const std::vector<float> uv = TexturePositions(p.size(), 8);
-  std::vector<double> all;
-  std::vector<size_t> offsets;
-  for (const auto& m : packed) {
-    offsets.push_back(all.size());
-    all.insert(all.end(), m.data.begin(), m.data.end());
-  }
+  std::vector<const models::PackedMaterial*> all;
+  for (const auto& m : packed) all.push_back(&m);
   std::vector<int> index;
   for (size_t q = 0; q < p.size(); ++q) index.push_back(static_cast<int>((q / 5) % packed.size()));  // runs of 5
   const runtime::LaunchArgs args{.model = model, .fp64 = false, .uniform = 0, .materials = &all,
-                                 .material_offset = &offsets, .material_index = &index, .wi = p.wi.data(),
-                                 .wo = p.wo.data(), .uv = uv.data(), .n = p.size()};
-  std::vector<double> mixed;
-  std::string error;
-  ASSERT_TRUE(testing::SharedRuntime().Run(args, &mixed, &error)) << error;
+                                 .material_index = &index, .wi = p.wi.data(), .wo = p.wo.data(), .uv = uv.data(),
+                                 .n = p.size()};
+  const std::vector<double> mixed = testing::RunLaunch(args);
   for (size_t j = 0; j < packed.size(); ++j) {
     const std::vector<double> alone = testing::RunKernel(*model, packed[j], false, p.wi, p.wo, uv);
     for (size_t q = 0; q < p.size(); ++q) {

@@ -37,6 +37,15 @@ runtime::ClRuntime& SharedRuntime() {
   return *rt;
 }
 
+std::vector<double> RunLaunch(const runtime::LaunchArgs& args) {
+  runtime::LaunchResults results;
+  std::string error;
+  std::vector<double> f(3 * args.n, 0.0);
+  EXPECT_TRUE(SharedRuntime().Run(args, &results, &error)) << error;
+  if (error.empty()) results.Write(0, args.n, runtime::ResultSink{.f64 = f.data()}, 0);
+  return f;
+}
+
 std::vector<double> RunKernel(const models::Model& model, const models::PackedMaterial& m, bool fp64,
                               const std::vector<float>& wi, const std::vector<float>& wo,
                               const std::vector<float>& uv) {

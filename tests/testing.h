@@ -26,6 +26,8 @@ runtime::ClRuntime& SharedRuntime();
 std::vector<double> RunKernel(const models::Model& model, const models::PackedMaterial& m, bool fp64,
                               const std::vector<float>& wi, const std::vector<float>& wo,
                               const std::vector<float>& uv = {});
+// One launch on the shared runtime (materials mixed as the batcher mixes them); f in double, 3 per query.
+std::vector<double> RunLaunch(const runtime::LaunchArgs& args);
 
 // A stub for a Loomlight server, with the API's message size limits both ways (large requests and replies).
 std::unique_ptr<v1::Loomlight::Stub> Connect(const std::string& address);

@@ -31,16 +31,18 @@ inline grpc::Status StopStatus(grpc::CallbackServerContext* context, batching::C
   return {grpc::StatusCode::CANCELLED, "call cancelled"};
 }
 
-// A job evaluating n queries (uv nullptr: f(wi, wo)) of one packed material, stopped before launch by the
-// call's deadline or cancellation; the caller sets `done`. The arrays must outlive the job.
+// A job evaluating n queries (uv nullptr: f(wi, wo)) of one packed material into `sink`, stopped before launch
+// by the call's deadline or cancellation; the caller sets `done`. The material, the arrays and the sink's
+// buffers must outlive the job.
 inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const models::PackedMaterial& material,
                                              bool fp64, batching::Clock::time_point deadline,
                                              grpc::CallbackServerContext* context, const float* wi, const float* wo,
-                                             const float* uv, size_t n) {
+                                             const float* uv, size_t n, const runtime::ResultSink& sink) {
   auto job = std::make_shared<batching::Job>();
   job->model = model;
   job->fp64 = fp64;
-  job->material = material;
+  job->material = &material;
+  job->sink = sink;
   job->wi = wi;
   job->wo = wo;
   job->uv = uv;

@@ -92,15 +92,7 @@ class CachedVariants final : public render::MaterialVariants {
   }
   const models::PackedMaterial* Requested() override { return Get(base_); }
   const models::PackedMaterial* WithParam(const std::string& name, double value) override {
-    v1::Material variant = base_;
-    v1::Param* param = nullptr;
-    for (v1::Param& p : *variant.mutable_params())
-      if (p.name() == name) param = &p;
-    if (!param) param = variant.add_params();
-    param->set_name(name);
-    param->clear_values();
-    param->add_values(value);
-    return Get(variant);
+    return Get(models::WithParam(base_, false, name, value));
   }
 
  private:
@@ -230,14 +222,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       s.environment = std::move(environment);
     }
 
+    if (!material_ && !(status_ = PrepareMaterial(deps_, r.material(), &material_)).ok()) return;
     render::MaterialInfo info;
-    models::ResolvedMaterial resolved;
-    if (std::string e = models::ResolveMaterial(r.material(), *deps_.registry, &resolved); !e.empty()) {
-      status_ = Invalid(e);  // cannot happen: the cache resolved it already
-      return;
-    }
     info.model = material_->model;
-    info.values = std::move(resolved.values);
+    info.values = material_->values;
     if (material_->transmission) {
       info.layer_model = material_->transmission->model;
       info.layer = &material_->transmission->packed;
@@ -315,8 +303,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       const render::QueryBucket& b = chunk.buckets[e];
       if (b.size() == 0) continue;
       const render::Evaluator& evaluator = plan_.evaluators[e];
+      chunk.f[e].resize(3 * b.size());
       auto job = NewJob(evaluator.model, *evaluator.material, fp64_, deadline_, context_, b.wi.data(), b.wo.data(),
-                        evaluator.with_uv ? b.uv.data() : nullptr, b.size());
+                        evaluator.with_uv ? b.uv.data() : nullptr, b.size(),
+                        runtime::ResultSink{.f64 = chunk.f[e].data()});
       job->priority = batching::Priority::kBulk;
       job->done = [this, index, e](batching::JobResult result) {
         deps_.worker->Post([this, index, e, result = std::move(result)] { OnJobDone(index, e, result); });
@@ -348,10 +338,6 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       deps_.metrics->Rendered(n);
       queries_ += n;
       kernel_seconds_ += result.kernel_seconds;
-      chunk.f[evaluator] = result.f;
-      if (chunk.f[evaluator].size() != 3 * n && status_.ok())
-        status_ = {grpc::StatusCode::INTERNAL, "kernel returned " + std::to_string(chunk.f[evaluator].size()) +
-                                                   " values for " + std::to_string(n) + " queries"};
     }
     if (--chunk.jobs_in_flight == 0) return OnChunkDone(index);
     Pump();
@@ -471,7 +457,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   }
 
   const v1::RenderRequest request_;
-  const std::shared_ptr<const models::PreparedMaterial> material_;
+  std::shared_ptr<const models::PreparedMaterial> material_;  // set by SetUp
   const bool fp64_;
   bool loading_ = false;  // the asset loader is reading the environment map
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
@@ -557,8 +543,9 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
     deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
     return new RejectedStream<v1::RenderUpdate>(std::move(status));
   };
-  std::shared_ptr<const models::PreparedMaterial> material;
-  if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
+  const models::Model* model = nullptr;
+  std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
+  if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
     return reject(Invalid(error));
   if (std::string error = ValidateRenderRequest(*request); !error.empty()) return reject(Invalid(error));
   if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)

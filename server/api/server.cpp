@@ -92,6 +92,7 @@ void LoomlightServer::Watch() {
     const std::pair<const char*, batching::Clock::time_point> busy[] = {
         {"host worker", service_->worker_busy_since()},
         {"asset loader", service_->loader_busy_since()},
+        {"preparer", service_->preparer_busy_since()},
         {"kernel launch", batcher_->busy_since()}};
     for (const auto& [what, since] : busy)
       if (since != batching::Clock::time_point::max() && now - since > options_.stall_limit)

@@ -38,36 +38,77 @@ double SecondsSince(batching::Clock::time_point t) {
   return std::chrono::duration<double>(batching::Clock::now() - t).count();
 }
 
-// One Evaluate call: its plan's parts (server/models/material_plan.h) joined into the response when the
-// last is done. Parts complete on the batcher's thread; a part that never reaches a kernel (queue full, no
-// queries) completes at once.
+// One Evaluate call. Start (inline on the gRPC thread for a small request of a cached material, else on the
+// preparer worker) checks what needs the material, builds the plan (server/models/material_plan.h) and submits
+// one job per part; the kernels write f straight into the response (float; fp64 kernels are rounded there
+// once); the last part done finishes the call (on the batcher's thread: only the response's small fields are
+// left to set).
 struct EvaluateCall {
-  Admission admission;  // the call's bytes, held until the last part is done
+  const ServiceDeps* deps = nullptr;
+  grpc::CallbackServerContext* context = nullptr;
+  const v1::EvaluateRequest* request = nullptr;
+  v1::EvaluateResponse* response = nullptr;
+  grpc::ServerUnaryReactor* reactor = nullptr;
+  batching::Clock::time_point received;
+  Admission admission;  // the call's bytes, held until the call object goes
   std::shared_ptr<const models::PreparedMaterial> material;
   std::unique_ptr<models::EvaluationPlan> plan;  // refers to the request's arrays (alive until Finish)
-  std::vector<double> f;              // 3 per query
-  std::string approximation;          // what the parts' models approximated (EvaluateResponse.approximation)
-  grpc::ServerUnaryReactor* reactor = nullptr;
-  v1::EvaluateResponse* response = nullptr;
-  Metrics* metrics = nullptr;
-  batching::Clock::time_point received;
+  std::string approximation;  // the knob settings used (EvaluateResponse.approximation)
   bool fp64 = false;
 
   std::mutex mutex;
   size_t remaining = 0;
   batching::JobResult outcome;  // the first failure; the slowest part's timing; the largest launch
 
-  void PartDone(size_t k, batching::JobResult r) {
-    if (r.status == batching::JobStatus::kOk && r.f.size() == 3 * plan->size(k)) {
-      plan->Merge(k, r.f.data(), f.data());
-      if (r.batch_queries > 0)
-        metrics->Evaluated(plan->model(k).name(), fp64, plan->size(k), r.batch_queries, r.batch_requests,
-                           r.queue_seconds, r.kernel_seconds);
-    } else if (r.status == batching::JobStatus::kOk) {
-      r.status = batching::JobStatus::kInternal;
-      r.message = "kernel returned " + std::to_string(r.f.size()) + " values for " +
-                  std::to_string(plan->size(k)) + " queries";
+  // `material` may be null (not cached, or an error target to resolve): it is prepared here.
+  static void Start(const std::shared_ptr<EvaluateCall>& call) {
+    const v1::EvaluateRequest& request = *call->request;
+    if (!call->material || request.error_target() > 0) {
+      std::string error = call->deps->materials->GetWithin(request.material(), *call->deps->registry,
+                                                            request.error_target(), &call->material,
+                                                            &call->approximation);
+      if (!error.empty()) return call->Finish(Invalid(error));
     }
+    const size_t n = request.wi_size() / 3;
+    for (const auto& [field, w] : {std::pair{"wi", &request.wi()}, std::pair{"wo", &request.wo()}})
+      if (std::string error = ValidateDirections(*w, field); !error.empty()) return call->Finish(Invalid(error));
+    if (request.uv_size() > 0) {
+      if (!call->material->model->spatially_varying())
+        return call->Finish(
+            Invalid("uv: model '" + call->material->model->name() + "' is not spatially varying; send no uv"));
+      if (std::string error = ValidateTextureCoordinates(request.uv(), n, "uv"); !error.empty())
+        return call->Finish(Invalid(error));
+    }
+    call->response->mutable_f()->Resize(static_cast<int>(3 * n), 0.0f);
+    call->plan = std::make_unique<models::EvaluationPlan>(*call->material, request.wi().data(), request.wo().data(),
+                                                          request.uv_size() > 0 ? request.uv().data() : nullptr, n);
+    const models::EvaluationPlan& plan = *call->plan;
+    call->remaining = plan.parts();
+    const batching::Clock::time_point deadline = CallDeadline(call->context, call->received);
+    float* f = call->response->mutable_f()->mutable_data();
+    for (size_t k = 0; k < plan.parts(); ++k) {
+      if (plan.size(k) == 0) {
+        call->PartDone(k, batching::JobResult{});  // nothing to launch (e.g. a curtain seen only from one side)
+        continue;
+      }
+      auto job = NewJob(&plan.model(k), plan.packed(k), call->fp64, deadline, call->context, plan.wi(k), plan.wo(k),
+                        plan.uv(k), plan.size(k),
+                        runtime::ResultSink{.f32 = f, .slot = plan.slots(k), .scale = plan.scale(k)});
+      job->done = [call, k](batching::JobResult r) { call->PartDone(k, std::move(r)); };
+      if (grpc::Status s = SubmitJob(call->deps->batcher, job); !s.ok()) {
+        batching::JobResult refused;
+        refused.status = s.error_code() == grpc::StatusCode::UNAVAILABLE ? batching::JobStatus::kUnavailable
+                                                                        : batching::JobStatus::kResourceExhausted;
+        refused.message = s.error_message();
+        call->PartDone(k, std::move(refused));
+      }
+    }
+  }
+
+  void PartDone(size_t k, batching::JobResult r) {
+    if (r.status == batching::JobStatus::kOk && r.batch_queries > 0)
+      deps->metrics->Evaluated(plan->model(k).name(), fp64, plan->size(k), r.batch_queries, r.batch_requests,
+                               r.queue_seconds, r.kernel_seconds);
     std::lock_guard<std::mutex> lock(mutex);
     if (r.status != batching::JobStatus::kOk && outcome.status == batching::JobStatus::kOk) {
       outcome.status = r.status;
@@ -79,14 +120,11 @@ struct EvaluateCall {
       outcome.batch_queries = r.batch_queries;
       outcome.batch_requests = r.batch_requests;
     }
-    if (--remaining == 0) Finish();
+    if (--remaining == 0) Finish(ToStatus(outcome));
   }
 
-  void Finish() {
-    if (outcome.status == batching::JobStatus::kOk) {
-      auto* out = response->mutable_f();
-      out->Resize(static_cast<int>(f.size()), 0.0f);
-      std::copy(f.begin(), f.end(), out->mutable_data());  // double to float: rounded once
+  void Finish(const grpc::Status& status) {
+    if (status.ok()) {
       response->mutable_transmittance()->Add(plan->transmittance().begin(), plan->transmittance().end());
       response->set_model(material->model->name());
       response->set_approximation(approximation);
@@ -96,9 +134,10 @@ struct EvaluateCall {
       response->set_batch_queries(static_cast<uint32_t>(outcome.batch_queries));
       response->set_batch_requests(static_cast<uint32_t>(outcome.batch_requests));
       response->set_total_seconds(SecondsSince(received));
+    } else {
+      response->Clear();
     }
-    const grpc::Status status = ToStatus(outcome);
-    metrics->Call("Evaluate", status.error_code(), SecondsSince(received));
+    deps->metrics->Call("Evaluate", status.error_code(), SecondsSince(received));
     reactor->Finish(status);
   }
 };
@@ -123,6 +162,12 @@ grpc::ServerUnaryReactor* LoomlightService::Reply(grpc::CallbackServerContext* c
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
   reactor->Finish(std::move(status));
   return reactor;
+}
+
+grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& material,
+                             std::shared_ptr<const models::PreparedMaterial>* out) {
+  if (std::string error = deps.materials->Get(material, *deps.registry, out); !error.empty()) return Invalid(error);
+  return grpc::Status::OK;
 }
 
 std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field) {
@@ -200,68 +245,40 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
                                                      const v1::EvaluateRequest* request,
                                                      v1::EvaluateResponse* response) {
   const auto received = batching::Clock::now();
-  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "Evaluate", received, s);
-  std::shared_ptr<const models::PreparedMaterial> material;
-  std::string error = materials_.Get(request->material(), *deps_.registry, &material);
-  if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
+  const auto reject = [&](grpc::Status status) { return Reply(context, "Evaluate", received, std::move(status)); };
+  if (grpc::Status s = Serving(); !s.ok()) return reject(s);
   if (!v1::Precision_IsValid(request->precision()))
-    return Reply(context, "Evaluate", received, Invalid("precision: unknown value " + std::to_string(request->precision())));
+    return reject(Invalid("precision: unknown value " + std::to_string(request->precision())));
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
   if (fp64 && !deps_.has_fp64)
-    return Reply(context, "Evaluate", received, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
   if (request->wi_size() != request->wo_size())
-    return Reply(context, "Evaluate", received, Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
-                                   std::to_string(request->wi_size())));
+    return reject(Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
+                          std::to_string(request->wi_size())));
   const size_t n = request->wi_size() / 3;
   if (n > kMaxQueriesPerCall)
-    return Reply(context, "Evaluate", received, Invalid("wi: " + std::to_string(n) + " queries exceed the limit of " +
-                                   std::to_string(kMaxQueriesPerCall) + " per call"));
-  for (const auto& [field, w] : {std::pair{"wi", &request->wi()}, std::pair{"wo", &request->wo()}}) {
-    error = ValidateDirections(*w, field);
-    if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
-  }
+    return reject(Invalid("wi: " + std::to_string(n) + " queries exceed the limit of " +
+                          std::to_string(kMaxQueriesPerCall) + " per call"));
   if (!std::isfinite(request->error_target()) || request->error_target() < 0)
-    return Reply(context, "Evaluate", received, Invalid("error_target: must be a finite relative error >= 0"));
-  if (request->uv_size() > 0) {
-    if (!material->model->spatially_varying())
-      return Reply(context, "Evaluate", received, Invalid("uv: model '" + material->model->name() +
-                                     "' is not spatially varying; send no uv"));
-    error = ValidateTextureCoordinates(request->uv(), n, "uv");
-    if (!error.empty()) return Reply(context, "Evaluate", received, Invalid(error));
-  }
+    return reject(Invalid("error_target: must be a finite relative error >= 0"));
 
   auto call = std::make_shared<EvaluateCall>();
   if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission); !s.ok())
-    return Reply(context, "Evaluate", received, s);
-  call->material = material;
-  call->f.assign(3 * n, 0.0);
-  call->plan = std::make_unique<models::EvaluationPlan>(*material, request->wi().data(), request->wo().data(),
-                                                        request->uv_size() > 0 ? request->uv().data() : nullptr, n);
-  call->reactor = context->DefaultReactor();
+    return reject(s);
+  call->deps = &deps_;
+  call->context = context;
+  call->request = request;
   call->response = response;
-  call->metrics = deps_.metrics;
+  call->reactor = context->DefaultReactor();
   call->received = received;
   call->fp64 = fp64;
-  call->remaining = call->plan->parts();
-  const batching::Clock::time_point job_deadline = CallDeadline(context, received);
-  const models::EvaluationPlan& plan = *call->plan;
-  for (size_t k = 0; k < plan.parts(); ++k) {
-    auto job = NewJob(&plan.model(k), plan.packed(k), fp64, job_deadline, context, plan.wi(k), plan.wo(k),
-                      plan.uv(k), plan.size(k));
-    const std::string approximation = job->model->ChooseApproximation(request->error_target(), &job->material);
-    if (!approximation.empty())
-      call->approximation += (call->approximation.empty() ? "" : "; ") + approximation;
-    job->done = [call, k](batching::JobResult r) { call->PartDone(k, std::move(r)); };
-    if (job->n == 0) {
-      call->PartDone(k, batching::JobResult{});  // nothing to launch (e.g. a curtain seen only from one side)
-    } else if (grpc::Status s = SubmitJob(deps_.batcher, job); !s.ok()) {
-      batching::JobResult refused;
-      refused.status = s.error_code() == grpc::StatusCode::UNAVAILABLE ? batching::JobStatus::kUnavailable
-                                                                      : batching::JobStatus::kResourceExhausted;
-      refused.message = s.error_message();
-      call->PartDone(k, std::move(refused));
-    }
-  }
+  // A small request of a cached material starts here; packing, knob errors and large requests' validation
+  // and planning go to the preparer, off gRPC's threads.
+  if (n <= kInlineEvaluateQueries && request->error_target() == 0 &&
+      materials_.Find(request->material(), &call->material))
+    EvaluateCall::Start(call);
+  else
+    preparer_.Post([call] { EvaluateCall::Start(call); });
   return call->reactor;
 }
 

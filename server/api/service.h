@@ -26,6 +26,9 @@ constexpr float kMaxTextureCoordinate = 1024.0f;
 // interaction and split copies (64), the kernel's result (24), the launch's concatenated copy (36) and the
 // response (12), rounded up.
 constexpr size_t kEvaluateBytesPerQuery = 192;
+// Evaluate calls up to this many queries of a cached material are validated and planned on gRPC's thread
+// (microseconds); larger ones, and every call that must pack a material, on the service's preparer worker.
+constexpr size_t kInlineEvaluateQueries = 4096;
 
 // Limits of one service (README "Limits and admission").
 struct ServiceLimits {
@@ -49,6 +52,11 @@ struct ServiceDeps {
   assets::EnvironmentMaps* environments = nullptr;
 };
 
+// Packs a material its handler checked with MaterialCache::Peek; on a worker, never on a gRPC thread (packing
+// a thin layer solves its adding-doubling tables). OK, or INVALID_ARGUMENT as Get says.
+grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& material,
+                             std::shared_ptr<const models::PreparedMaterial>* out);
+
 // Finishes a streaming call that never started streaming (a rejected request).
 template <class Message>
 class RejectedStream final : public grpc::ServerWriteReactor<Message> {
@@ -68,6 +76,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // The workers' current task start (max when idle), for the health watchdog.
   batching::Clock::time_point worker_busy_since() const { return worker_.busy_since(); }
   batching::Clock::time_point loader_busy_since() const { return loader_.busy_since(); }
+  batching::Clock::time_point preparer_busy_since() const { return preparer_.busy_since(); }
   const models::MaterialCache& materials() const { return materials_; }
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
@@ -94,10 +103,11 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   ServiceDeps deps_;
   models::MaterialCache materials_;
   std::atomic<bool> serving_{false};
-  // Declared last, so destroyed first (the loader before the worker it posts to): their remaining tasks may
-  // still use the members above.
+  // Declared last, so destroyed first (the preparer and the loader before the worker): their remaining tasks
+  // may still use the members above.
   HostWorker worker_;
   HostWorker loader_;
+  HostWorker preparer_;  // Evaluate's material packing and large requests' validation and planning
 };
 
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or

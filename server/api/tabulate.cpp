@@ -177,6 +177,7 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
                Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)),
         material_(std::move(material)),
+        material_request_(request.material()),
         grid_(std::move(grid)),
         fp64_(request.precision() == v1::PRECISION_FP64),
         encoder_(MakeTableEncoder(request.format(), grid_, fp64_)),
@@ -184,6 +185,7 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
         chunk_queries_(std::min<uint64_t>(kTabulateChunkQueries / grid_.queries_per_cell() * grid_.queries_per_cell(),
                                           grid_.queries())) {
     deps_.worker->Post([this] {
+      if (!material_) status_ = PrepareMaterial(deps_, material_request_, &material_);
       encoder_->Begin(&pending_);
       Pump();
     });
@@ -226,7 +228,8 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     for (size_t k = 0; k < plan_->parts(); ++k) {
       if (plan_->size(k) == 0) continue;
       auto job = NewJob(&plan_->model(k), plan_->packed(k), fp64_, deadline_, context_, plan_->wi(k), plan_->wo(k),
-                        nullptr, plan_->size(k));
+                        nullptr, plan_->size(k),
+                        runtime::ResultSink{.f64 = chunk_f_.data(), .slot = plan_->slots(k), .scale = plan_->scale(k)});
       job->priority = batching::Priority::kBulk;
       job->done = [this, k](batching::JobResult result) {
         deps_.worker->Post([this, k, result = std::move(result)] { OnJobDone(k, result); });
@@ -247,16 +250,9 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
       if (status_.ok()) status_ = ToStatus(result);
       return Pump();
     }
-    if (result.f.size() != 3 * plan_->size(part)) {
-      if (status_.ok())
-        status_ = {grpc::StatusCode::INTERNAL, "kernel returned " + std::to_string(result.f.size()) + " values for " +
-                                                   std::to_string(plan_->size(part)) + " queries"};
-      return Pump();
-    }
     deps_.metrics->Evaluated(plan_->model(part).name(), fp64_, plan_->size(part), result.batch_queries,
                              result.batch_requests, result.queue_seconds, result.kernel_seconds);
     kernel_seconds_ += result.kernel_seconds;
-    plan_->Merge(part, result.f.data(), chunk_f_.data());
     if (jobs_in_flight_ > 0 || !status_.ok()) return Pump();
     std::vector<double> f;
     f.swap(chunk_f_);  // the next chunk reuses the buffers
@@ -326,7 +322,8 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     StartWrite(&chunk_);
   }
 
-  const std::shared_ptr<const models::PreparedMaterial> material_;
+  std::shared_ptr<const models::PreparedMaterial> material_;  // set before the first Pump
+  const v1::Material material_request_;
   const TabulationGrid grid_;
   const bool fp64_;
   const std::unique_ptr<TableEncoder> encoder_;
@@ -533,11 +530,12 @@ grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& 
     deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
     return new RejectedStream<v1::TabulateChunk>(std::move(status));
   };
-  std::shared_ptr<const models::PreparedMaterial> material;
-  if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
+  const models::Model* model = nullptr;
+  std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
+  if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
     return reject(Invalid(error));
   TabulationGrid grid;
-  if (std::string error = TabulationGrid::Resolve(*request, *material->model, &grid); !error.empty())
+  if (std::string error = TabulationGrid::Resolve(*request, *model, &grid); !error.empty())
     return reject(Invalid(error));
   if (std::string error = ValidateTabulateRequest(*request, grid); !error.empty()) return reject(Invalid(error));
   if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)

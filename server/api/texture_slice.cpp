@@ -106,6 +106,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
         reactor_(context->DefaultReactor()),
         response_(response),
         material_(std::move(material)),
+        material_request_(request.material()),
         received_(received),
         fp64_(request.precision() == v1::PRECISION_FP64),
         width_(request.width()),
@@ -130,6 +131,8 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   // the image, both chunk buffers, then the first chunk submitted (nothing else touches them yet).
   void Start() {
     if (!StillWanted()) return;
+    if (!material_)
+      if (grpc::Status s = PrepareMaterial(deps_, material_request_, &material_); !s.ok()) return Finish(s);
     // The kernel takes a direction per query: the one wi and wo, repeated, shared by both chunk buffers.
     wi_.resize(3 * chunk_queries_);
     wo_.resize(3 * chunk_queries_);
@@ -153,6 +156,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     uint64_t first = 0;
     size_t count = 0;
     std::vector<float> uv;
+    std::vector<double> f;  // the kernel writes its results here (3 per query)
   };
 
   // Takes the next queries into the chunk (a free buffer) and computes their sample positions.
@@ -161,6 +165,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     chunk.count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, total_queries_ - next_query_));
     next_query_ += chunk.count;
     chunk.uv.resize(2 * chunk.count);
+    chunk.f.resize(3 * chunk.count);
     const double du = region_.u_max() - region_.u_min(), dv = region_.v_max() - region_.v_min();
     uint64_t pixel = chunk.first / samples_;
     uint32_t x = static_cast<uint32_t>(pixel % width_), y = static_cast<uint32_t>(pixel / width_);
@@ -184,7 +189,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     if (!StillWanted()) return false;
     const Chunk& chunk = chunks_[index];
     auto job = NewJob(material_->model, material_->packed, fp64_, deadline_, context_, wi_.data(), wo_.data(),
-                      chunk.uv.data(), chunk.count);
+                      chunk.uv.data(), chunk.count, runtime::ResultSink{.f64 = chunks_[index].f.data()});
     job->done = [self = shared_from_this(), index](batching::JobResult result) {
       self->deps_.worker->Post([self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
     };
@@ -206,7 +211,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     kernel_seconds_ += result.kernel_seconds;
     const bool last = chunks_[1 - index].count == 0;
     if (!last && !Submit(1 - index)) return;
-    if (std::string error = Accumulate(chunk, result.f); !error.empty()) {
+    if (std::string error = Accumulate(chunk); !error.empty()) {
       failure_ = {grpc::StatusCode::INTERNAL, error};
       if (last) Finish(failure_);
       return;
@@ -217,9 +222,8 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
 
   // Per-pixel means (in double, rounded once to the image's float) of a chunk of whole pixels. Returns ""
   // or what is wrong with the kernel's output.
-  std::string Accumulate(const Chunk& chunk, const std::vector<double>& f) {
-    if (f.size() != 3 * chunk.count)
-      return "kernel returned " + std::to_string(f.size()) + " values for " + std::to_string(chunk.count) + " queries";
+  std::string Accumulate(const Chunk& chunk) {
+    const std::vector<double>& f = chunk.f;
     const uint64_t first_pixel = chunk.first / samples_;
     for (size_t p = 0; p < chunk.count / samples_; ++p) {
       double sum[3] = {0, 0, 0};
@@ -274,7 +278,8 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   grpc::CallbackServerContext* const context_;
   grpc::ServerUnaryReactor* const reactor_;
   v1::TextureSliceResponse* const response_;
-  const std::shared_ptr<const models::PreparedMaterial> material_;
+  std::shared_ptr<const models::PreparedMaterial> material_;  // set by Start
+  const v1::Material material_request_;
   const Clock::time_point received_;
   Clock::time_point deadline_ = Clock::time_point::max();
   const bool fp64_;
@@ -345,12 +350,13 @@ grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc:
                                              const v1::TextureSliceRequest* request,
                                              v1::TextureSliceResponse* response) {
   const auto received = Clock::now();
-  std::shared_ptr<const models::PreparedMaterial> material;
-  if (std::string error = deps.materials->Get(request->material(), *deps.registry, &material); !error.empty())
+  const models::Model* model = nullptr;
+  std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
+  if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
     return Reject(deps, context, received, Invalid(error));
-  if (!material->model->spatially_varying())
+  if (!model->spatially_varying())
     return Reject(deps, context, received,
-                  Invalid("material: model '" + material->model->name() +
+                  Invalid("material: model '" + model->name() +
                           "' is not spatially varying (no BTF); a texture slice needs one, e.g. preset cotton_twill"));
   // A slice images the reflection BTF; a curtain's transmission layer would be silently ignored, so say so.
   if (request->material().has_transmission())

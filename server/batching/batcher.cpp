@@ -6,7 +6,7 @@ namespace loomlight::batching {
 namespace {
 
 bool SameKernel(const Job& a, const Job& b) {
-  return a.model == b.model && a.fp64 == b.fp64 && a.material.uniform == b.material.uniform &&
+  return a.model == b.model && a.fp64 == b.fp64 && a.material->uniform == b.material->uniform &&
          (a.uv != nullptr) == (b.uv != nullptr);
 }
 
@@ -116,19 +116,15 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   if (live.empty()) return;
 
   const models::Model* model = live.front()->model;
-  const int uniform = live.front()->material.uniform;
   const bool spatial = live.front()->uv != nullptr;
-  size_t n = 0, material_values = 0;
-  for (auto& job : live) {
-    n += job->n;
-    material_values += job->material.data.size();
-  }
+  size_t n = 0;
+  for (auto& job : live) n += job->n;
 
-  std::vector<double> materials;
-  materials.reserve(material_values);
-  std::vector<size_t> offsets;
+  // Each distinct material once (clients of one preset share its packed material).
+  std::vector<const models::PackedMaterial*> materials;
   std::vector<int> index;
   index.reserve(n);
+  std::vector<size_t> first;
   // One job reads straight from its request; several are concatenated.
   std::vector<float> wi_all, wo_all, uv_all;
   const float* wi = live.front()->wi;
@@ -136,9 +132,11 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   const float* uv = live.front()->uv;
   for (size_t j = 0; j < live.size(); ++j) {
     const Job& job = *live[j];
-    offsets.push_back(materials.size());
-    materials.insert(materials.end(), job.material.data.begin(), job.material.data.end());
-    index.insert(index.end(), job.n, static_cast<int>(j));
+    const auto known = std::find(materials.begin(), materials.end(), job.material);
+    const int m = static_cast<int>(known - materials.begin());
+    if (known == materials.end()) materials.push_back(job.material);
+    first.push_back(index.size());
+    index.insert(index.end(), job.n, m);
     if (live.size() > 1) {
       wi_all.insert(wi_all.end(), job.wi, job.wi + 3 * job.n);
       wo_all.insert(wo_all.end(), job.wo, job.wo + 3 * job.n);
@@ -151,69 +149,74 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
     uv = spatial ? uv_all.data() : nullptr;
   }
 
-  const runtime::LaunchArgs args{.model = model, .fp64 = live.front()->fp64, .uniform = uniform,
-                                 .materials = &materials, .material_offset = &offsets, .material_index = &index,
-                                 .wi = wi, .wo = wo, .uv = uv, .n = n};
-  std::vector<double> f;
+  const runtime::LaunchArgs args{.model = model, .fp64 = live.front()->fp64, .uniform = live.front()->material->uniform,
+                                 .materials = &materials, .material_index = &index, .wi = wi, .wo = wo, .uv = uv,
+                                 .n = n};
   std::string error;
   const Clock::time_point start = Clock::now();
   double kernel_seconds = 0;
-  const bool ok = live.front()->priority == Priority::kBulk ? RunBulk(args, &f, &error, &kernel_seconds)
-                                                            : RunKernel(args, &f, &error, &kernel_seconds);
+  const bool ok = RunAndDeliver(args, live, first, &error, &kernel_seconds);
 
-  size_t offset = 0;
   for (auto& job : live) {
     JobResult r;
     if (!ok) {
       r.status = JobStatus::kInternal;
       r.message = "kernel launch failed: " + error;
-    } else {
-      r.f.assign(f.begin() + 3 * offset, f.begin() + 3 * (offset + job->n));
     }
     r.queue_seconds = Seconds(start - job->enqueued);
     r.kernel_seconds = kernel_seconds;
     r.batch_queries = n;
     r.batch_requests = live.size();
-    offset += job->n;
     job->done(std::move(r));
   }
 }
 
-bool Batcher::RunKernel(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error,
+bool Batcher::RunKernel(const runtime::LaunchArgs& args, runtime::LaunchResults* results, std::string* error,
                         double* seconds) {
   const Clock::time_point start = Clock::now();
   busy_since_ = start;
-  const bool ok = runtime_->Run(args, f, error);
+  const bool ok = runtime_->Run(args, results, error);
   busy_since_ = Clock::time_point::max();
   *seconds += Seconds(Clock::now() - start);
   return ok;
 }
 
-bool Batcher::RunBulk(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error, double* seconds) {
-  f->clear();
-  f->reserve(3 * args.n);
+bool Batcher::RunAndDeliver(const runtime::LaunchArgs& args, const std::vector<std::shared_ptr<Job>>& jobs,
+                            const std::vector<size_t>& first, std::string* error, double* seconds) {
+  // Writes launch queries [begin, begin + count), the results of one run, to the jobs they belong to.
+  auto deliver = [&](const runtime::LaunchResults& results, size_t begin, size_t count) {
+    for (size_t j = 0; j < jobs.size(); ++j) {
+      const size_t lo = std::max(begin, first[j]), hi = std::min(begin + count, first[j] + jobs[j]->n);
+      if (lo < hi) results.Write(lo - begin, hi - lo, jobs[j]->sink, lo - first[j]);
+    }
+  };
+  runtime::LaunchResults results;
+  if (jobs.front()->priority != Priority::kBulk) {
+    if (!RunKernel(args, &results, error, seconds)) return false;
+    deliver(results, 0, args.n);
+    return true;
+  }
   std::vector<int> index;
-  std::vector<double> part;
   size_t slice = kFirstBulkSlice;
-  for (size_t first = 0; first < args.n;) {
-    const size_t m = std::min(slice, args.n - first);
-    index.assign(args.material_index->begin() + first, args.material_index->begin() + first + m);
+  for (size_t begin = 0; begin < args.n;) {
+    const size_t m = std::min(slice, args.n - begin);
+    index.assign(args.material_index->begin() + begin, args.material_index->begin() + begin + m);
     runtime::LaunchArgs a = args;
     a.material_index = &index;
-    a.wi = args.wi + 3 * first;
-    a.wo = args.wo + 3 * first;
-    a.uv = args.uv ? args.uv + 2 * first : nullptr;
+    a.wi = args.wi + 3 * begin;
+    a.wo = args.wo + 3 * begin;
+    a.uv = args.uv ? args.uv + 2 * begin : nullptr;
     a.n = m;
     double t = 0;
-    if (!RunKernel(a, &part, error, &t)) return false;
+    if (!RunKernel(a, &results, error, &t)) return false;
     *seconds += t;
-    f->insert(f->end(), part.begin(), part.end());
-    first += m;
+    deliver(results, begin, m);
+    begin += m;
     // The next slice takes about bulk_slice at the rate just measured.
     const double rate = m / std::max(t, 1e-6);
     slice = std::clamp<size_t>(static_cast<size_t>(rate * Seconds(options_.bulk_slice)), kMinBulkSlice,
                                std::max(kMinBulkSlice, options_.max_batch_queries));
-    if (first < args.n) LaunchWaitingInteractive();
+    if (begin < args.n) LaunchWaitingInteractive();
   }
   return true;
 }

@@ -33,22 +33,24 @@ constexpr Clock::duration kDeadlineSlack = std::chrono::milliseconds(100);
 // kResourceExhausted: never set by the batcher; callers use it for a job Submit refused.
 enum class JobStatus { kOk, kDeadlineExceeded, kCancelled, kInternal, kUnavailable, kResourceExhausted };
 
+// A job's outcome; its f went to the job's sink (when the status is kOk).
 struct JobResult {
   JobStatus status = JobStatus::kOk;
   std::string message;
-  std::vector<double> f;  // 3 per query
   double queue_seconds = 0, kernel_seconds = 0;
   size_t batch_queries = 0, batch_requests = 0;
 };
 
 enum class Priority { kInteractive = 0, kBulk = 1 };
 
-// One request's work. wi, wo (and uv) point at the caller's data, which must outlive the completion callback.
+// One request's work. The material, wi, wo (and uv) and the sink's buffers are the caller's, which must outlive
+// the completion callback; results are written into the sink before it.
 struct Job {
   Priority priority = Priority::kInteractive;
   const models::Model* model = nullptr;
   bool fp64 = false;
-  models::PackedMaterial material;
+  const models::PackedMaterial* material = nullptr;  // shared and immutable: jobs of one material share it
+  runtime::ResultSink sink;
   const float* wi = nullptr;
   const float* wo = nullptr;
   const float* uv = nullptr;  // texture coordinates (spatially varying models): the BTF kernel
@@ -88,9 +90,12 @@ class Batcher {
   std::vector<std::shared_ptr<Job>> TakeBatch();
   void Launch(std::vector<std::shared_ptr<Job>> batch);
   // One kernel run, marked busy for the watchdog; adds its time to *seconds.
-  bool RunKernel(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error, double* seconds);
-  // A bulk launch in slices, waiting interactive batches launched between them.
-  bool RunBulk(const runtime::LaunchArgs& args, std::vector<double>* f, std::string* error, double* seconds);
+  bool RunKernel(const runtime::LaunchArgs& args, runtime::LaunchResults* results, std::string* error,
+                 double* seconds);
+  // Runs the launch (a bulk one in slices, waiting interactive batches launched between them) and writes each
+  // job's results into its sink; jobs[j]'s queries start at first[j] in the launch.
+  bool RunAndDeliver(const runtime::LaunchArgs& args, const std::vector<std::shared_ptr<Job>>& jobs,
+                     const std::vector<size_t>& first, std::string* error, double* seconds);
   void LaunchWaitingInteractive();
 
   static constexpr size_t kFirstBulkSlice = size_t{1} << 14;  // then sized from the measured rate

@@ -91,4 +91,36 @@ Accuracy Compare(const std::vector<T>& got, const std::vector<double>& ref, doub
 template Accuracy Compare<float>(const std::vector<float>&, const std::vector<double>&, double, const Pairs*);
 template Accuracy Compare<double>(const std::vector<double>&, const std::vector<double>&, double, const Pairs*);
 
+std::vector<double> MeasureKnobErrors(const models::Model& model, const models::ParamValues& values) {
+  const models::AccuracyKnob knob = model.accuracy_knob();
+  if (knob.param.empty() || knob.settings.empty()) return {};
+  std::mt19937 rng(20261201);
+  Pairs pairs;
+  while (pairs.size() < kKnobPairs) {
+    float wi[3], wo[3];
+    RandomHemisphere(rng, wi);
+    RandomHemisphere(rng, wo);
+    if (wi[2] < 0.1f || wo[2] < 0.1f) continue;
+    if (model.transmission() && pairs.size() % 2 == 1) wi[2] = -wi[2];  // back-lit
+    pairs.wi.insert(pairs.wi.end(), wi, wi + 3);
+    pairs.wo.insert(pairs.wo.end(), wo, wo + 3);
+  }
+  std::vector<std::vector<double>> f(knob.settings.size(), std::vector<double>(3 * pairs.size()));
+  for (size_t s = 0; s < knob.settings.size(); ++s) {
+    models::ParamValues v = values;
+    v[knob.param] = {knob.settings[s]};
+    model.ReferenceEval(model.Pack(v), pairs.wi.data(), pairs.wo.data(), nullptr, pairs.size(), f[s].data());
+  }
+  const std::vector<double>& exact = f.back();
+  double total = 0;
+  for (double x : exact) total += std::fabs(x);
+  std::vector<double> errors;
+  for (const std::vector<double>& got : f) {
+    double diff = 0;
+    for (size_t i = 0; i < got.size(); ++i) diff += std::fabs(got[i] - exact[i]);
+    errors.push_back(total > 0 ? diff / total : 0.0);
+  }
+  return errors;
+}
+
 }  // namespace loomlight::accuracy

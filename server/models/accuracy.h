@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "server/models/registry.h"
+
 namespace loomlight::accuracy {
 
 // Uniform direction on the upper hemisphere (z uniform in [0, 1) gives uniform solid angle), as float.
@@ -39,5 +41,14 @@ struct Accuracy {
 template <class T>
 Accuracy Compare(const std::vector<T>& got, const std::vector<double>& ref, double floor,
                  const Pairs* pairs = nullptr);
+
+// The estimated error of each setting of a model's accuracy knob (Model::accuracy_knob) for the material
+// `values` describe: sum |f_s - f_exact| / sum f_exact (every channel) of the double reference over kKnobPairs
+// seeded direction pairs, both at least 0.1 from the surface's plane (about 84 degrees; nearer the horizon the
+// cheap settings' error is real but so is every model's, and a user's error target means the visible range);
+// half the pairs back-lit for models with transmission. The exact (last) setting's error is 0. Empty when
+// the model has no knob.
+constexpr size_t kKnobPairs = 256;
+std::vector<double> MeasureKnobErrors(const models::Model& model, const models::ParamValues& values);
 
 }  // namespace loomlight::accuracy

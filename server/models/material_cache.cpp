@@ -1,5 +1,7 @@
 #include "server/models/material_cache.h"
 
+#include <cstdio>
+
 namespace loomlight::models {
 namespace {
 
@@ -17,7 +19,18 @@ void AppendCanonical(const ResolvedMaterial& m, std::string* key) {
 }
 
 size_t EntryBytes(const MaterialCache::Entry& e) {
-  return sizeof e + e.packed.data.size() * sizeof(double) + (e.transmission ? EntryBytes(*e.transmission) : 0);
+  size_t values = 0;
+  for (const auto& [name, v] : e.values) values += name.size() + v.size() * sizeof(double) + 64;  // + map node
+  return sizeof e + values + e.packed.data.size() * (sizeof(double) + sizeof(float)) +
+         (e.transmission ? EntryBytes(*e.transmission) : 0);
+}
+
+// "model: param value (note)", the setting a part is evaluated at.
+std::string DescribeSetting(const MaterialCache::Entry& part, const AccuracyKnob& knob, double value,
+                            const std::string& note) {
+  char text[96];
+  std::snprintf(text, sizeof text, " %g (", value);
+  return part.model->name() + ": " + knob.param + text + note + ")";
 }
 
 }  // namespace
@@ -35,20 +48,17 @@ std::string MaterialCache::Get(const v1::Material& material, const Registry& reg
   ResolvedMaterial top, layer;
   if (std::string error = ResolveComposition(material, registry, &top, &layer); !error.empty())
     return error;  // bad materials are not cached: they are cheap to reject again
-  std::string key = "C";
-  AppendCanonical(top, &key);
-  if (layer.model) {
-    key.append("\0+layer\0", 8);
-    AppendCanonical(layer, &key);
-  }
+  std::string key = CanonicalKey(top, layer);
   if (!Find(key, out)) {
     auto entry = std::make_shared<Entry>();
     entry->model = top.model;
     entry->packed = top.model->Pack(top.values);
+    entry->values = std::move(top.values);
     if (layer.model) {
       auto packed_layer = std::make_shared<Entry>();
       packed_layer->model = layer.model;
       packed_layer->packed = layer.model->Pack(layer.values);
+      packed_layer->values = std::move(layer.values);
       entry->transmission = std::move(packed_layer);
     }
     *out = entry;
@@ -56,6 +66,91 @@ std::string MaterialCache::Get(const v1::Material& material, const Registry& reg
   }
   if (!alias.empty()) Insert(std::move(alias), *out, true);
   return "";
+}
+
+std::string MaterialCache::CanonicalKey(const ResolvedMaterial& top, const ResolvedMaterial& layer) {
+  std::string key = "C";
+  AppendCanonical(top, &key);
+  if (layer.model) {
+    key.append("\0+layer\0", 8);
+    AppendCanonical(layer, &key);
+  }
+  return key;
+}
+
+std::string MaterialCache::Peek(const v1::Material& material, const Registry& registry, const Model** model,
+                                std::shared_ptr<const Entry>* cached) {
+  cached->reset();
+  if (Find(material, cached)) {
+    *model = (*cached)->model;
+    return "";
+  }
+  ResolvedMaterial top, layer;
+  if (std::string error = ResolveComposition(material, registry, &top, &layer); !error.empty()) return error;
+  *model = top.model;
+  Find(CanonicalKey(top, layer), cached);
+  return "";
+}
+
+bool MaterialCache::Find(const v1::Material& material, std::shared_ptr<const Entry>* out) {
+  if (HasUnknownFields(material)) return false;
+  std::string alias = "R";
+  material.AppendToString(&alias);
+  return Find(alias, out);
+}
+
+std::string MaterialCache::GetWithin(const v1::Material& material, const Registry& registry, double error_target,
+                                     std::shared_ptr<const Entry>* out, std::string* approximation) {
+  approximation->clear();
+  std::shared_ptr<const Entry> base;
+  if (std::string error = Get(material, registry, &base); !error.empty()) return error;
+  v1::Material chosen = material;
+  bool changed = false;
+  for (const bool layer : {false, true}) {
+    const Entry* part = layer ? base->transmission.get() : base.get();
+    if (!part) continue;
+    const AccuracyKnob knob = part->model->accuracy_knob();
+    if (knob.param.empty() || knob.settings.empty()) continue;
+    const double current = part->values.at(knob.param).at(0);
+    std::string text;
+    if (error_target <= 0) {
+      if (current != knob.settings.back()) {
+        char note[64];
+        std::snprintf(note, sizeof note, "the material's own; exact: %g", knob.settings.back());
+        text = DescribeSetting(*part, knob, current, note);
+      }
+    } else {
+      const std::vector<double>& errors = part->KnobErrors();
+      size_t s = 0;
+      while (s + 1 < errors.size() && !(errors[s] <= error_target)) ++s;  // the last (exact) always qualifies
+      char note[96];
+      std::snprintf(note, sizeof note, "estimated error %.2g%% for error_target %g", 100 * errors[s], error_target);
+      text = DescribeSetting(*part, knob, knob.settings[s], s + 1 == errors.size() ? "exact" : note);
+      if (knob.settings[s] != current) {
+        chosen = WithParam(chosen, layer, knob.param, knob.settings[s]);
+        changed = true;
+      }
+    }
+    if (!text.empty()) *approximation += (approximation->empty() ? "" : "; ") + text;
+  }
+  if (!changed) {
+    *out = std::move(base);
+    return "";
+  }
+  return Get(chosen, registry, out);
+}
+
+v1::Material WithParam(const v1::Material& material, bool layer, const std::string& name, double value) {
+  v1::Material variant = material;
+  v1::Material* target = layer ? variant.mutable_transmission() : &variant;
+  v1::Param* param = nullptr;
+  for (v1::Param& p : *target->mutable_params())
+    if (p.name() == name) param = &p;
+  if (!param) param = target->add_params();
+  param->set_name(name);
+  param->clear_values();
+  param->add_values(value);
+  return variant;
 }
 
 bool MaterialCache::HasUnknownFields(const v1::Material& m) {

@@ -8,6 +8,7 @@
 #include <unordered_map>
 
 #include "loomlight/v1/loomlight.pb.h"
+#include "server/models/material.h"
 #include "server/models/material_plan.h"
 #include "server/models/registry.h"
 
@@ -27,6 +28,19 @@ class MaterialCache {
   // The cached entry, or one packed now ("" on success, else the INVALID_ARGUMENT message).
   std::string Get(const v1::Material& material, const Registry& registry,
                   std::shared_ptr<const Entry>* out);
+  // The cached entry when the request's own bytes find it (the fast path; no resolving, no packing).
+  bool Find(const v1::Material& material, std::shared_ptr<const Entry>* out);
+  // Checks a material without packing it (cheap enough for a gRPC thread): *model is its model, *cached its
+  // entry when the cache has it, else null (a worker packs it later with Get). "" or the INVALID_ARGUMENT
+  // message.
+  std::string Peek(const v1::Material& material, const Registry& registry, const Model** model,
+                   std::shared_ptr<const Entry>* cached);
+  // As Get, with each part's accuracy knob (Model::accuracy_knob; the material and its curtain layer) set to
+  // the cheapest setting whose estimated error (PreparedMaterial::KnobErrors) is within error_target (> 0);
+  // with error_target 0 the material's own settings. *approximation describes the settings of every part
+  // not at its exact setting, with their estimated errors when a target was given ("" when none is).
+  std::string GetWithin(const v1::Material& material, const Registry& registry, double error_target,
+                        std::shared_ptr<const Entry>* out, std::string* approximation);
   size_t bytes() const;
   size_t entries() const;  // packed materials (not counting the request-bytes aliases of the fast path)
 
@@ -38,6 +52,7 @@ class MaterialCache {
     bool alias;  // keyed on a request's bytes ("R..."), else on the canonical form ("C...")
   };
   static bool HasUnknownFields(const v1::Material& material);
+  static std::string CanonicalKey(const ResolvedMaterial& top, const ResolvedMaterial& layer);
   bool Find(const std::string& key, std::shared_ptr<const Entry>* out);
   void Insert(std::string key, std::shared_ptr<const Entry> entry, bool alias);
 
@@ -48,5 +63,8 @@ class MaterialCache {
   size_t bytes_ = 0;
   size_t entries_ = 0;
 };
+
+// The material with parameter `name` set to `value`, on the material itself or (layer) on its curtain layer.
+v1::Material WithParam(const v1::Material& material, bool layer, const std::string& name, double value);
 
 }  // namespace loomlight::models

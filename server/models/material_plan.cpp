@@ -66,13 +66,4 @@ const float* EvaluationPlan::uv(size_t k) const {
   return part.whole ? uv_ : part.uv.data();
 }
 
-void EvaluationPlan::Merge(size_t k, const double* part_f, double* f) const {
-  const Part& part = parts_[k];
-  for (size_t i = 0; i < size(k); ++i) {
-    const size_t q = part.whole ? i : part.index[i];
-    const double scale = part.scaled ? scale_[q] : 1.0;
-    for (int c = 0; c < 3; ++c) f[3 * q + c] = scale * part_f[3 * i + c];
-  }
-}
-
 }  // namespace loomlight::models

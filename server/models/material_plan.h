@@ -10,6 +10,7 @@
 
 #include <cstddef>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -22,8 +23,20 @@ namespace loomlight::models {
 // A material resolved and packed, ready for the kernels; immutable and shared (the material cache keeps it).
 struct PreparedMaterial {
   const Model* model = nullptr;
+  ParamValues values;
   PackedMaterial packed;
   std::shared_ptr<const PreparedMaterial> transmission;  // a curtain's layer (Material.transmission), or null
+
+  // The model's estimated error at each accuracy-knob setting for this material (Model::KnobErrors), measured
+  // on first use and kept.
+  const std::vector<double>& KnobErrors() const {
+    std::call_once(knob_errors_once_, [this] { knob_errors_ = model->KnobErrors(values); });
+    return knob_errors_;
+  }
+
+ private:
+  mutable std::once_flag knob_errors_once_;
+  mutable std::vector<double> knob_errors_;
 };
 
 // Resolves a material and its curtain layer, checking the composition (a layer only behind a reflection
@@ -49,8 +62,10 @@ class EvaluationPlan {
   const float* wi(size_t k) const { return parts_[k].whole ? wi_ : parts_[k].wi.data(); }
   const float* wo(size_t k) const { return parts_[k].whole ? wo_ : parts_[k].wo.data(); }
   const float* uv(size_t k) const;
-  // Writes part k's kernel results (3 per part query) into f (3 per request query), scaled as the part needs.
-  void Merge(size_t k, const double* part_f, double* f) const;
+  // Where part k's results go, for a kernel writing them straight into the request's f (3 per request query):
+  // part query i is request query slots(k)[i] (nullptr: i), scaled by scale(k)[request query] (nullptr: 1).
+  const size_t* slots(size_t k) const { return parts_[k].whole ? nullptr : parts_[k].index.data(); }
+  const double* scale(size_t k) const { return parts_[k].scaled ? scale_.data() : nullptr; }
   // Per query, the direct transmittance toward wo, for materials that transmit (empty otherwise).
   const std::vector<double>& transmittance() const { return transmittance_; }
 

@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "server/models/accuracy.h"
 #include "server/models/host_kernels.h"
 
 namespace loomlight::models {
@@ -70,6 +71,10 @@ void Model::DirectTransmittance(const PackedMaterial& m, const float* wo, size_t
   std::vector<double> rgb(3 * n);
   host::RunReference(HostKernelOf(*this, name), m.data.data(), m.uniform, wo, wo, nullptr, n, rgb.data());
   for (size_t q = 0; q < n; ++q) t[q] = rgb[3 * q];
+}
+
+std::vector<double> Model::KnobErrors(const ParamValues& values) const {
+  return accuracy::MeasureKnobErrors(*this, values);
 }
 
 Registry& Registry::Global() {

@@ -42,7 +42,6 @@ struct PackedMaterial {
   std::vector<double> data;
   std::vector<float> data32;
   int uniform = 0;  // launch-uniform integer (e.g. tangent samples); only equal ones share a launch
-  double approximation_error = 0;  // max relative error of a cheaper mode vs the exact one (thin layer: single)
 };
 
 // A model's kernels: the entry file under kernels/ and its kernel functions, all with the signature of
@@ -58,8 +57,9 @@ struct KernelSpec {
 };
 
 // A model's accuracy knob, declared as data: a parameter whose settings trade speed for accuracy, cheapest
-// first and exact last, and how the error of a cheaper setting is estimated. Render's fidelity chooser
-// searches it; ListModels serves it.
+// first and exact last, and how the error of a cheaper setting is estimated. Evaluate's error_target picks
+// the cheapest setting whose estimated error (Model::KnobErrors) is within it; Render's fidelity chooser
+// searches the settings with its pilot; ListModels serves it.
 struct AccuracyKnob {
   std::string param;              // "" = the model has none
   std::vector<double> settings;   // ascending cost; the last is full fidelity
@@ -95,10 +95,6 @@ class Model {
   // Models that let light through the cloth (non-zero f with wi and wo on opposite sides) also report the
   // direct (unscattered) transmittance toward each wo, in [0, 1].
   bool transmission() const { return !kernel().transmittance_function.empty(); }
-  // Adapts a packed material to a request's error target (relative error of f; 0 = none given, keep the
-  // material's own choice) and describes the approximation in use with its estimated error, or "" when the
-  // model makes none.
-  virtual std::string ChooseApproximation(double error_target, PackedMaterial* m) const { return ""; }
   // The direct transmittance toward each of n directions wo into t (the reference build); 0 for models
   // without transmission.
   void DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const;
@@ -116,6 +112,10 @@ class Model {
   // axis; "" for surface models. Served by ListModels, so clients choose views without knowing model names.
   virtual std::string fiber_axis_param() const { return ""; }
   virtual AccuracyKnob accuracy_knob() const { return {}; }
+  // The estimated relative error of f at each accuracy-knob setting (cheapest first; the exact one's is 0) for
+  // the material `values` describe. The default measures it (accuracy::MeasureKnobErrors: the reference at
+  // each setting against the exact one); a model with a cheaper or sharper estimate overrides it.
+  virtual std::vector<double> KnobErrors(const ParamValues& values) const;
   // Threads across one repeat of the material's pattern, the larger of its two directions (the fidelity
   // chooser compares a thread's width with a pixel's footprint); 1 for materials without a pattern.
   virtual double ThreadsPerRepeat(const ParamValues& values) const { return 1; }

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 
 namespace loomlight::runtime {
@@ -209,13 +210,35 @@ bool ClRuntime::Warm(const models::Registry& registry, std::string* error) {
 bool ClRuntime::RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
                           const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error) {
   const std::vector<int> index(n, 0);
-  const std::vector<size_t> offset(1, 0);
-  const LaunchArgs args{.model = &model, .fp64 = fp64, .uniform = m.uniform, .materials = &m.data,
-                        .material_offset = &offset, .material_index = &index, .wi = wi, .wo = wo, .uv = uv, .n = n};
-  return Run(args, f, error);
+  const std::vector<const models::PackedMaterial*> materials = {&m};
+  const LaunchArgs args{.model = &model, .fp64 = fp64, .uniform = m.uniform, .materials = &materials,
+                        .material_index = &index, .wi = wi, .wo = wo, .uv = uv, .n = n};
+  LaunchResults results;
+  if (!Run(args, &results, error)) return false;
+  f->assign(3 * n, 0.0);
+  results.Write(0, n, ResultSink{.f64 = f->data()}, 0);
+  return true;
 }
 
-bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* error) {
+void LaunchResults::Write(size_t first, size_t count, const ResultSink& sink, size_t sink_first) const {
+  auto write = [&](const auto* planar, auto* out) {
+    for (size_t i = 0; i < count; ++i) {
+      const size_t lane = lane_of[first + i];
+      const size_t slot = sink.slot ? sink.slot[sink_first + i] : sink_first + i;
+      const double scale = sink.scale ? sink.scale[slot] : 1.0;
+      for (size_t c = 0; c < 3; ++c) {
+        const auto value = planar[c * lanes + lane];
+        out[3 * slot + c] = sink.scale ? scale * value : value;  // unscaled: one rounding at most
+      }
+    }
+  };
+  if (!f64.empty())
+    sink.f32 ? write(f64.data(), sink.f32) : write(f64.data(), sink.f64);
+  else
+    sink.f32 ? write(f32.data(), sink.f32) : write(f32.data(), sink.f64);
+}
+
+bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* error) {
   auto it = programs_.find({a.model->name(), a.fp64});
   if (it == programs_.end()) {
     *error = "no " + std::string(a.fp64 ? "fp64" : "fp32") + " kernel for model '" + a.model->name() + "'";
@@ -227,11 +250,21 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     *error = "model '" + a.model->name() + "' is not spatially varying";
     return false;
   }
-  if (a.materials->size() > size_t(INT32_MAX)) {
+  // Each distinct material once, in the kernel's precision; material m starts at offset[m].
+  std::vector<size_t> offset;
+  size_t values = 0;
+  for (const models::PackedMaterial* m : *a.materials) {
+    offset.push_back(values);
+    values += m->data.size();
+  }
+  if (values > size_t(INT32_MAX)) {
     *error = "materials of one launch exceed 2^31 values";
     return false;
   }
-  f->assign(3 * a.n, 0.0);
+  results->lane_of.clear();
+  results->lanes = 0;
+  results->f32.clear();
+  results->f64.clear();
   if (a.n == 0) return true;
   const size_t width = program.width;
   const size_t items_per_group = std::max<size_t>(1, local_size_ / width);
@@ -239,7 +272,8 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
   // Lanes: each work-item evaluates `width` consecutive lanes of one material, so a run of queries of one
   // material starts at a multiple of the width; the lane count is padded to whole work-groups. Padding
   // lanes look straight up at uv (0, 0), so every lane computes finite values.
-  std::vector<size_t> lane_of(a.n);
+  std::vector<size_t>& lane_of = results->lane_of;
+  lane_of.resize(a.n);
   std::vector<int> group_offset;  // where each work-item's material starts
   int group_m = -1;
   size_t lanes = 0;
@@ -247,7 +281,7 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     const int m = (*a.material_index)[q];
     if (lanes % width != 0 && m != group_m) lanes += width - lanes % width;
     if (lanes % width == 0) {
-      group_offset.push_back(static_cast<int>((*a.material_offset)[m]));
+      group_offset.push_back(static_cast<int>(offset[m]));
       group_m = m;
     }
     lane_of[q] = lanes++;
@@ -268,11 +302,18 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     for (size_t q = 0; q < a.n; ++q)
       for (size_t c = 0; c < 2; ++c) uv[c * lanes + lane_of[q]] = a.uv[2 * q + c];
   const size_t real_size = a.fp64 ? sizeof(double) : sizeof(float);
-  std::vector<float> materials_f;
-  const void* materials_ptr = a.materials->data();
-  if (!a.fp64) {
-    materials_f.assign(a.materials->begin(), a.materials->end());
-    materials_ptr = materials_f.data();
+  // One material is read where it lies; several are concatenated once.
+  std::vector<char> concatenated;
+  const void* materials_ptr = a.fp64 ? static_cast<const void*>(a.materials->front()->data.data())
+                                     : static_cast<const void*>(a.materials->front()->data32.data());
+  if (a.materials->size() > 1) {
+    concatenated.resize(values * real_size);
+    for (size_t m = 0; m < a.materials->size(); ++m) {
+      const models::PackedMaterial& p = *(*a.materials)[m];
+      const void* from = a.fp64 ? static_cast<const void*>(p.data.data()) : static_cast<const void*>(p.data32.data());
+      std::memcpy(concatenated.data() + offset[m] * real_size, from, p.data.size() * real_size);
+    }
+    materials_ptr = concatenated.data();
   }
 
   std::lock_guard<std::mutex> lock(launch_mutex_);
@@ -283,7 +324,7 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     b.mems.push_back(m);
     return m;
   };
-  cl_mem mat = make(std::max<size_t>(1, a.materials->size()) * real_size, materials_ptr, CL_MEM_READ_ONLY);
+  cl_mem mat = make(std::max<size_t>(1, values) * real_size, values ? materials_ptr : nullptr, CL_MEM_READ_ONLY);
   cl_mem idx = make(group_offset.size() * sizeof(int), group_offset.data(), CL_MEM_READ_ONLY);
   cl_mem bwi = make(wi.size() * sizeof(float), wi.data(), CL_MEM_READ_ONLY);
   cl_mem bwo = make(wo.size() * sizeof(float), wo.data(), CL_MEM_READ_ONLY);
@@ -308,18 +349,15 @@ bool ClRuntime::Run(const LaunchArgs& a, std::vector<double>* f, std::string* er
     *error = ClError("clEnqueueNDRangeKernel", err);
     return false;
   }
-  auto gather = [&](const auto* planar) {
-    for (size_t q = 0; q < a.n; ++q)
-      for (size_t c = 0; c < 3; ++c) (*f)[3 * q + c] = planar[c * lanes + lane_of[q]];
-  };
+  results->lanes = lanes;
   if (a.fp64) {
-    std::vector<double> tmp(3 * lanes);
-    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, tmp.size() * sizeof(double), tmp.data(), 0, nullptr, nullptr);
-    gather(tmp.data());
+    results->f64.resize(3 * lanes);
+    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * lanes * sizeof(double), results->f64.data(), 0, nullptr,
+                              nullptr);
   } else {
-    std::vector<float> tmp(3 * lanes);
-    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, tmp.size() * sizeof(float), tmp.data(), 0, nullptr, nullptr);
-    gather(tmp.data());
+    results->f32.resize(3 * lanes);
+    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * lanes * sizeof(float), results->f32.data(), 0, nullptr,
+                              nullptr);
   }
   if (err != CL_SUCCESS) {
     *error = ClError("clEnqueueReadBuffer", err);

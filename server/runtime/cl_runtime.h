@@ -25,19 +25,42 @@ struct RuntimeOptions {
   int vector_width = 8;    // queries per work-item in float kernels (explicit vectors); fp64 kernels use 1
 };
 
-// One launch: n queries; materials concatenated, material m starting at materials[material_offset[m]];
-// material_index picks one per query. uv (pairs) selects the model's spatially varying kernel.
+// One launch: n queries of one model's kernel; each query's material is materials[material_index[q]], packed
+// once per precision (the launch reads data32 or data, never converting). uv (pairs) selects the model's
+// spatially varying kernel.
 struct LaunchArgs {
   const models::Model* model = nullptr;
   bool fp64 = false;
   int uniform = 0;
-  const std::vector<double>* materials = nullptr;
-  const std::vector<size_t>* material_offset = nullptr;
+  const std::vector<const models::PackedMaterial*>* materials = nullptr;
   const std::vector<int>* material_index = nullptr;
   const float* wi = nullptr;
   const float* wo = nullptr;
   const float* uv = nullptr;  // nullptr: f(wi, wo)
   size_t n = 0;
+};
+
+// Where one caller's results go, written straight from the device's output in the caller's precision (a
+// float response, a double accumulator): query i's RGB to out[3 * slot(i) + c], times scale[slot(i)].
+struct ResultSink {
+  float* f32 = nullptr;  // exactly one of f32 and f64
+  double* f64 = nullptr;
+  const size_t* slot = nullptr;   // i -> destination query; nullptr: i
+  const double* scale = nullptr;  // per destination query; nullptr: 1
+};
+
+// A launch's results as the device left them: planar per lane, in the kernel's precision.
+class LaunchResults {
+ public:
+  // Writes the launch's queries [first, first + count) to the sink's queries [sink_first, sink_first + count).
+  void Write(size_t first, size_t count, const ResultSink& sink, size_t sink_first) const;
+
+ private:
+  friend class ClRuntime;
+  std::vector<float> f32;
+  std::vector<double> f64;
+  std::vector<size_t> lane_of;  // query -> lane
+  size_t lanes = 0;
 };
 
 class ClRuntime {
@@ -52,8 +75,8 @@ class ClRuntime {
   // Launches every kernel once so the first request does not pay for PoCL's work-group compilation.
   bool Warm(const models::Registry& registry, std::string* error);
 
-  // Runs one launch and returns f (3 per query) in double. Thread-safe: launches are serialised.
-  bool Run(const LaunchArgs& args, std::vector<double>* f, std::string* error);
+  // Runs one launch. Thread-safe: launches are serialised.
+  bool Run(const LaunchArgs& args, LaunchResults* results, std::string* error);
   // One material for all n queries (uv nullptr: f(wi, wo)).
   bool RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
                  const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error);

@@ -115,10 +115,10 @@ class MicrocylinderModel : public Model {
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
   AccuracyKnob accuracy_knob() const override {
-    // Tangent curve samples per thread: 9% at 16 and 1% at 32 against 256 (README); Render measures each
-    // setting's pilot radiance against the exact one.
+    // Tangent curve samples per thread: 9% at 16 and 1% at 32 against 256 (README).
     return {"tangent_samples", {8, 16, 32, 64, 128, kMaxTangentSamples},
-            "relative L1 of the pilot radiance against the last setting"};
+            "Evaluate: relative L1 of the double reference against the last setting over fixed direction pairs "
+            "(accuracy::MeasureKnobErrors); Render: relative L1 of the pilot radiance against the last setting"};
   }
   KernelSpec kernel() const override { return {"models/microcylinder.cl", "microcylinder_eval", ""}; }
 

@@ -2,8 +2,7 @@
 // packing into kernels/models/thin_layer.h's layout; wi and wo on opposite sides of the layer give its diffuse
 // transmission. `scattering` is the launch-uniform value: 0 the closed-form single scattering, 1 all orders
 // (issue 4 item 6), for which Pack tabulates the adding-doubling solution (server/models/slab) per channel.
-// Pack always builds the tables and the single-scattering error (PackedMaterial::approximation_error), so a
-// service may switch a packed material's mode from a request's error target without packing it again.
+// `scattering` is the model's accuracy knob; KnobErrors gives single scattering's error from the same solve.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -117,7 +116,9 @@ class ThinLayerModel : public Model {
   }
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
-  KernelSpec kernel() const override { return {"models/thin_layer.cl", "thin_layer_eval", "", "thin_layer_transmittance"}; }
+  KernelSpec kernel() const override {
+    return {"models/thin_layer.cl", "thin_layer_eval", "", "thin_layer_transmittance"};
+  }
 
   std::string Validate(const ParamValues&) const override { return ""; }  // the schema's ranges suffice
 
@@ -128,7 +129,7 @@ class ThinLayerModel : public Model {
     m.data[0] = v.at("tau")[0];
     const std::vector<double>& albedo = v.at("albedo");
     for (int c = 0; c < 3; ++c) m.data[1 + c] = albedo[c] / (4.0 * M_PI);
-    m.approximation_error = TabulateAllOrders(m.data[0], albedo, &m.data);
+    TabulateAllOrders(m.data[0], albedo, &m.data);
     return m;
   }
 
@@ -139,16 +140,14 @@ class ThinLayerModel : public Model {
   // the tables' accuracy (0.5% of f) of it.
   bool reciprocal() const override { return true; }
   bool energy_conserving() const override { return true; }
-  std::string ChooseApproximation(double error_target, PackedMaterial* m) const override {
-    if (error_target > 0) m->uniform = m->approximation_error <= error_target ? TL_SCATTERING_SINGLE : TL_SCATTERING_ALL;
-    char text[160];
-    if (m->uniform == TL_SCATTERING_SINGLE)
-      std::snprintf(text, sizeof text, "thin_layer: single scattering, error up to %.2g%% (directions >= 0.1 from the plane)",
-                    100 * m->approximation_error);
-    else
-      std::snprintf(text, sizeof text, "thin_layer: all scattering orders (tables within 0.5%%; single scattering would err by %.2g%%)",
-                    100 * m->approximation_error);
-    return text;
+  AccuracyKnob accuracy_knob() const override {
+    return {"scattering", {TL_SCATTERING_SINGLE, TL_SCATTERING_ALL},
+            "single scattering: its largest relative error against all orders over the adding-doubling table's "
+            "nodes with both cosines >= 0.1; all orders: 0 (the tables are within 0.5% of the exact slab)"};
+  }
+  std::vector<double> KnobErrors(const ParamValues& v) const override {
+    std::vector<double> scratch(TL_PACKED_SIZE, 0.0);
+    return {TabulateAllOrders(v.at("tau")[0], v.at("albedo"), &scratch), 0.0};
   }
 
  private:

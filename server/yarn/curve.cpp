@@ -1,0 +1,88 @@
+#include "server/yarn/curve.h"
+
+#include <algorithm>
+#include <cstdio>
+
+namespace loomlight::yarn {
+namespace {
+
+constexpr double kMaxCoordinate = 1e6;
+const double kCos60 = 0.5;
+
+std::string Number(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
+bool Finite(Vec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+Vec3 Normalized(Vec3 v) { return (1 / Norm(v)) * v; }
+
+// Any unit vector perpendicular to unit t, chosen the same way every time (only for frames that
+// interpolation made degenerate, which the validation rules out; this keeps At() finite regardless).
+Vec3 AnyPerpendicular(Vec3 t) {
+  const Vec3 axis = std::abs(t.x) < 0.9 ? Vec3{1, 0, 0} : Vec3{0, 1, 0};
+  return Normalized(Cross(Cross(t, axis), t));
+}
+
+}  // namespace
+
+std::string PolylineYarnCurve::Make(std::vector<Vec3> vertices, std::vector<Vec3> normals, PolylineYarnCurve* out) {
+  const size_t n = vertices.size();
+  if (n < 2 || n > kMaxCurveVertices)
+    return "vertices: has " + std::to_string(n) + " vertices, must have 2.." + std::to_string(kMaxCurveVertices);
+  if (normals.size() != n)
+    return "normals: has " + std::to_string(normals.size()) + " normals for " + std::to_string(n) + " vertices";
+  for (size_t i = 0; i < n; ++i) {
+    if (!Finite(vertices[i]) || std::abs(vertices[i].x) > kMaxCoordinate || std::abs(vertices[i].y) > kMaxCoordinate ||
+        std::abs(vertices[i].z) > kMaxCoordinate)
+      return "vertices: vertex " + std::to_string(i) + " is not finite or farther than " + Number(kMaxCoordinate) +
+             " from the origin";
+    if (!Finite(normals[i])) return "normals: normal " + std::to_string(i) + " is not finite";
+  }
+  std::vector<Vec3> directions(n - 1);
+  std::vector<double> arc(n, 0.0);
+  for (size_t i = 0; i + 1 < n; ++i) {
+    const double length = Norm(vertices[i + 1] - vertices[i]);
+    if (!(length > 0)) return "vertices: vertices " + std::to_string(i) + " and " + std::to_string(i + 1) + " coincide";
+    directions[i] = (1 / length) * (vertices[i + 1] - vertices[i]);
+    arc[i + 1] = arc[i] + length;
+    if (i > 0 && Dot(directions[i - 1], directions[i]) <= kCos60)
+      return "vertices: the polyline turns 60 degrees or more at vertex " + std::to_string(i);
+  }
+  std::vector<Vec3> tangents(n);
+  tangents[0] = directions[0];
+  tangents[n - 1] = directions[n - 2];
+  for (size_t i = 1; i + 1 < n; ++i) tangents[i] = Normalized(directions[i - 1] + directions[i]);
+  for (size_t i = 0; i < n; ++i) {
+    const double length = Norm(normals[i]);
+    if (std::abs(length - 1) > 1e-6)
+      return "normals: normal " + std::to_string(i) + " has length " + Number(length) + ", must be 1";
+    if (std::abs(Dot(normals[i], tangents[i])) >= 1e-3)
+      return "normals: normal " + std::to_string(i) + " is not perpendicular to the polyline there";
+    if (i > 0 && Dot(normals[i - 1], normals[i]) <= kCos60)
+      return "normals: normals " + std::to_string(i - 1) + " and " + std::to_string(i) + " differ by 60 degrees or more";
+  }
+  out->vertices_ = std::move(vertices);
+  out->normals_ = std::move(normals);
+  out->tangents_ = std::move(tangents);
+  out->arc_ = std::move(arc);
+  return "";
+}
+
+CurveFrame PolylineYarnCurve::At(double arc) const {
+  const double a = std::clamp(arc, 0.0, Length());
+  // The segment holding `a`: the last vertex whose arc length is <= a, short of the final vertex.
+  const size_t i = std::min<size_t>(std::upper_bound(arc_.begin(), arc_.end(), a) - arc_.begin(), arc_.size() - 1) - 1;
+  const double u = (a - arc_[i]) / (arc_[i + 1] - arc_[i]);
+  CurveFrame f;
+  f.position = vertices_[i] + u * (vertices_[i + 1] - vertices_[i]);
+  f.tangent = Normalized((1 - u) * tangents_[i] + u * tangents_[i + 1]);
+  const Vec3 n = (1 - u) * normals_[i] + u * normals_[i + 1];
+  const Vec3 perpendicular = n - Dot(n, f.tangent) * f.tangent;
+  f.normal = Norm(perpendicular) > 1e-9 ? Normalized(perpendicular) : AnyPerpendicular(f.tangent);
+  return f;
+}
+
+}  // namespace loomlight::yarn

@@ -1,0 +1,84 @@
+// Yarn centre curves: where a yarn runs and how its cross-section is oriented, by arc length. The fiber
+// generator (yarn.h) only asks a curve for a position and a frame, so the straight yarn of Wu and Yuksel's
+// Fig. 7 and a woven layout's warp and weft (over and under, as polylines) go through the same code.
+#pragma once
+
+#include <cmath>
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace loomlight::yarn {
+
+// Lengths are in the unit of SPEC.md section 6's presets (Zhao et al.'s fitted values, which SPEC gives
+// without a unit); nothing in this library depends on which unit that is.
+struct Vec3 {
+  double x = 0;
+  double y = 0;
+  double z = 0;
+
+  bool operator==(const Vec3&) const = default;
+};
+
+inline Vec3 operator+(Vec3 a, Vec3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+inline Vec3 operator-(Vec3 a, Vec3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+inline Vec3 operator*(double s, Vec3 a) { return {s * a.x, s * a.y, s * a.z}; }
+inline double Dot(Vec3 a, Vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline Vec3 Cross(Vec3 a, Vec3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+inline double Norm(Vec3 a) { return std::sqrt(Dot(a, a)); }
+
+// The yarn's cross-section frame at one point: `tangent` along the yarn (the paper's T_yarn), `normal`
+// perpendicular to it (N_yarn, where ply 0 starts); both unit length. B_yarn = tangent x normal.
+struct CurveFrame {
+  Vec3 position;
+  Vec3 tangent;
+  Vec3 normal;
+};
+
+// A yarn centre parameterised by arc length. At(arc) is defined for arc in [0, Length()], returns a finite
+// orthonormal frame there, and is a pure function (the generator calls it from several threads).
+class YarnCurve {
+ public:
+  virtual ~YarnCurve() = default;
+  virtual double Length() const = 0;
+  virtual CurveFrame At(double arc) const = 0;
+};
+
+// The straight yarn of Fig. 7: from the origin along +z, N_yarn = +x (so B_yarn = +y).
+class StraightYarnCurve final : public YarnCurve {
+ public:
+  explicit StraightYarnCurve(double length) : length_(length) {}
+  double Length() const override { return length_; }
+  CurveFrame At(double arc) const override { return {{0, 0, arc}, {0, 0, 1}, {1, 0, 0}}; }
+
+ private:
+  double length_;
+};
+
+// Most vertices a polyline curve accepts (a woven repeat needs a few per crossing).
+inline constexpr size_t kMaxCurveVertices = 1'000'000;
+
+// A polyline with a normal per vertex (e.g. a warp thread going over and under wefts). Positions are linear
+// along each segment; the tangent at a vertex is the bisector of its two segments (the segment's direction
+// at the ends), and tangents and normals are interpolated linearly by arc length and re-orthonormalised, so
+// the frame turns smoothly through a vertex instead of jumping.
+class PolylineYarnCurve final : public YarnCurve {
+ public:
+  // Returns "" or "field: reason" ("vertices: ..." or "normals: ..."). Rules: 2 to kMaxCurveVertices
+  // vertices, one normal each; every coordinate finite and within 1e6 of the origin; consecutive vertices
+  // distinct; the polyline turns less than 60 degrees at a vertex; each normal unit length (within 1e-6),
+  // perpendicular to its vertex tangent (|cos| < 1e-3), and within 60 degrees of the next vertex's normal.
+  // The turning bounds keep the interpolated frame far from degenerate.
+  static std::string Make(std::vector<Vec3> vertices, std::vector<Vec3> normals, PolylineYarnCurve* out);
+
+  double Length() const override { return arc_.empty() ? 0 : arc_.back(); }
+  CurveFrame At(double arc) const override;
+
+ private:
+  std::vector<Vec3> vertices_;
+  std::vector<Vec3> normals_;
+  std::vector<Vec3> tangents_;  // per vertex
+  std::vector<double> arc_;     // arc length at each vertex, arc_[0] = 0
+};
+
+}  // namespace loomlight::yarn

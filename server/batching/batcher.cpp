@@ -28,8 +28,22 @@ Batcher::~Batcher() { Stop(); }
 
 Batcher::Refusal Batcher::Submit(std::shared_ptr<Job> job) {
   {
-    std::lock_guard<std::mutex> lock(mutex_);
+    std::unique_lock<std::mutex> lock(mutex_);
     if (stopping_) return Refusal::kStopping;
+    if (options_.coalesce && options_.max_queue_delay.count() == 0 && !launching_ && Empty() &&
+        job->priority == Priority::kInteractive &&
+        job->n <= kMaxInlineQueries) {
+      launching_ = true;
+      job->enqueued = Clock::now();
+      lock.unlock();
+      Launch({std::move(job)});
+      lock.lock();
+      launching_ = false;
+      const bool more = !Empty();
+      lock.unlock();
+      if (more) wake_.notify_one();
+      return Refusal::kNone;
+    }
     const int p = static_cast<int>(job->priority);
     // An empty queue always accepts, so one request up to the per-call limit can always run.
     if (!queue_[p].empty() && queued_queries_[p] + job->n > options_.max_queued_queries) return Refusal::kQueueFull;
@@ -82,7 +96,7 @@ std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
 void Batcher::Run() {
   std::unique_lock<std::mutex> lock(mutex_);
   while (true) {
-    wake_.wait(lock, [this] { return stopping_ || !Empty(); });
+    wake_.wait(lock, [this] { return stopping_ || (!Empty() && !launching_); });
     if (stopping_) return;
     if (options_.max_queue_delay.count() > 0) {
       // Let more requests join until the oldest has waited max_queue_delay or a batch is full.
@@ -93,10 +107,13 @@ void Batcher::Run() {
       });
       if (stopping_) return;
     }
+    if (launching_ || Empty()) continue;  // an inline launch started meanwhile
     std::vector<std::shared_ptr<Job>> batch = TakeBatch();
+    launching_ = true;
     lock.unlock();
     Launch(std::move(batch));
     lock.lock();
+    launching_ = false;
   }
 }
 

@@ -74,7 +74,10 @@ class Batcher {
   Batcher(runtime::ClRuntime* runtime, BatcherOptions options);
   ~Batcher();
   enum class Refusal { kNone, kQueueFull, kStopping };
-  // Queues the job; otherwise says why not (the job is not taken and done is not called).
+  // Queues the job; otherwise says why not (the job is not taken and done is not called). A small interactive
+  // job that finds the batcher idle (nothing queued, nothing launching) is launched at once on the calling
+  // thread instead, done called there: waking the batcher's thread would cost more than the launch, and there
+  // is nothing to coalesce it with.
   Refusal Submit(std::shared_ptr<Job> job);
   // When the kernel running now started; max when none runs (the health watchdog reads it).
   Clock::time_point busy_since() const { return busy_since_.load(); }
@@ -99,6 +102,7 @@ class Batcher {
   void LaunchWaitingInteractive();
 
   static constexpr size_t kFirstBulkSlice = size_t{1} << 14;  // then sized from the measured rate
+  static constexpr size_t kMaxInlineQueries = 4096;              // an idle batcher launches these on the caller
   static constexpr size_t kMinBulkSlice = size_t{1} << 12;
 
   runtime::ClRuntime* runtime_;
@@ -109,6 +113,7 @@ class Batcher {
   size_t queued_queries_[2] = {0, 0};
   std::atomic<Clock::time_point> busy_since_{Clock::time_point::max()};
   bool stopping_ = false;
+  bool launching_ = false;  // a launch runs (on the batcher's thread or inline on a caller's)
   std::thread worker_;
 };
 

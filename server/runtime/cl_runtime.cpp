@@ -31,6 +31,18 @@ std::string InfoString(Getter get, Id id, What what) {
 std::string PlatformInfo(cl_platform_id p, cl_platform_info what) { return InfoString(clGetPlatformInfo, p, what); }
 std::string DeviceInfo(cl_device_id d, cl_device_info what) { return InfoString(clGetDeviceInfo, d, what); }
 
+// PoCL's CPU devices are named after their driver: "pthread-<cpu>" (multi-threaded) and "basic-<cpu>" (runs
+// commands on the thread that waits for them).
+bool IsPoclBasic(const std::string& device_name) { return device_name.rfind("basic-", 0) == 0; }
+bool IsPoclPthread(const std::string& device_name) { return device_name.rfind("pthread-", 0) == 0; }
+
+// n copies of a k-vector, one after another.
+std::vector<float> Repeat(const float* v, size_t k, size_t n) {
+  std::vector<float> out;
+  for (size_t i = 0; i < n; ++i) out.insert(out.end(), v, v + k);
+  return out;
+}
+
 std::string ClError(const char* what, cl_int err) { return std::string(what) + " failed (OpenCL error " + std::to_string(err) + ")"; }
 
 // Releases OpenCL memory objects at scope exit.
@@ -53,6 +65,9 @@ std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std:
     std::filesystem::create_directories(cache, ec);
     setenv("POCL_CACHE_DIR", cache.c_str(), /*overwrite=*/options.cache_dir.empty() ? 0 : 1);
   }
+  // PoCL offers its multi-threaded CPU device alone unless told otherwise; small launches want its
+  // single-threaded one beside it (RuntimeOptions::small_launch_queries). An operator's own choice stands.
+  if (options.small_launch_queries > 0) setenv("POCL_DEVICES", "pthread basic", /*overwrite=*/0);
   std::string want_platform = options.platform, want_device = options.device;
   if (want_platform.empty() && std::getenv("LOOMLIGHT_PLATFORM")) want_platform = std::getenv("LOOMLIGHT_PLATFORM");
   if (want_device.empty() && std::getenv("LOOMLIGHT_DEVICE")) want_device = std::getenv("LOOMLIGHT_DEVICE");
@@ -66,10 +81,11 @@ std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std:
   clGetPlatformIDs(np, platforms.data(), nullptr);
 
   auto rt = std::unique_ptr<ClRuntime>(new ClRuntime);
-  rt->local_size_ = options.local_size;
+  rt->main_.local_size = options.local_size;
+  cl_device_id chosen = nullptr;
   std::string seen;
   // Two passes: the requested platform, or PoCL first and then anything when nothing was requested.
-  for (int pass = 0; pass < 2 && !rt->device_; ++pass) {
+  for (int pass = 0; pass < 2 && !chosen; ++pass) {
     for (cl_platform_id p : platforms) {
       const std::string name = PlatformInfo(p, CL_PLATFORM_NAME), vendor = PlatformInfo(p, CL_PLATFORM_VENDOR);
       if (pass == 0) seen += " '" + name + "'";
@@ -86,28 +102,29 @@ std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std:
         cl_device_type type = 0;
         clGetDeviceInfo(d, CL_DEVICE_TYPE, sizeof(type), &type, nullptr);
         const std::string dname = DeviceInfo(d, CL_DEVICE_NAME);
-        const bool match = want_device.empty() ? (type & CL_DEVICE_TYPE_CPU) || pass == 1 : Contains(dname, want_device);
+        // PoCL's single-threaded `basic` device is only ever the small-launch device, never the main one.
+        const bool match = want_device.empty() ? ((type & CL_DEVICE_TYPE_CPU) || pass == 1) && !IsPoclBasic(dname)
+                                               : Contains(dname, want_device);
         if (!match) continue;
         rt->platform_ = p;
-        rt->device_ = d;
+        chosen = d;
         rt->platform_name_ = name;
-        rt->device_name_ = dname;
         break;
       }
-      if (rt->device_) break;
+      if (chosen) break;
     }
     if (!want_platform.empty()) break;
   }
-  if (!rt->device_) {
+  if (!chosen) {
     *error = "no OpenCL device matches platform '" + want_platform + "' device '" + want_device +
              "'; platforms:" + seen;
     return nullptr;
   }
-  rt->has_fp64_ = DeviceInfo(rt->device_, CL_DEVICE_EXTENSIONS).find("cl_khr_fp64") != std::string::npos;
+  rt->has_fp64_ = DeviceInfo(chosen, CL_DEVICE_EXTENSIONS).find("cl_khr_fp64") != std::string::npos;
   rt->vector_width_ = options.vector_width;
   if (rt->vector_width_ == 0) {
     cl_uint native = 1;
-    clGetDeviceInfo(rt->device_, CL_DEVICE_NATIVE_VECTOR_WIDTH_FLOAT, sizeof(native), &native, nullptr);
+    clGetDeviceInfo(chosen, CL_DEVICE_NATIVE_VECTOR_WIDTH_FLOAT, sizeof(native), &native, nullptr);
     rt->vector_width_ = 1;
     while (rt->vector_width_ * 2 <= static_cast<int>(native) && rt->vector_width_ < 16) rt->vector_width_ *= 2;
   }
@@ -116,31 +133,77 @@ std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std:
     *error = "vector width must be 1, 2, 4, 8 or 16";
     return nullptr;
   }
-  cl_int err = CL_SUCCESS;
-  rt->context_ = clCreateContext(nullptr, 1, &rt->device_, nullptr, nullptr, &err);
-  if (err != CL_SUCCESS) {
-    *error = ClError("clCreateContext", err);
-    return nullptr;
-  }
-  rt->queue_ = clCreateCommandQueue(rt->context_, rt->device_, 0, &err);
-  if (err != CL_SUCCESS) {
-    *error = ClError("clCreateCommandQueue", err);
-    return nullptr;
+  if (!rt->main_.Open(chosen, error)) return nullptr;
+  // Small launches: PoCL's `basic` device beside its `pthread` one (POCL_DEVICES lists both, set above), one
+  // work-item of explicit vectors per work-group (one lane group), so a 1-query launch computes one vector.
+  if (options.small_launch_queries > 0 && IsPoclPthread(rt->main_.device_name)) {
+    cl_uint nd = 0;
+    clGetDeviceIDs(rt->platform_, CL_DEVICE_TYPE_ALL, 0, nullptr, &nd);
+    std::vector<cl_device_id> devices(nd);
+    if (nd > 0) clGetDeviceIDs(rt->platform_, CL_DEVICE_TYPE_ALL, nd, devices.data(), nullptr);
+    for (cl_device_id d : devices) {
+      if (!IsPoclBasic(DeviceInfo(d, CL_DEVICE_NAME))) continue;
+      rt->small_.local_size = static_cast<size_t>(rt->vector_width_);
+      rt->small_.staged = true;
+      if (!rt->small_.Open(d, error)) return nullptr;
+      rt->small_launch_queries_ = options.small_launch_queries;
+      break;
+    }
   }
   return rt;
 }
 
-ClRuntime::~ClRuntime() {
-  for (auto& [key, p] : programs_) {
+bool ClRuntime::Target::Open(cl_device_id d, std::string* error) {
+  device = d;
+  device_name = DeviceInfo(d, CL_DEVICE_NAME);
+  cl_int err = CL_SUCCESS;
+  context = clCreateContext(nullptr, 1, &device, nullptr, nullptr, &err);
+  if (err != CL_SUCCESS) {
+    *error = ClError("clCreateContext", err);
+    return false;
+  }
+  queue = clCreateCommandQueue(context, device, 0, &err);
+  if (err != CL_SUCCESS) {
+    *error = ClError("clCreateCommandQueue", err);
+    return false;
+  }
+  return true;
+}
+
+cl_mem ClRuntime::Staging::Reserve(cl_context context, size_t bytes, cl_int* err) {
+  bytes = std::max<size_t>(bytes, sizeof(double));
+  if (mem && host.size() * sizeof(double) >= bytes) return mem;
+  Release();
+  host.assign(std::max(2 * host.size(), (bytes + sizeof(double) - 1) / sizeof(double)), 0.0);
+  mem = clCreateBuffer(context, CL_MEM_READ_WRITE | CL_MEM_USE_HOST_PTR, host.size() * sizeof(double), host.data(), err);
+  return *err == CL_SUCCESS ? mem : nullptr;
+}
+
+void ClRuntime::Staging::Release() {
+  if (mem) clReleaseMemObject(mem);
+  mem = nullptr;
+}
+
+void ClRuntime::Target::Close() {
+  for (Staging& s : staging) s.Release();
+  for (auto& [key, p] : programs) {
     if (p.kernel) clReleaseKernel(p.kernel);
     if (p.uv_kernel) clReleaseKernel(p.uv_kernel);
     if (p.program) clReleaseProgram(p.program);
   }
-  if (queue_) clReleaseCommandQueue(queue_);
-  if (context_) clReleaseContext(context_);
+  programs.clear();
+  if (queue) clReleaseCommandQueue(queue);
+  if (context) clReleaseContext(context);
+  queue = nullptr;
+  context = nullptr;
 }
 
-bool ClRuntime::Build(const models::KernelSpec& spec, bool fp64, Program* out, std::string* error) {
+ClRuntime::~ClRuntime() {
+  main_.Close();
+  small_.Close();
+}
+
+bool ClRuntime::Build(Target& target, const models::KernelSpec& spec, bool fp64, Program* out, std::string* error) {
   const std::string& source = spec.source;
   const auto& sources = EmbeddedKernelSources();
   auto it = sources.find(source);
@@ -150,22 +213,22 @@ bool ClRuntime::Build(const models::KernelSpec& spec, bool fp64, Program* out, s
   }
   const char* text = it->second.c_str();
   cl_int err = CL_SUCCESS;
-  out->program = clCreateProgramWithSource(context_, 1, &text, nullptr, &err);
+  out->program = clCreateProgramWithSource(target.context, 1, &text, nullptr, &err);
   if (err != CL_SUCCESS) {
     *error = ClError("clCreateProgramWithSource", err);
     return false;
   }
   out->width = fp64 ? std::max(1, vector_width_ / 2) : vector_width_;  // doubles are twice as wide
-  const size_t items = std::max<size_t>(1, local_size_ / out->width);
+  const size_t items = std::max<size_t>(1, target.local_size / out->width);
   const std::string options = "-cl-std=CL1.2 -DLL_LOCAL_SIZE=" + std::to_string(items) +
                               " -DLL_WIDTH=" + std::to_string(out->width) + (fp64 ? " -DLL_FP64" : "");
-  err = clBuildProgram(out->program, 1, &device_, options.c_str(), nullptr, nullptr);
+  err = clBuildProgram(out->program, 1, &target.device, options.c_str(), nullptr, nullptr);
   if (err != CL_SUCCESS) {
     size_t size = 0;
-    clGetProgramBuildInfo(out->program, device_, CL_PROGRAM_BUILD_LOG, 0, nullptr, &size);
+    clGetProgramBuildInfo(out->program, target.device, CL_PROGRAM_BUILD_LOG, 0, nullptr, &size);
     std::string log(size, '\0');
-    clGetProgramBuildInfo(out->program, device_, CL_PROGRAM_BUILD_LOG, size, log.data(), nullptr);
-    *error = "building " + source + (fp64 ? " (fp64)" : " (fp32)") + " failed (OpenCL error " +
+    clGetProgramBuildInfo(out->program, target.device, CL_PROGRAM_BUILD_LOG, size, log.data(), nullptr);
+    *error = "building " + source + (fp64 ? " (fp64)" : " (fp32)") + " for " + target.device_name + " failed (OpenCL error " +
              std::to_string(err) + "):\n" + log;
     return false;
   }
@@ -181,11 +244,14 @@ bool ClRuntime::Build(const models::KernelSpec& spec, bool fp64, Program* out, s
 }
 
 bool ClRuntime::BuildPrograms(const models::Registry& registry, std::string* error) {
-  for (const auto& model : registry.models()) {
-    for (bool fp64 : {false, true}) {
-      if (fp64 && !has_fp64_) continue;
-      Program& p = programs_[{model->name(), fp64}];  // owned by the map at once: released even on failure
-      if (!Build(model->kernel(), fp64, &p, error)) return false;
+  for (Target* target : {&main_, &small_}) {
+    if (!target->device) continue;
+    for (const auto& model : registry.models()) {
+      for (bool fp64 : {false, true}) {
+        if (fp64 && !has_fp64_) continue;
+        Program& p = target->programs[{model->name(), fp64}];  // owned by the map at once: released on failure
+        if (!Build(*target, model->kernel(), fp64, &p, error)) return false;
+      }
     }
   }
   return true;
@@ -199,8 +265,13 @@ bool ClRuntime::Warm(const models::Registry& registry, std::string* error) {
       if (fp64 && !has_fp64_) continue;
       for (bool spatial : {false, true}) {
         if (spatial && !model->spatially_varying()) continue;
-        std::vector<double> f;
-        if (!RunSingle(*model, m, fp64, up, up, spatial ? uv : nullptr, 1, &f, error)) return false;
+        // One query (the small-launch device, when there is one) and one launch too large for it.
+        for (size_t n : {size_t{1}, small_launch_queries_ + 1}) {
+          const std::vector<float> wi = Repeat(up, 3, n), uvs = Repeat(uv, 2, n);
+          std::vector<double> f;
+          if (!RunSingle(*model, m, fp64, wi.data(), wi.data(), spatial ? uvs.data() : nullptr, n, &f, error))
+            return false;
+        }
       }
     }
   }
@@ -239,8 +310,9 @@ void LaunchResults::Write(size_t first, size_t count, const ResultSink& sink, si
 }
 
 bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* error) {
-  auto it = programs_.find({a.model->name(), a.fp64});
-  if (it == programs_.end()) {
+  Target& target = small_.device && a.n <= small_launch_queries_ ? small_ : main_;
+  auto it = target.programs.find({a.model->name(), a.fp64});
+  if (it == target.programs.end()) {
     *error = "no " + std::string(a.fp64 ? "fp64" : "fp32") + " kernel for model '" + a.model->name() + "'";
     return false;
   }
@@ -267,7 +339,7 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   results->f64.clear();
   if (a.n == 0) return true;
   const size_t width = program.width;
-  const size_t items_per_group = std::max<size_t>(1, local_size_ / width);
+  const size_t items_per_group = std::max<size_t>(1, target.local_size / width);
 
   // Lanes: each work-item evaluates `width` consecutive lanes of one material, so a run of queries of one
   // material starts at a multiple of the width; the lane count is padded to whole work-groups. Padding
@@ -319,8 +391,16 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   std::lock_guard<std::mutex> lock(launch_mutex_);
   cl_int err = CL_SUCCESS;
   Buffers b;
-  auto make = [&](size_t bytes, const void* host, cl_mem_flags flags) {
-    cl_mem m = clCreateBuffer(context_, flags | (host ? CL_MEM_COPY_HOST_PTR : 0), bytes, const_cast<void*>(host), &err);
+  // The six arguments' buffers: new ones holding copies (large launches), or the target's staging, filled here.
+  size_t next = 0;
+  auto make = [&](size_t bytes, const void* host, cl_mem_flags flags) -> cl_mem {
+    if (target.staged) {
+      Staging& s = target.staging[next++];
+      cl_mem m = s.Reserve(target.context, bytes, &err);
+      if (m && host) std::memcpy(s.host.data(), host, bytes);
+      return m;
+    }
+    cl_mem m = clCreateBuffer(target.context, flags | (host ? CL_MEM_COPY_HOST_PTR : 0), bytes, const_cast<void*>(host), &err);
     b.mems.push_back(m);
     return m;
   };
@@ -344,19 +424,29 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   clSetKernelArg(k, 6, sizeof(cl_mem), &out);
   clSetKernelArg(k, 7, sizeof(cl_int), &nlanes);
   const size_t global = lanes / width;
-  err = clEnqueueNDRangeKernel(queue_, k, 1, nullptr, &global, &items_per_group, 0, nullptr, nullptr);
+  err = clEnqueueNDRangeKernel(target.queue, k, 1, nullptr, &global, &items_per_group, 0, nullptr, nullptr);
   if (err != CL_SUCCESS) {
     *error = ClError("clEnqueueNDRangeKernel", err);
     return false;
   }
   results->lanes = lanes;
-  if (a.fp64) {
+  if (target.staged) {  // the kernel wrote into the staging's host memory (the device is this CPU)
+    err = clFinish(target.queue);
+    const char* host = reinterpret_cast<const char*>(target.staging[5].host.data());
+    if (a.fp64) {
+      results->f64.resize(3 * lanes);
+      std::memcpy(results->f64.data(), host, 3 * lanes * sizeof(double));
+    } else {
+      results->f32.resize(3 * lanes);
+      std::memcpy(results->f32.data(), host, 3 * lanes * sizeof(float));
+    }
+  } else if (a.fp64) {
     results->f64.resize(3 * lanes);
-    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * lanes * sizeof(double), results->f64.data(), 0, nullptr,
+    err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(double), results->f64.data(), 0, nullptr,
                               nullptr);
   } else {
     results->f32.resize(3 * lanes);
-    err = clEnqueueReadBuffer(queue_, out, CL_TRUE, 0, 3 * lanes * sizeof(float), results->f32.data(), 0, nullptr,
+    err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(float), results->f32.data(), 0, nullptr,
                               nullptr);
   }
   if (err != CL_SUCCESS) {

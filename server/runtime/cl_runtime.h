@@ -23,6 +23,10 @@ struct RuntimeOptions {
   std::string cache_dir;  // POCL_CACHE_DIR if not already set; "" = $HOME/.cache/loomlight/pocl
   size_t local_size = 64;  // queries per work-group
   int vector_width = 8;    // queries per work-item in float kernels (explicit vectors); fp64 kernels use 1
+  // Launches of at most this many queries go to PoCL's single-threaded `basic` device, which runs them on the
+  // launching thread, when the device is PoCL's multi-threaded CPU device (`pthread`): waking its worker
+  // threads costs more than evaluating a few queries. Same compiler, same code: the same bits. 0: never.
+  size_t small_launch_queries = 256;
 };
 
 // One launch: n queries of one model's kernel; each query's material is materials[material_index[q]], packed
@@ -82,9 +86,11 @@ class ClRuntime {
                  const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error);
 
   bool has_fp64() const { return has_fp64_; }
-  const std::string& device_name() const { return device_name_; }
+  const std::string& device_name() const { return main_.device_name; }
+  // The device small launches go to ("" when they go to the main device too).
+  const std::string& small_device_name() const { return small_.device_name; }
   const std::string& platform_name() const { return platform_name_; }
-  size_t local_size() const { return local_size_; }
+  size_t local_size() const { return main_.local_size; }
   int vector_width() const { return vector_width_; }
 
  private:
@@ -95,17 +101,38 @@ class ClRuntime {
     cl_kernel uv_kernel = nullptr;  // spatially varying models only
     int width = 1;                  // queries per work-item
   };
-  bool Build(const models::KernelSpec& spec, bool fp64, Program* out, std::string* error);
+  // Host memory and an OpenCL buffer over it (CL_MEM_USE_HOST_PTR), kept between launches and grown on demand:
+  // small launches on a CPU device reuse them instead of creating six buffers per launch.
+  struct Staging {
+    std::vector<double> host;  // doubles: aligned for every element type
+    cl_mem mem = nullptr;
+    // A buffer of at least `bytes` over host memory; nullptr on failure.
+    cl_mem Reserve(cl_context context, size_t bytes, cl_int* err);
+    void Release();
+  };
+  // One device with its context, queue and programs (keyed by model name and fp64), built with `local_size`
+  // queries per work-group.
+  struct Target {
+    cl_device_id device = nullptr;
+    cl_context context = nullptr;
+    cl_command_queue queue = nullptr;
+    size_t local_size = 64;
+    std::string device_name;
+    std::map<std::pair<std::string, bool>, Program> programs;
+    bool staged = false;  // launches use `staging` (materials, offsets, wi, wo, uv, f) instead of new buffers
+    Staging staging[6];
+    bool Open(cl_device_id d, std::string* error);
+    void Close();
+  };
+  bool Build(Target& target, const models::KernelSpec& spec, bool fp64, Program* out, std::string* error);
 
   cl_platform_id platform_ = nullptr;
-  cl_device_id device_ = nullptr;
-  cl_context context_ = nullptr;
-  cl_command_queue queue_ = nullptr;
   bool has_fp64_ = false;
-  size_t local_size_ = 64;
   int vector_width_ = 8;
-  std::string device_name_, platform_name_;
-  std::map<std::pair<std::string, bool>, Program> programs_;  // (model, fp64)
+  std::string platform_name_;
+  Target main_;
+  Target small_;  // device null: none
+  size_t small_launch_queries_ = 0;
   std::mutex launch_mutex_;
 };
 

@@ -426,7 +426,7 @@ std::string YarnPreset(std::string_view name, YarnParams* out) {
   }
   std::string known;
   for (const std::string& n : YarnPresetNames()) known += (known.empty() ? "" : ", ") + n;
-  return "preset: unknown yarn preset " + Quote(name) + " (known: " + known + ")";
+  return "preset: unknown yarn preset " + models::Quote(name) + " (known: " + known + ")";
 }
 
 // ---- Level of detail ----

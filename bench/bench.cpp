@@ -1,5 +1,5 @@
-// loomlight_bench [--out FILE] [--quick]: measures the kernels, the tangent-sample trade-off and the gRPC
-// service, then writes the markdown report (default bench/report.md in the source tree) and prints it.
+// loomlight_bench [--out FILE] [--quick] [--only SECTIONS]: measures the kernels, the tangent-sample trade-off
+// and the gRPC service, then writes the markdown report (default bench/report.md in the source tree) and prints it.
 #include "bench/bench.h"
 
 #include <cstdarg>
@@ -7,6 +7,8 @@
 #include <cstring>
 #include <fstream>
 #include <iostream>
+#include <set>
+#include <sstream>
 
 #include "bench/report.h"
 #include "bench/stats.h"
@@ -25,6 +27,10 @@ Sizes Sizes::Quick() {
   s.service_seconds = 0.2;
   s.service_max_calls = 200;
   s.big_call_queries = size_t{1} << 16;
+  s.cpu_calls = 200;
+  s.cpu_seconds = 0.3;
+  s.cpu_warmup_calls = 20;
+  s.cpu_idle_seconds = 0.2;
   return s;
 }
 
@@ -41,12 +47,25 @@ struct Args {
   std::string out = std::string(LOOMLIGHT_SOURCE_DIR) + "/bench/report.md";
   bool quick = false;
   bool help = false;
+  std::set<std::string> only;  // section names; empty: all
 };
+
+// Section names for --only, in report order.
+const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "woven",
+                                     "slice", "transmission", "tabulate", "render"};
+
+bool KnownSection(const std::string& name) {
+  for (const char* n : kSectionNames)
+    if (name == n) return true;
+  return false;
+}
 
 void Usage(const char* argv0, const Args& defaults) {
   std::fprintf(stderr,
-               "usage: %s [--out FILE] [--quick]\n  --out FILE  report path (default %s)\n"
-               "  --quick     small sizes, a smoke run of a few seconds\n",
+               "usage: %s [--out FILE] [--quick] [--only SECTIONS]\n  --out FILE  report path (default %s)\n"
+               "  --quick     small sizes, a smoke run of a few seconds\n"
+               "  --only SECTIONS  comma-separated, of: kernel, sweep, service, service-cpu, woven, slice,\n"
+               "              transmission, tabulate, render (a partial report: give it its own --out)\n",
                argv0, defaults.out.c_str());
 }
 
@@ -56,6 +75,15 @@ bool ParseArgs(int argc, char** argv, Args* args) {
       args->quick = true;
     } else if (!std::strcmp(argv[i], "--out") && i + 1 < argc) {
       args->out = argv[++i];
+    } else if (!std::strcmp(argv[i], "--only") && i + 1 < argc) {
+      std::istringstream names(argv[++i]);
+      for (std::string name; std::getline(names, name, ',');) {
+        if (!KnownSection(name)) {
+          std::fprintf(stderr, "unknown section '%s'\n", name.c_str());
+          return false;
+        }
+        args->only.insert(name);
+      }
     } else if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
       args->help = true;
     } else {
@@ -95,28 +123,35 @@ int main(int argc, char** argv) {
   }
   const Sizes sizes = args.quick ? Sizes::Quick() : Sizes::Full();
   const CpuSnapshot start = CpuSnapshot::Now();
+  auto want = [&args](const char* name) { return args.only.empty() || args.only.count(name) > 0; };
 
   std::string machine, sections, woven, transmission;
   {
     std::unique_ptr<loomlight::runtime::ClRuntime> rt = StartRuntime();
     if (!rt) return 1;
     machine = MachineDescription(rt->platform_name(), rt->device_name(), sizes.quick);
-    sections += KernelSection(*rt, sizes);
-    sections += TangentSweepSection(*rt, sizes);
-    woven = WovenSection(*rt, sizes);  // numbered after the service section, which was there first
-    transmission = TransmissionSection(*rt, sizes);
+    if (want("kernel")) sections += KernelSection(*rt, sizes);
+    if (want("sweep")) sections += TangentSweepSection(*rt, sizes);
+    // numbered after the service section, which was there first
+    if (want("woven")) woven = WovenSection(*rt, sizes);
+    if (want("transmission")) transmission = TransmissionSection(*rt, sizes);
   }
-  sections += ServiceSection(sizes);
+  if (want("service")) sections += ServiceSection(sizes);
+  if (want("service-cpu")) sections += ServiceCpuSection(sizes);
   sections += woven;
-  sections += SliceSection(sizes);
+  if (want("slice")) sections += SliceSection(sizes);
   sections += transmission;
-  sections += TabulateSection(sizes);
-  sections += RenderSection(sizes);
+  if (want("tabulate")) sections += TabulateSection(sizes);
+  if (want("render")) sections += RenderSection(sizes);
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
+  std::string only;
+  for (const char* name : kSectionNames)
+    if (args.only.count(name)) only += (only.empty() ? "" : ",") + std::string(name);
   const std::string report = "# Loomlight benchmark\n\n" + machine + "- Quietness: " + quietness +
                              "\n\nProduced by `build/bench/loomlight_bench" + (sizes.quick ? " --quick" : "") +
-                             "`.\n\n" + sections;
+                             (only.empty() ? "" : " --only " + only) + "`" +
+                             (only.empty() ? "" : " (a partial run: only these sections)") + ".\n\n" + sections;
 
   std::ofstream out(args.out);
   out << report;

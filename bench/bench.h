@@ -19,6 +19,13 @@ struct Sizes {
   double service_seconds = 2.5;      // per service configuration (clients stop starting calls after it)
   size_t service_max_calls = 20000;  // per client and configuration, whichever comes first
   size_t big_call_queries = size_t{1} << 20;
+  // Server CPU per call (section 3b): per round, health Check and 1-query Evaluate make this many calls,
+  // 64-query Evaluate a quarter of it, each stopping early after cpu_seconds; the median of cpu_rounds.
+  size_t cpu_calls = 2000;
+  double cpu_seconds = 3.0;
+  int cpu_rounds = 3;
+  size_t cpu_warmup_calls = 200;  // of each kind, before the first round
+  double cpu_idle_seconds = 1.0;  // the idle server's own CPU is measured over this long
 
   static Sizes Full();
   static Sizes Quick();
@@ -38,6 +45,9 @@ std::string TransmissionSection(runtime::ClRuntime& rt, const Sizes& sizes);
 std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Section 3: the gRPC service in process, concurrent clients, batching on and off, one maximal call.
 std::string ServiceSection(const Sizes& sizes);
+// Section 3b: server CPU per Evaluate call (1 and 64 queries) against a health Check, the real server binary
+// in a child process, one client.
+std::string ServiceCpuSection(const Sizes& sizes);
 // Section 5: TextureSlice time against resolution and samples per pixel, and the slice mean against the BRDF.
 std::string SliceSection(const Sizes& sizes);
 // Tabulate: cells/s on the MERL grid and a 4D grid per model, fp32 and fp64, and their table difference.

@@ -15,4 +15,8 @@ std::unique_ptr<api::LoomlightServer> StartServer(bool coalesce);
 // one TCP connection between clients.
 std::unique_ptr<v1::Loomlight::Stub> Connect(int port, int client_id);
 
+// The service sections' Evaluate request: n random direction pairs (seeded by client_id) for one of the
+// microcylinder presets (client_id picks it, in turn), fp32, the default tangent samples.
+v1::EvaluateRequest MakeEvaluateRequest(size_t n, int client_id);
+
 }  // namespace loomlight::bench

@@ -40,11 +40,9 @@ std::unique_ptr<Stub> Connect(int port, int client_id) {
       grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(), args));
 }
 
-namespace {
-
 // n random pairs for one of the presets (clients rotate through them; all share the default T, so the
 // batcher may coalesce them into one launch).
-v1::EvaluateRequest MakeRequest(size_t n, int client_id) {
+v1::EvaluateRequest MakeEvaluateRequest(size_t n, int client_id) {
   const auto& presets = models::Registry::Global().FindModel("microcylinder")->presets();
   v1::EvaluateRequest r;
   r.mutable_material()->set_preset(presets[static_cast<size_t>(client_id) % presets.size()].name);
@@ -53,6 +51,8 @@ v1::EvaluateRequest MakeRequest(size_t n, int client_id) {
   r.mutable_wo()->Add(p.wo.begin(), p.wo.end());
   return r;
 }
+
+namespace {
 
 struct CallResult {
   double seconds = 0;           // as the client sees it
@@ -111,7 +111,7 @@ LoadResult RunLoad(int port, const LoadConfig& config, const Sizes& sizes) {
   for (int id = 0; id < config.clients; ++id)
     threads.emplace_back([&, id] {
       const std::unique_ptr<Stub> stub = Connect(port, id);
-      const v1::EvaluateRequest request = MakeRequest(config.queries_per_call, id);
+      const v1::EvaluateRequest request = MakeEvaluateRequest(config.queries_per_call, id);
       Call(*stub, request);
       ready.arrive_and_wait();
       std::vector<CallResult>& mine = results[static_cast<size_t>(id)];
@@ -125,7 +125,7 @@ LoadResult RunLoad(int port, const LoadConfig& config, const Sizes& sizes) {
 // One client, one maximal call: the fastest of the timed runs after a warm-up.
 CallResult RunBigCall(int port, const Sizes& sizes) {
   const std::unique_ptr<Stub> stub = Connect(port, -1);
-  const v1::EvaluateRequest request = MakeRequest(sizes.big_call_queries, 0);
+  const v1::EvaluateRequest request = MakeEvaluateRequest(sizes.big_call_queries, 0);
   Call(*stub, request);
   CallResult best{1e30};
   for (int r = 0; r < sizes.timed_runs; ++r) {

@@ -18,7 +18,8 @@ inline double SecondsSince(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
 
-// CPU time of the whole machine and of this process, to tell how much other processes ran in between.
+// CPU time of the whole machine and of this process (with its reaped children: the server of section 3b), to
+// tell how much other processes ran in between.
 struct CpuSnapshot {
   double machine_busy_seconds = 0, self_seconds = 0;
   Clock::time_point time;

@@ -1,0 +1,215 @@
+// Section 3b: the server's CPU per call. The real loomlight-server binary runs as a child process, so its CPU
+// clock holds nothing of the client's; one client thread calls it back to back on one channel, health Check
+// (the standard empty call) and Evaluate of 1 and 64 queries in interleaved rounds.
+#include <grpcpp/grpcpp.h>
+#include <time.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <fstream>
+#include <thread>
+
+#include "bench/bench.h"
+#include "bench/in_process.h"
+#include "bench/report.h"
+#include "bench/server_process.h"
+#include "bench/stats.h"
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/server.h"
+
+namespace loomlight::bench {
+
+namespace {
+
+using grpc::health::v1::Health;
+using grpc::health::v1::HealthCheckRequest;
+using grpc::health::v1::HealthCheckResponse;
+
+struct Kind {
+  std::string name;
+  size_t queries = 0;  // 0: health Check
+  size_t calls_divisor = 1;
+};
+
+const std::vector<Kind> kKinds = {{"health Check", 0, 1}, {"Evaluate", 1, 1}, {"Evaluate", 64, 4}};
+
+// One channel (one TCP connection) for both services, with the message limits of section 3's clients.
+class Client {
+ public:
+  explicit Client(int port) {
+    grpc::ChannelArguments args;
+    args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
+    args.SetMaxSendMessageSize(api::kMaxMessageBytes);
+    channel_ = grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(),
+                                         args);
+    health_ = Health::NewStub(channel_);
+    loomlight_ = v1::Loomlight::NewStub(channel_);
+    for (const Kind& k : kKinds)
+      requests_.push_back(k.queries ? MakeEvaluateRequest(k.queries, 0) : v1::EvaluateRequest());
+  }
+
+  // One call of kinds()[kind], with section 3's 120 s deadline (a deadline costs the server a timer: both
+  // kinds carry it alike); whether it succeeded.
+  bool Call(size_t kind) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    grpc::Status status;
+    if (kKinds[kind].queries == 0) {
+      HealthCheckResponse response;
+      status = health_->Check(&ctx, HealthCheckRequest(), &response);
+      if (status.ok() && response.status() != HealthCheckResponse::SERVING)
+        status = grpc::Status(grpc::StatusCode::UNAVAILABLE, "health not SERVING");
+    } else {
+      v1::EvaluateResponse response;
+      status = loomlight_->Evaluate(&ctx, requests_[kind], &response);
+    }
+    if (!status.ok()) std::fprintf(stderr, "service cpu: call failed: %s\n", status.error_message().c_str());
+    return status.ok();
+  }
+
+ private:
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<Health::Stub> health_;
+  std::unique_ptr<v1::Loomlight::Stub> loomlight_;
+  std::vector<v1::EvaluateRequest> requests_;
+};
+
+// CPU of this (the client's) process, all threads: gRPC's own threads do part of the client's work.
+double SelfCpuSeconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+struct Round {
+  size_t calls = 0, failures = 0;
+  double server_cpu = 0, client_cpu = 0, wall = 0;  // seconds, over all the round's calls
+  std::vector<double> latency;                      // seconds, per call
+};
+
+Round RunRound(const ChildServer& server, Client& client, size_t kind, size_t max_calls, double seconds) {
+  Round r;
+  r.latency.reserve(max_calls);
+  const double server0 = server.CpuSeconds(), client0 = SelfCpuSeconds();
+  const Clock::time_point start = Clock::now();
+  while (r.calls < max_calls && SecondsSince(start) < seconds) {
+    const Clock::time_point call = Clock::now();
+    r.failures += client.Call(kind) ? 0 : 1;
+    r.latency.push_back(SecondsSince(call));
+    ++r.calls;
+  }
+  r.wall = SecondsSince(start);
+  r.server_cpu = server.CpuSeconds() - server0;
+  r.client_cpu = SelfCpuSeconds() - client0;
+  return r;
+}
+
+double Median(std::vector<double> v) { return Percentile(v, 0.5); }
+
+// "Threads:" of /proc/<pid>/status, or 0.
+int Threads(pid_t pid) {
+  std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+  for (std::string line; std::getline(status, line);)
+    if (line.rfind("Threads:", 0) == 0) return std::atoi(line.c_str() + 8);
+  return 0;
+}
+
+struct KindResult {
+  size_t calls = 0, failures = 0;
+  double server_us = 0, server_min_us = 0, server_max_us = 0;  // per call: median, fastest and slowest round
+  double client_us = 0, idle_us = 0, p50_us = 0;
+};
+
+KindResult Summarise(const std::vector<Round>& rounds, double idle_rate) {
+  KindResult k;
+  std::vector<double> server, client, idle, latency;
+  for (const Round& r : rounds) {
+    if (r.calls == 0) continue;
+    const double n = static_cast<double>(r.calls);
+    k.calls += r.calls;
+    k.failures += r.failures;
+    server.push_back(1e6 * r.server_cpu / n);
+    client.push_back(1e6 * r.client_cpu / n);
+    idle.push_back(1e6 * idle_rate * r.wall / n);
+    latency.insert(latency.end(), r.latency.begin(), r.latency.end());
+  }
+  if (server.empty()) return k;
+  k.server_us = Median(server);
+  k.server_min_us = *std::min_element(server.begin(), server.end());
+  k.server_max_us = *std::max_element(server.begin(), server.end());
+  k.client_us = Median(client);
+  k.idle_us = Median(idle);
+  k.p50_us = 1e6 * Percentile(latency, 0.5);
+  return k;
+}
+
+}  // namespace
+
+std::string ServiceCpuSection(const Sizes& sizes) {
+  Progress("service cpu: starting %s\n", LOOMLIGHT_SERVER_BINARY);
+  std::vector<KindResult> results;
+  double idle_rate = 0;
+  int threads = 0;
+  std::string clock_name;
+  {
+    const ChildServer server({"--shutdown-grace", "2"});
+    clock_name = server.CpuClockName();
+    Client client(server.port());
+    Progress("service cpu: %zu warm-up calls of each kind\n", sizes.cpu_warmup_calls);
+    for (size_t kind = 0; kind < kKinds.size(); ++kind)
+      for (size_t i = 0; i < sizes.cpu_warmup_calls / kKinds[kind].calls_divisor; ++i) client.Call(kind);
+    // What the server burns doing nothing (gRPC timers, the batcher, the stall watchdog, PoCL's workers).
+    const double idle0 = server.CpuSeconds();
+    const Clock::time_point idle_start = Clock::now();
+    std::this_thread::sleep_for(std::chrono::duration<double>(sizes.cpu_idle_seconds));
+    idle_rate = (server.CpuSeconds() - idle0) / SecondsSince(idle_start);
+
+    std::vector<std::vector<Round>> rounds(kKinds.size());
+    for (int round = 0; round < sizes.cpu_rounds; ++round)
+      for (size_t kind = 0; kind < kKinds.size(); ++kind) {
+        Progress("service cpu: round %d, %s of %zu queries\n", round + 1, kKinds[kind].name.c_str(),
+                 kKinds[kind].queries);
+        rounds[kind].push_back(
+            RunRound(server, client, kind, sizes.cpu_calls / kKinds[kind].calls_divisor, sizes.cpu_seconds));
+      }
+    threads = Threads(server.pid());
+    for (const auto& r : rounds) results.push_back(Summarise(r, idle_rate));
+  }
+
+  const double health_us = results[0].server_us;
+  auto ratio = [&](double us) { return health_us > 0 ? us / health_us : 0.0; };
+  Table table({"call", "queries", "calls", "server CPU us/call", "rounds min-max", "of it idle us",
+               "client CPU us/call", "p50 latency us", "server CPU / health", "failed"});
+  for (size_t kind = 0; kind < kKinds.size(); ++kind) {
+    const KindResult& r = results[kind];
+    table.Add({kKinds[kind].name, kKinds[kind].queries ? Count(kKinds[kind].queries) : "-", Count(r.calls),
+               Fixed(r.server_us, 1), Fixed(r.server_min_us, 1) + "-" + Fixed(r.server_max_us, 1),
+               Fixed(r.idle_us, 1), Fixed(r.client_us, 1), Fixed(r.p50_us, 0), Fixed(ratio(r.server_us), 2),
+               Count(r.failures)});
+  }
+
+  const std::string method =
+      "The real `loomlight-server` binary as a child process of the benchmark (`--address 127.0.0.1:0`, default "
+      "options: batching on), so that its CPU time holds nothing of the client's. One client thread in the "
+      "benchmark, on one channel (one TCP connection), calls it back to back: the standard `grpc.health.v1` "
+      "Health/Check (service \"\", the empty call) and Evaluate with section 3's request (a microcylinder preset, "
+      "fp32, default T) of 1 and of 64 random pairs, every call with a 120 s deadline. After " +
+      Count(sizes.cpu_warmup_calls) + " warm-up calls of each kind (64 queries: a quarter), " +
+      std::to_string(sizes.cpu_rounds) + " interleaved rounds of health, Evaluate 1, Evaluate 64, each " +
+      Count(sizes.cpu_calls) + " calls (64 queries: " + Count(sizes.cpu_calls / 4) + ") or " +
+      Fixed(sizes.cpu_seconds, 1) + " s, whichever comes first. Server CPU per call is the difference of " +
+      clock_name + " over a round, divided by its calls; the table gives the median round. The idle server used " +
+      Fixed(1e6 * idle_rate, 0) + " us of CPU per second (measured over " + Fixed(sizes.cpu_idle_seconds, 1) +
+      " s before the rounds; included in the per-call figures, shown as \"of it idle\"); it ran " +
+      std::to_string(threads) + " threads at the end. Client CPU is the whole benchmark process's.";
+  const std::string body =
+      TableBlock("server CPU us/call lower is better; the ratio column divides by the health Check's, the cost "
+                 "of gRPC's own call path on this server; rounds min-max shows how steady the machine was.",
+                 table) +
+      "**server CPU, 1-query Evaluate / health Check: " + Fixed(ratio(results[1].server_us), 2) +
+      "** (target <= 1.4)\n";
+  return Section("3b. Server CPU per call", method, body);
+}
+
+}  // namespace loomlight::bench

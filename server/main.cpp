@@ -18,6 +18,8 @@ void Usage() {
                "  --device NAME              OpenCL device substring (env LOOMLIGHT_DEVICE; default first CPU)\n"
                "  --cache-dir DIR            PoCL kernel cache (POCL_CACHE_DIR; default ~/.cache/loomlight/pocl)\n"
                "  --vector-width N           queries per work-item in float kernels: 1, 2, 4, 8, 16 (default: device)\n"
+               "  --small-launch-queries N   launches of at most N queries run on PoCL's single-threaded basic device,\n"
+               "                             on the launching thread (default 256; 0: every launch on the main device)\n"
                "  --max-batch-queries N      queries per coalesced launch (default 1048576)\n"
                "  --max-queue-delay-us N     wait this long for a batch to fill (default 0)\n"
                "  --max-queued-queries N     queued queries before RESOURCE_EXHAUSTED (default 8388608)\n"
@@ -79,6 +81,7 @@ int main(int argc, char** argv) {
     else if (arg == "--device") options.runtime.device = value();
     else if (arg == "--cache-dir") options.runtime.cache_dir = value();
     else if (arg == "--vector-width") options.runtime.vector_width = static_cast<int>(number());
+    else if (arg == "--small-launch-queries") options.runtime.small_launch_queries = static_cast<size_t>(number());
     else if (arg == "--max-batch-queries") options.batcher.max_batch_queries = number();
     else if (arg == "--max-queue-delay-us") options.batcher.max_queue_delay = std::chrono::microseconds(number());
     else if (arg == "--max-queued-queries") options.batcher.max_queued_queries = number();

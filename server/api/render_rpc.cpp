@@ -82,25 +82,24 @@ render::SceneKind ToSceneKind(v1::ScenePreset scene) {
   }
 }
 
-// The request's reflection material with parameters overridden, packed through the service's cache (which
-// validates and keeps them); the variants stay alive as long as this object.
+// The request's material (with its curtain layer) with parameters of its model overridden, packed through the
+// service's cache (which validates and keeps them, and packs a shared layer once); the variants stay alive as
+// long as this object.
 class CachedVariants final : public render::MaterialVariants {
  public:
   CachedVariants(const v1::Material& material, const models::Registry& registry, models::MaterialCache& cache)
-      : registry_(registry), cache_(cache), base_(material) {
-    base_.clear_transmission();  // the layer is packed once, with the request's material
-  }
-  const models::PackedMaterial* Requested() override { return Get(base_); }
-  const models::PackedMaterial* WithParam(const std::string& name, double value) override {
+      : registry_(registry), cache_(cache), base_(material) {}
+  const models::PreparedMaterial* Requested() override { return Get(base_); }
+  const models::PreparedMaterial* WithParam(const std::string& name, double value) override {
     return Get(models::WithParam(base_, false, name, value));
   }
 
  private:
-  const models::PackedMaterial* Get(const v1::Material& material) {
+  const models::PreparedMaterial* Get(const v1::Material& material) {
     std::shared_ptr<const models::PreparedMaterial> entry;
     if (!cache_.Get(material, registry_, &entry).empty()) return nullptr;
     kept_.push_back(entry);
-    return &entry->packed;
+    return entry.get();
   }
   const models::Registry& registry_;
   models::MaterialCache& cache_;
@@ -150,6 +149,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     std::vector<render::QueryBucket> buckets;  // per evaluator; tag = pixel within the chunk
     std::vector<Rgb> direct;                   // per pixel: radiance summed without a query
     std::vector<std::vector<double>> f;        // per evaluator: the kernel's results
+    std::vector<std::unique_ptr<models::EvaluationPlan>> plans;  // per evaluator: its kernel parts
     size_t jobs_in_flight = 0;
     uint64_t queries = 0;
   };
@@ -226,10 +226,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     render::MaterialInfo info;
     info.model = material_->model;
     info.values = material_->values;
-    if (material_->transmission) {
-      info.layer_model = material_->transmission->model;
-      info.layer = &material_->transmission->packed;
-    }
+    info.layered = material_->transmission != nullptr;
     s.object_transmits.assign(s.scene.objects.size(), render::Transmits(info));
     variants_ = std::make_unique<CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
     error_target_ = r.error_target() > 0 ? r.error_target() : render::kDefaultErrorTarget;
@@ -298,20 +295,28 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     submitted_[next_chunk_] = true;
     const int index = next_chunk_;
     chunk.f.assign(plan_.evaluators.size(), {});
+    chunk.plans.clear();
+    chunk.plans.resize(plan_.evaluators.size());
     std::vector<std::shared_ptr<batching::Job>> jobs;
     for (size_t e = 0; e < plan_.evaluators.size(); ++e) {
       const render::QueryBucket& b = chunk.buckets[e];
       if (b.size() == 0) continue;
       const render::Evaluator& evaluator = plan_.evaluators[e];
       chunk.f[e].resize(3 * b.size());
-      auto job = NewJob(evaluator.model, *evaluator.material, fp64_, deadline_, context_, b.wi.data(), b.wo.data(),
-                        evaluator.with_uv ? b.uv.data() : nullptr, b.size(),
-                        runtime::ResultSink{.f64 = chunk.f[e].data()});
-      job->priority = batching::Priority::kBulk;
-      job->done = [this, index, e](batching::JobResult result) {
-        deps_.worker->Post([this, index, e, result = std::move(result)] { OnJobDone(index, e, result); });
-      };
-      jobs.push_back(std::move(job));
+      chunk.plans[e] = std::make_unique<models::EvaluationPlan>(*evaluator.material, b.wi.data(), b.wo.data(),
+                                                                evaluator.with_uv ? b.uv.data() : nullptr, b.size());
+      const models::EvaluationPlan& plan = *chunk.plans[e];
+      for (size_t k = 0; k < plan.parts(); ++k) {
+        if (plan.size(k) == 0) continue;
+        auto job = NewJob(&plan.model(k), plan.packed(k), fp64_, deadline_, context_, plan.wi(k), plan.wo(k),
+                          plan.uv(k), plan.size(k),
+                          runtime::ResultSink{.f64 = chunk.f[e].data(), .slot = plan.slots(k), .scale = plan.scale(k)});
+        job->priority = batching::Priority::kBulk;
+        job->done = [this, index, e, k](batching::JobResult result) {
+          deps_.worker->Post([this, index, e, k, result = std::move(result)] { OnJobDone(index, e, k, result); });
+        };
+        jobs.push_back(std::move(job));
+      }
     }
     if (jobs.empty()) {  // nothing to evaluate (e.g. only background): the chunk is done at once
       deps_.worker->Post([this, index] { OnChunkDone(index); });
@@ -327,14 +332,15 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
   }
 
-  void OnJobDone(int index, size_t evaluator, const batching::JobResult& result) {
+  void OnJobDone(int index, size_t evaluator, size_t part, const batching::JobResult& result) {
     Chunk& chunk = chunks_[index];
     if (result.status != batching::JobStatus::kOk) {
       if (status_.ok()) status_ = ToStatus(result);
     } else {
-      const size_t n = chunk.buckets[evaluator].size();
-      deps_.metrics->Evaluated(plan_.evaluators[evaluator].model->name(), fp64_, n, result.batch_queries,
-                               result.batch_requests, result.queue_seconds, result.kernel_seconds);
+      const models::EvaluationPlan& plan = *chunk.plans[evaluator];
+      const size_t n = plan.size(part);
+      deps_.metrics->Evaluated(plan.model(part).name(), fp64_, n, result.batch_queries, result.batch_requests,
+                               result.queue_seconds, result.kernel_seconds);
       deps_.metrics->Rendered(n);
       queries_ += n;
       kernel_seconds_ += result.kernel_seconds;

@@ -68,6 +68,8 @@ struct EvaluateCall {
                                                             request.error_target(), &call->material,
                                                             &call->approximation);
       if (!error.empty()) return call->Finish(Invalid(error));
+    } else {
+      call->approximation = models::DescribeOwnSettings(*call->material);
     }
     const size_t n = request.wi_size() / 3;
     for (const auto& [field, w] : {std::pair{"wi", &request.wi()}, std::pair{"wo", &request.wo()}})

@@ -55,11 +55,18 @@ std::string MaterialCache::Get(const v1::Material& material, const Registry& reg
     entry->packed = top.model->Pack(top.values);
     entry->values = std::move(top.values);
     if (layer.model) {
-      auto packed_layer = std::make_shared<Entry>();
-      packed_layer->model = layer.model;
-      packed_layer->packed = layer.model->Pack(layer.values);
-      packed_layer->values = std::move(layer.values);
-      entry->transmission = std::move(packed_layer);
+      // The layer has its own entry, so the variants of one curtain (Render's fidelity choices) share it.
+      std::string layer_key = CanonicalKey(layer, {});
+      std::shared_ptr<const Entry> shared_layer;
+      if (!Find(layer_key, &shared_layer)) {
+        auto packed_layer = std::make_shared<Entry>();
+        packed_layer->model = layer.model;
+        packed_layer->packed = layer.model->Pack(layer.values);
+        packed_layer->values = std::move(layer.values);
+        shared_layer = std::move(packed_layer);
+        Insert(std::move(layer_key), shared_layer, false);
+      }
+      entry->transmission = std::move(shared_layer);
     }
     *out = entry;
     Insert(std::move(key), entry, false);
@@ -99,11 +106,37 @@ bool MaterialCache::Find(const v1::Material& material, std::shared_ptr<const Ent
   return Find(alias, out);
 }
 
+namespace {
+// One part's setting when it is not the exact one, or "".
+std::string DescribeOwnSetting(const PreparedMaterial& part) {
+  const AccuracyKnob knob = part.model->accuracy_knob();
+  if (knob.param.empty() || knob.settings.empty()) return "";
+  const double current = part.values.at(knob.param).at(0);
+  if (current == knob.settings.back()) return "";
+  char note[64];
+  std::snprintf(note, sizeof note, "the material's own; exact: %g", knob.settings.back());
+  return DescribeSetting(part, knob, current, note);
+}
+}  // namespace
+
+std::string DescribeOwnSettings(const PreparedMaterial& material) {
+  std::string text = DescribeOwnSetting(material);
+  if (material.transmission)
+    if (std::string layer = DescribeOwnSetting(*material.transmission); !layer.empty())
+      text += (text.empty() ? "" : "; ") + layer;
+  return text;
+}
+
 std::string MaterialCache::GetWithin(const v1::Material& material, const Registry& registry, double error_target,
                                      std::shared_ptr<const Entry>* out, std::string* approximation) {
   approximation->clear();
   std::shared_ptr<const Entry> base;
   if (std::string error = Get(material, registry, &base); !error.empty()) return error;
+  if (error_target <= 0) {
+    *approximation = DescribeOwnSettings(*base);
+    *out = std::move(base);
+    return "";
+  }
   v1::Material chosen = material;
   bool changed = false;
   for (const bool layer : {false, true}) {
@@ -111,27 +144,17 @@ std::string MaterialCache::GetWithin(const v1::Material& material, const Registr
     if (!part) continue;
     const AccuracyKnob knob = part->model->accuracy_knob();
     if (knob.param.empty() || knob.settings.empty()) continue;
-    const double current = part->values.at(knob.param).at(0);
-    std::string text;
-    if (error_target <= 0) {
-      if (current != knob.settings.back()) {
-        char note[64];
-        std::snprintf(note, sizeof note, "the material's own; exact: %g", knob.settings.back());
-        text = DescribeSetting(*part, knob, current, note);
-      }
-    } else {
-      const std::vector<double>& errors = part->KnobErrors();
-      size_t s = 0;
-      while (s + 1 < errors.size() && !(errors[s] <= error_target)) ++s;  // the last (exact) always qualifies
-      char note[96];
-      std::snprintf(note, sizeof note, "estimated error %.2g%% for error_target %g", 100 * errors[s], error_target);
-      text = DescribeSetting(*part, knob, knob.settings[s], s + 1 == errors.size() ? "exact" : note);
-      if (knob.settings[s] != current) {
-        chosen = WithParam(chosen, layer, knob.param, knob.settings[s]);
-        changed = true;
-      }
+    const std::vector<double>& errors = part->KnobErrors();
+    size_t s = 0;
+    while (s + 1 < errors.size() && !(errors[s] <= error_target)) ++s;  // the last (exact) always qualifies
+    char note[96];
+    std::snprintf(note, sizeof note, "estimated error %.2g%% for error_target %g", 100 * errors[s], error_target);
+    const std::string text = DescribeSetting(*part, knob, knob.settings[s], s + 1 == errors.size() ? "exact" : note);
+    *approximation += (approximation->empty() ? "" : "; ") + text;
+    if (knob.settings[s] != part->values.at(knob.param).at(0)) {
+      chosen = WithParam(chosen, layer, knob.param, knob.settings[s]);
+      changed = true;
     }
-    if (!text.empty()) *approximation += (approximation->empty() ? "" : "; ") + text;
   }
   if (!changed) {
     *out = std::move(base);

@@ -64,6 +64,10 @@ class MaterialCache {
   size_t entries_ = 0;
 };
 
+// The accuracy-knob settings of the material and its layer that are not exact ("model: param value (the
+// material's own; exact: x)", "; "-joined), or "": what EvaluateResponse.approximation says without a target.
+std::string DescribeOwnSettings(const PreparedMaterial& material);
+
 // The material with parameter `name` set to `value`, on the material itself or (layer) on its curtain layer.
 v1::Material WithParam(const v1::Material& material, bool layer, const std::string& name, double value);
 

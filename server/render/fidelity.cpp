@@ -44,31 +44,21 @@ struct Config {
 int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e) {
   for (size_t i = 0; i < evaluators->size(); ++i) {
     const Evaluator& x = (*evaluators)[i];
-    if (x.model == e.model && x.material == e.material && x.with_uv == e.with_uv) return static_cast<int>(i);
+    if (x.material == e.material && x.with_uv == e.with_uv && x.transmission == e.transmission)
+      return static_cast<int>(i);
   }
   evaluators->push_back(e);
   return static_cast<int>(evaluators->size() - 1);
 }
 
-// The evaluators and shading of one object under `config`; false when a variant cannot be packed.
+// The evaluator and shading of one object under `config`; false when a variant cannot be packed.
 bool MakeShading(const MaterialInfo& m, MaterialVariants& variants, const Knob& knob, const Config& config,
                  std::vector<Evaluator>* evaluators, ObjectShading* out) {
-  const models::PackedMaterial* packed = knob.name.empty() ? variants.Requested() : variants.WithParam(knob.name, config.knob);
-  if (!packed) return false;
-  ObjectShading s;
-  s.reflection = EvaluatorIndex(evaluators, {m.model, packed, config.btf && m.model->spatially_varying()});
-  if (m.layer) {
-    s.layer_model = m.layer_model;
-    s.layer = m.layer;
-    s.see_through_model = m.layer_model;
-    s.see_through = m.layer;
-    if (config.transmission) s.transmission = EvaluatorIndex(evaluators, {m.layer_model, m.layer, false});
-  } else if (m.model->transmission()) {
-    s.see_through_model = m.model;
-    s.see_through = packed;
-    if (config.transmission) s.transmission = s.reflection;
-  }
-  *out = s;
+  const models::PreparedMaterial* material =
+      knob.name.empty() ? variants.Requested() : variants.WithParam(knob.name, config.knob);
+  if (!material) return false;
+  out->evaluator = EvaluatorIndex(
+      evaluators, {material, config.btf && m.model->spatially_varying(), config.transmission && Transmits(m)});
   return true;
 }
 
@@ -104,13 +94,11 @@ bool PilotRadiance(const std::vector<ShadingPoint>& points, const MaterialInfo& 
     const Rgb direct = AppendQueries(points[i], shading, evaluators, static_cast<uint32_t>(i), &buckets);
     (*radiance)[i] = direct.x + direct.y + direct.z;
   }
-  std::vector<float> f;
+  std::vector<double> f;
   for (size_t e = 0; e < evaluators.size(); ++e) {
     const QueryBucket& b = buckets[e];
     if (b.size() == 0) continue;
-    f.assign(3 * b.size(), 0.0f);
-    evaluators[e].model->NativeEval(*evaluators[e].material, b.wi.data(), b.wo.data(),
-                                    evaluators[e].with_uv ? b.uv.data() : nullptr, b.size(), f.data());
+    EvaluateOnHost(evaluators[e], b, &f);
     for (size_t q = 0; q < b.size(); ++q)
       for (int c = 0; c < 3; ++c) {
         const double value = double(b.weight[3 * q + c]) * f[3 * q + c];

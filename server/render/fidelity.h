@@ -36,12 +36,11 @@ struct ObjectFidelity {
   double pixels_per_thread = 0;   // median over the pilot hits; 0 when not spatially varying or not seen
 };
 
-// The request's material: the reflection model with its resolved parameters, and a curtain's layer.
+// The request's material: its model with its resolved parameters, and whether a curtain layer is behind it.
 struct MaterialInfo {
   const models::Model* model = nullptr;
   models::ParamValues values;
-  const models::Model* layer_model = nullptr;
-  const models::PackedMaterial* layer = nullptr;
+  bool layered = false;
 };
 
 // Packs the reflection material with one parameter overridden; made by the caller (through its material
@@ -49,8 +48,8 @@ struct MaterialInfo {
 class MaterialVariants {
  public:
   virtual ~MaterialVariants() = default;
-  virtual const models::PackedMaterial* WithParam(const std::string& name, double value) = 0;
-  virtual const models::PackedMaterial* Requested() = 0;  // as the request gave it
+  virtual const models::PreparedMaterial* WithParam(const std::string& name, double value) = 0;
+  virtual const models::PreparedMaterial* Requested() = 0;  // as the request gave it
 };
 
 struct FidelityPlan {
@@ -64,6 +63,6 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& materia
                            double error_target, bool force_full, FidelityPlan* plan);
 
 // True when the material lets light through the cloth (a layer, or a transmitting model).
-inline bool Transmits(const MaterialInfo& m) { return m.layer != nullptr || (m.model && m.model->transmission()); }
+inline bool Transmits(const MaterialInfo& m) { return m.layered || (m.model && m.model->transmission()); }
 
 }  // namespace loomlight::render

@@ -25,10 +25,13 @@ float WrapUnit(double t) {
   return f < 1.0f ? f : 0.0f;  // rounding up to 1 wraps to 0
 }
 
-double SingleTransmittance(const models::Model& model, const models::PackedMaterial& material, const Vec3& w) {
+// The direct transmittance toward w of what lets light straight through the material: its curtain layer, or
+// the material itself when it transmits (0 when neither does).
+double SeeThrough(const models::PreparedMaterial& m, const Vec3& w) {
+  const models::PreparedMaterial& through = m.transmission ? *m.transmission : m;
   const float dir[3] = {float(w.x), float(w.y), float(w.z)};
   double t = 0;
-  model.DirectTransmittance(material, dir, 1, &t);
+  through.model->DirectTransmittance(through.packed, dir, 1, &t);
   return std::isfinite(t) ? std::clamp(t, 0.0, 1.0) : 0.0;
 }
 
@@ -109,26 +112,36 @@ void QueryBucket::Clear() {
 
 Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const std::vector<Evaluator>& evaluators,
                   uint32_t tag, std::vector<QueryBucket>* buckets) {
-  const double wo_transmittance =
-      shading.layer ? SingleTransmittance(*shading.layer_model, *shading.layer, point.wo) : 0.0;
+  if (shading.evaluator < 0) return {};
+  const Evaluator& evaluator = evaluators[shading.evaluator];
+  QueryBucket& bucket = (*buckets)[shading.evaluator];
   for (const LightSample& light : point.lights) {
-    const bool behind = light.wi.z < 0;
-    const int index = behind ? shading.transmission : shading.reflection;
-    if (index < 0) continue;
-    Rgb weight = light.weight;
-    if (!behind && shading.layer) {
-      const double wi_transmittance = SingleTransmittance(*shading.layer_model, *shading.layer, light.wi);
-      weight = models::CurtainReflectionScale(wi_transmittance, wo_transmittance) * weight;
-    }
-    QueryBucket& bucket = (*buckets)[index];
+    if (light.wi.z < 0 && !evaluator.transmission) continue;  // light through the cloth, not modelled
     bucket.wi.insert(bucket.wi.end(), {float(light.wi.x), float(light.wi.y), float(light.wi.z)});
     bucket.wo.insert(bucket.wo.end(), {float(point.wo.x), float(point.wo.y), float(point.wo.z)});
-    if (evaluators[index].with_uv) bucket.uv.insert(bucket.uv.end(), {point.u, point.v});
-    bucket.weight.insert(bucket.weight.end(), {float(weight.x), float(weight.y), float(weight.z)});
+    if (evaluator.with_uv) bucket.uv.insert(bucket.uv.end(), {point.u, point.v});
+    bucket.weight.insert(bucket.weight.end(), {float(light.weight.x), float(light.weight.y), float(light.weight.z)});
     bucket.tag.push_back(tag);
   }
-  if (shading.transmission < 0 || !shading.see_through) return {};
-  return SingleTransmittance(*shading.see_through_model, *shading.see_through, point.wo) * point.background;
+  if (!evaluator.transmission) return {};
+  return SeeThrough(*evaluator.material, point.wo) * point.background;
+}
+
+void EvaluateOnHost(const Evaluator& evaluator, const QueryBucket& bucket, std::vector<double>* f) {
+  f->assign(3 * bucket.size(), 0.0);
+  const models::EvaluationPlan plan(*evaluator.material, bucket.wi.data(), bucket.wo.data(),
+                                    evaluator.with_uv ? bucket.uv.data() : nullptr, bucket.size());
+  std::vector<float> part;
+  for (size_t k = 0; k < plan.parts(); ++k) {
+    part.assign(3 * plan.size(k), 0.0f);
+    plan.model(k).NativeEval(plan.packed(k), plan.wi(k), plan.wo(k), plan.uv(k), plan.size(k), part.data());
+    const size_t* slots = plan.slots(k);
+    const double* scale = plan.scale(k);
+    for (size_t i = 0; i < plan.size(k); ++i) {
+      const size_t q = slots ? slots[i] : i;
+      for (int c = 0; c < 3; ++c) (*f)[3 * q + c] = (scale ? scale[q] : 1.0) * part[3 * i + c];
+    }
+  }
 }
 
 size_t MaxQueriesPerSample(const RenderSetup& setup) {

@@ -1,14 +1,17 @@
 // From pixel samples to shading queries. TraceSample casts a camera ray, samples every light and the
 // environment (shadow rays included) and expresses the directions in the hit's shading frame (SPEC.md
 // section 1: x = thread 1 = texture u, y = thread 2 = texture v, z = the normal facing the viewer). The
-// fidelity chosen per object then decides which kernel path (Evaluator) each light sample goes to:
-// AppendQueries. The render and the fidelity pilot share both, so they shade identically.
+// fidelity chosen per object then decides which kernel path (Evaluator) its light samples go to:
+// AppendQueries. Each evaluator's queries are evaluated through the material plan (server/models/
+// material_plan.h), which splits a curtain into its reflection and its layer and scales the reflection, as
+// Evaluate and Tabulate do. The render and the fidelity pilot share all of it, so they shade identically.
 #pragma once
 
 #include <cstdint>
 #include <memory>
 #include <vector>
 
+#include "server/models/material_plan.h"
 #include "server/models/registry.h"
 #include "server/render/environment.h"
 #include "server/render/rng.h"
@@ -52,24 +55,17 @@ void TraceSample(const RenderSetup& setup, double px, double py, const CounterRn
 // stream, a pure function of (seed, pixel, sample).
 void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample, ShadingPoint* point);
 
-// One kernel path: a packed material, evaluated with texture coordinates (a BTF) or without.
+// One kernel path: a prepared material (with a curtain's layer), evaluated with texture coordinates (its BTF)
+// or without, with light through the cloth (pairs on opposite sides, and what is seen through it) or without.
 struct Evaluator {
-  const models::Model* model = nullptr;
-  const models::PackedMaterial* material = nullptr;
+  const models::PreparedMaterial* material = nullptr;
   bool with_uv = false;
+  bool transmission = false;
 };
 
-// How one object's light samples are evaluated.
+// How one object's light samples are evaluated: the index of its evaluator.
 struct ObjectShading {
-  int reflection = -1;    // evaluator of pairs on the viewer's side
-  int transmission = -1;  // evaluator of pairs on opposite sides; -1: transmission not modelled (dropped)
-  // A curtain's layer: reflection is scaled by sqrt((1 - T(wi)) (1 - T(wo))) as Evaluate does (README
-  // "Curtains"); null without a layer.
-  const models::Model* layer_model = nullptr;
-  const models::PackedMaterial* layer = nullptr;
-  // What lets light straight through toward the viewer (the layer, or a transmitting model), or null.
-  const models::Model* see_through_model = nullptr;
-  const models::PackedMaterial* see_through = nullptr;
+  int evaluator = -1;
 };
 
 // Queries of one evaluator, structure of arrays; `tag` says whose radiance each query adds to.
@@ -84,6 +80,9 @@ struct QueryBucket {
 // needs no query (the background seen straight through transmitting cloth).
 Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const std::vector<Evaluator>& evaluators,
                   uint32_t tag, std::vector<QueryBucket>* buckets);
+
+// f (3 per query) of one evaluator's bucket on the host (the native build; the fidelity pilot).
+void EvaluateOnHost(const Evaluator& evaluator, const QueryBucket& bucket, std::vector<double>* f);
 
 // The most queries one pixel sample can produce: one per light and one for the environment.
 size_t MaxQueriesPerSample(const RenderSetup& setup);

@@ -4,10 +4,13 @@
 #include <grpcpp/grpcpp.h>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
+#include "server/api/admission.h"
 #include "server/batching/batcher.h"
+#include "server/models/material_plan.h"
 
 namespace loomlight::api {
 
@@ -50,6 +53,42 @@ inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const m
   job->deadline = deadline;
   job->cancelled = [context] { return context->IsCancelled(); };
   return job;
+}
+
+// Every RPC's kernel work goes through here: one job per part of a material plan (a curtain's reflection and
+// layer, or the material alone), part k writing its results straight into `sink`'s buffer (3 per plan query,
+// through the plan's slots and scale). done(k, result) is called exactly once per part: when its job returns
+// (on the batcher's thread, or on this one when the batcher launches it at once), at once with an OK result and
+// no launch for an empty part, or at once with the refusal (kUnavailable while the batcher stops, else
+// kResourceExhausted) for a part that could not be queued, and for every part after it.
+inline void SubmitPlan(batching::Batcher* batcher, const models::EvaluationPlan& plan, const runtime::ResultSink& sink,
+                       bool fp64, batching::Priority priority, batching::Clock::time_point deadline,
+                       grpc::CallbackServerContext* context,
+                       const std::function<void(size_t part, batching::JobResult)>& done) {
+  batching::JobResult refused;
+  for (size_t k = 0; k < plan.parts(); ++k) {
+    if (refused.status != batching::JobStatus::kOk) {
+      done(k, refused);
+      continue;
+    }
+    if (plan.size(k) == 0) {
+      done(k, batching::JobResult{});
+      continue;
+    }
+    runtime::ResultSink part_sink = sink;
+    part_sink.slot = plan.slots(k);
+    part_sink.scale = plan.scale(k);
+    auto job = NewJob(&plan.model(k), plan.packed(k), fp64, deadline, context, plan.wi(k), plan.wo(k), plan.uv(k),
+                      plan.size(k), part_sink);
+    job->priority = priority;
+    job->done = [done, k](batching::JobResult r) { done(k, std::move(r)); };
+    if (grpc::Status s = SubmitJob(batcher, std::move(job)); !s.ok()) {
+      refused.status = s.error_code() == grpc::StatusCode::UNAVAILABLE ? batching::JobStatus::kUnavailable
+                                                                      : batching::JobStatus::kResourceExhausted;
+      refused.message = s.error_message();
+      done(k, refused);
+    }
+  }
 }
 
 // The most bytes of an INVALID_ARGUMENT status message. Messages quote client input only truncated

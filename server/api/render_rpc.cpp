@@ -297,7 +297,6 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     chunk.f.assign(plan_.evaluators.size(), {});
     chunk.plans.clear();
     chunk.plans.resize(plan_.evaluators.size());
-    std::vector<std::shared_ptr<batching::Job>> jobs;
     for (size_t e = 0; e < plan_.evaluators.size(); ++e) {
       const render::QueryBucket& b = chunk.buckets[e];
       if (b.size() == 0) continue;
@@ -305,30 +304,19 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       chunk.f[e].resize(3 * b.size());
       chunk.plans[e] = std::make_unique<models::EvaluationPlan>(*evaluator.material, b.wi.data(), b.wo.data(),
                                                                 evaluator.with_uv ? b.uv.data() : nullptr, b.size());
-      const models::EvaluationPlan& plan = *chunk.plans[e];
-      for (size_t k = 0; k < plan.parts(); ++k) {
-        if (plan.size(k) == 0) continue;
-        auto job = NewJob(&plan.model(k), plan.packed(k), fp64_, deadline_, context_, plan.wi(k), plan.wo(k),
-                          plan.uv(k), plan.size(k),
-                          runtime::ResultSink{.f64 = chunk.f[e].data(), .slot = plan.slots(k), .scale = plan.scale(k)});
-        job->priority = batching::Priority::kBulk;
-        job->done = [this, index, e, k](batching::JobResult result) {
-          deps_.worker->Post([this, index, e, k, result = std::move(result)] { OnJobDone(index, e, k, result); });
-        };
-        jobs.push_back(std::move(job));
-      }
+      chunk.jobs_in_flight += chunk.plans[e]->parts();
     }
-    if (jobs.empty()) {  // nothing to evaluate (e.g. only background): the chunk is done at once
+    if (chunk.jobs_in_flight == 0) {  // nothing to evaluate (e.g. only background): the chunk is done at once
       deps_.worker->Post([this, index] { OnChunkDone(index); });
       chunk.jobs_in_flight = 1;  // held until OnChunkDone, so the call does not finish under it
       return;
     }
-    for (auto& job : jobs) {
-      if (grpc::Status s = SubmitJob(deps_.batcher, job); !s.ok()) {
-        status_ = s;
-        return;
-      }
-      ++chunk.jobs_in_flight;
+    for (size_t e = 0; e < plan_.evaluators.size(); ++e) {
+      if (!chunk.plans[e]) continue;
+      SubmitPlan(deps_.batcher, *chunk.plans[e], runtime::ResultSink{.f64 = chunk.f[e].data()}, fp64_,
+                 batching::Priority::kBulk, deadline_, context_, [this, index, e](size_t k, batching::JobResult r) {
+                   deps_.worker->Post([this, index, e, k, r = std::move(r)] { OnJobDone(index, e, k, r); });
+                 });
     }
   }
 
@@ -339,8 +327,9 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     } else {
       const models::EvaluationPlan& plan = *chunk.plans[evaluator];
       const size_t n = plan.size(part);
-      deps_.metrics->Evaluated(plan.model(part).name(), fp64_, n, result.batch_queries, result.batch_requests,
-                               result.queue_seconds, result.kernel_seconds);
+      if (result.batch_queries > 0)
+        deps_.metrics->Evaluated(plan.model(part).name(), fp64_, n, result.batch_queries, result.batch_requests,
+                                 result.queue_seconds, result.kernel_seconds);
       deps_.metrics->Rendered(n);
       queries_ += n;
       kernel_seconds_ += result.kernel_seconds;

@@ -84,27 +84,11 @@ struct EvaluateCall {
     call->response->mutable_f()->Resize(static_cast<int>(3 * n), 0.0f);
     call->plan = std::make_unique<models::EvaluationPlan>(*call->material, request.wi().data(), request.wo().data(),
                                                           request.uv_size() > 0 ? request.uv().data() : nullptr, n);
-    const models::EvaluationPlan& plan = *call->plan;
-    call->remaining = plan.parts();
-    const batching::Clock::time_point deadline = CallDeadline(call->context, call->received);
+    call->remaining = call->plan->parts();
     float* f = call->response->mutable_f()->mutable_data();
-    for (size_t k = 0; k < plan.parts(); ++k) {
-      if (plan.size(k) == 0) {
-        call->PartDone(k, batching::JobResult{});  // nothing to launch (e.g. a curtain seen only from one side)
-        continue;
-      }
-      auto job = NewJob(&plan.model(k), plan.packed(k), call->fp64, deadline, call->context, plan.wi(k), plan.wo(k),
-                        plan.uv(k), plan.size(k),
-                        runtime::ResultSink{.f32 = f, .slot = plan.slots(k), .scale = plan.scale(k)});
-      job->done = [call, k](batching::JobResult r) { call->PartDone(k, std::move(r)); };
-      if (grpc::Status s = SubmitJob(call->deps->batcher, job); !s.ok()) {
-        batching::JobResult refused;
-        refused.status = s.error_code() == grpc::StatusCode::UNAVAILABLE ? batching::JobStatus::kUnavailable
-                                                                        : batching::JobStatus::kResourceExhausted;
-        refused.message = s.error_message();
-        call->PartDone(k, std::move(refused));
-      }
-    }
+    SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
+               batching::Priority::kInteractive, CallDeadline(call->context, call->received), call->context,
+               [call](size_t k, batching::JobResult r) { call->PartDone(k, std::move(r)); });
   }
 
   void PartDone(size_t k, batching::JobResult r) {

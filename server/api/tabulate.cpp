@@ -225,21 +225,11 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     plan_ = std::make_unique<models::EvaluationPlan>(*material_, wi_.data(), wo_.data(), nullptr, count);
     chunk_f_.assign(3 * count, 0.0);
     next_query_ += count;
-    for (size_t k = 0; k < plan_->parts(); ++k) {
-      if (plan_->size(k) == 0) continue;
-      auto job = NewJob(&plan_->model(k), plan_->packed(k), fp64_, deadline_, context_, plan_->wi(k), plan_->wo(k),
-                        nullptr, plan_->size(k),
-                        runtime::ResultSink{.f64 = chunk_f_.data(), .slot = plan_->slots(k), .scale = plan_->scale(k)});
-      job->priority = batching::Priority::kBulk;
-      job->done = [this, k](batching::JobResult result) {
-        deps_.worker->Post([this, k, result = std::move(result)] { OnJobDone(k, result); });
-      };
-      if (grpc::Status s = SubmitJob(deps_.batcher, std::move(job)); !s.ok()) {
-        status_ = s;
-        return;  // the parts already submitted still return
-      }
-      ++jobs_in_flight_;
-    }
+    jobs_in_flight_ = plan_->parts();
+    SubmitPlan(deps_.batcher, *plan_, runtime::ResultSink{.f64 = chunk_f_.data()}, fp64_, batching::Priority::kBulk,
+               deadline_, context_, [this](size_t k, batching::JobResult result) {
+                 deps_.worker->Post([this, k, result = std::move(result)] { OnJobDone(k, result); });
+               });
   }
 
   // A part of the chunk in flight returned; when it was the last, the next chunk goes to the device first,
@@ -250,8 +240,9 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
       if (status_.ok()) status_ = ToStatus(result);
       return Pump();
     }
-    deps_.metrics->Evaluated(plan_->model(part).name(), fp64_, plan_->size(part), result.batch_queries,
-                             result.batch_requests, result.queue_seconds, result.kernel_seconds);
+    if (result.batch_queries > 0)
+      deps_.metrics->Evaluated(plan_->model(part).name(), fp64_, plan_->size(part), result.batch_queries,
+                               result.batch_requests, result.queue_seconds, result.kernel_seconds);
     kernel_seconds_ += result.kernel_seconds;
     if (jobs_in_flight_ > 0 || !status_.ok()) return Pump();
     std::vector<double> f;

@@ -157,6 +157,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     size_t count = 0;
     std::vector<float> uv;
     std::vector<double> f;  // the kernel writes its results here (3 per query)
+    std::unique_ptr<models::EvaluationPlan> plan;
   };
 
   // Takes the next queries into the chunk (a free buffer) and computes their sample positions.
@@ -184,19 +185,20 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     }
   }
 
-  // Sends a prepared chunk to the batcher; finishes the call and returns false when that is not possible.
+  // Sends a prepared chunk to the batcher (a refusal arrives as its result); returns false, having finished the
+  // call, when the call is no longer wanted.
   bool Submit(int index) {
     if (!StillWanted()) return false;
-    const Chunk& chunk = chunks_[index];
-    auto job = NewJob(material_->model, material_->packed, fp64_, deadline_, context_, wi_.data(), wo_.data(),
-                      chunk.uv.data(), chunk.count, runtime::ResultSink{.f64 = chunks_[index].f.data()});
-    job->done = [self = shared_from_this(), index](batching::JobResult result) {
-      self->deps_.worker->Post([self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
-    };
-    if (grpc::Status s = SubmitJob(deps_.batcher, std::move(job)); !s.ok()) {
-      Finish(s);
-      return false;
-    }
+    Chunk& chunk = chunks_[index];
+    // A slice's material has no layer (rejected above), so its plan is one part: the BTF kernel.
+    chunk.plan = std::make_unique<models::EvaluationPlan>(*material_, wi_.data(), wo_.data(), chunk.uv.data(),
+                                                          chunk.count);
+    SubmitPlan(deps_.batcher, *chunk.plan, runtime::ResultSink{.f64 = chunk.f.data()}, fp64_,
+               batching::Priority::kInteractive, deadline_, context_,
+               [self = shared_from_this(), index](size_t, batching::JobResult result) {
+                 self->deps_.worker->Post(
+                     [self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
+               });
     return true;
   }
 

@@ -93,13 +93,33 @@ int Metrics::port() const {
 }
 
 void Metrics::Call(const std::string& rpc, grpc::StatusCode code, double seconds) {
-  calls_.Add({{"rpc", rpc}, {"code", CodeName(code)}}).Increment();
-  call_seconds_.Add({{"rpc", rpc}}, Geometric(1e-5, 4, 10)).Observe(seconds);
+  prometheus::Counter* counter;
+  prometheus::Histogram* histogram;
+  {
+    std::lock_guard<std::mutex> lock(children_mutex_);
+    const std::string code_name = CodeName(code);
+    prometheus::Counter*& c = call_counters_[rpc + '\0' + code_name];
+    if (!c) c = &calls_.Add({{"rpc", rpc}, {"code", code_name}});
+    prometheus::Histogram*& h = call_histograms_[rpc];
+    if (!h) h = &call_seconds_.Add({{"rpc", rpc}}, Geometric(1e-5, 4, 10));
+    counter = c;
+    histogram = h;
+  }
+  counter->Increment();
+  histogram->Observe(seconds);
 }
 
 void Metrics::Evaluated(const std::string& model, bool fp64, size_t queries, size_t launch_queries,
                         size_t launch_requests, double queue_seconds, double kernel_seconds) {
-  queries_.Add({{"model", model}, {"precision", fp64 ? "fp64" : "fp32"}}).Increment(static_cast<double>(queries));
+  const char* precision = fp64 ? "fp64" : "fp32";
+  prometheus::Counter* counter;
+  {
+    std::lock_guard<std::mutex> lock(children_mutex_);
+    prometheus::Counter*& c = query_counters_[model + '\0' + precision];
+    if (!c) c = &queries_.Add({{"model", model}, {"precision", precision}});
+    counter = c;
+  }
+  counter->Increment(static_cast<double>(queries));
   launch_queries_.Observe(static_cast<double>(launch_queries));
   launch_requests_.Observe(static_cast<double>(launch_requests));
   queue_seconds_.Observe(queue_seconds);

@@ -12,7 +12,9 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <unordered_map>
 
 namespace loomlight::api {
 
@@ -61,6 +63,11 @@ class Metrics {
   prometheus::Histogram& kernel_seconds_;
   prometheus::Family<prometheus::Gauge>& resources_;
   std::unique_ptr<prometheus::Exposer> exposer_;
+  // The per-call metrics' children by their label values, found once (Family::Add builds and hashes a label
+  // map on every call): "rpc\0code" -> calls_, rpc -> call_seconds_, "model\0precision" -> queries_.
+  std::mutex children_mutex_;
+  std::unordered_map<std::string, prometheus::Counter*> call_counters_, query_counters_;
+  std::unordered_map<std::string, prometheus::Histogram*> call_histograms_;
 };
 
 }  // namespace loomlight::api

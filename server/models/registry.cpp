@@ -48,7 +48,7 @@ PackedMaterial Model::Pack(const ParamValues& values) const {
 
 void Model::ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                           double* f) const {
-  const KernelSpec spec = kernel();
+  const KernelSpec& spec = this->spec();
   const bool with_uv = uv && spatially_varying();
   host::RunReference(HostKernelOf(*this, with_uv ? spec.uv_function : spec.function), m.data.data(), m.uniform, wi,
                      wo, with_uv ? uv : nullptr, n, f);
@@ -56,14 +56,14 @@ void Model::ReferenceEval(const PackedMaterial& m, const float* wi, const float*
 
 void Model::NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                        float* f) const {
-  const KernelSpec spec = kernel();
+  const KernelSpec& spec = this->spec();
   const bool with_uv = uv && spatially_varying();
   host::RunNative(HostKernelOf(*this, with_uv ? spec.uv_function : spec.function), m.data32.data(), m.uniform, wi,
                   wo, with_uv ? uv : nullptr, n, f);
 }
 
 void Model::DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const {
-  const std::string name = kernel().transmittance_function;
+  const std::string& name = spec().transmittance_function;
   if (name.empty()) {
     std::fill(t, t + n, 0.0);
     return;

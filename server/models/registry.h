@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -91,10 +92,10 @@ class Model {
   void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                   float* f) const;
 
-  bool spatially_varying() const { return !kernel().uv_function.empty(); }
+  bool spatially_varying() const { return !spec().uv_function.empty(); }
   // Models that let light through the cloth (non-zero f with wi and wo on opposite sides) also report the
   // direct (unscattered) transmittance toward each wo, in [0, 1].
-  bool transmission() const { return !kernel().transmittance_function.empty(); }
+  bool transmission() const { return !spec().transmittance_function.empty(); }
   // The direct transmittance toward each of n directions wo into t (the reference build); 0 for models
   // without transmission.
   void DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const;
@@ -124,6 +125,15 @@ class Model {
   // Defaults completed with the preset's values.
   ParamValues PresetValues(const PresetSpec& preset) const;
   ParamValues DefaultValues() const;
+
+ private:
+  // kernel(), asked once: the capabilities it implies are read on every request.
+  const KernelSpec& spec() const {
+    std::call_once(spec_once_, [this] { spec_ = kernel(); });
+    return spec_;
+  }
+  mutable std::once_flag spec_once_;
+  mutable KernelSpec spec_;
 
  protected:
   // The plugin's packing: the material's values in its kernel's layout (double), and its launch-uniform value.

@@ -46,20 +46,21 @@ PackedMaterial Model::Pack(const ParamValues& values) const {
   return m;
 }
 
+const host::HostKernel& Model::EvalKernel(const float** uv) const {
+  if (!spatially_varying()) *uv = nullptr;
+  return HostKernelOf(*this, *uv ? spec().uv_function : spec().function);
+}
+
 void Model::ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                           double* f) const {
-  const KernelSpec& spec = this->spec();
-  const bool with_uv = uv && spatially_varying();
-  host::RunReference(HostKernelOf(*this, with_uv ? spec.uv_function : spec.function), m.data.data(), m.uniform, wi,
-                     wo, with_uv ? uv : nullptr, n, f);
+  const host::HostKernel& kernel = EvalKernel(&uv);
+  host::RunReference(kernel, m.data.data(), m.uniform, wi, wo, uv, n, f);
 }
 
 void Model::NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                        float* f) const {
-  const KernelSpec& spec = this->spec();
-  const bool with_uv = uv && spatially_varying();
-  host::RunNative(HostKernelOf(*this, with_uv ? spec.uv_function : spec.function), m.data32.data(), m.uniform, wi,
-                  wo, with_uv ? uv : nullptr, n, f);
+  const host::HostKernel& kernel = EvalKernel(&uv);
+  host::RunNative(kernel, m.data32.data(), m.uniform, wi, wo, uv, n, f);
 }
 
 void Model::DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const {

@@ -10,6 +10,9 @@
 #include <vector>
 
 namespace loomlight::models {
+namespace host {
+struct HostKernel;
+}
 
 // kText parameters carry text (Param.text, up to max_count bytes) that the model turns into other
 // parameters' values (Model::ApplyText); they have no values of their own.
@@ -127,6 +130,9 @@ class Model {
   ParamValues DefaultValues() const;
 
  private:
+  // The host build of the entry that evaluates f: the BTF when *uv is given and the model varies over the
+  // surface, else the BRDF (then *uv becomes nullptr).
+  const host::HostKernel& EvalKernel(const float** uv) const;
   // kernel(), asked once: the capabilities it implies are read on every request.
   const KernelSpec& spec() const {
     std::call_once(spec_once_, [this] { spec_ = kernel(); });

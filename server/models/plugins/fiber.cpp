@@ -225,7 +225,6 @@ class FiberModel : public Model {
     return m;
   }
 
-
  private:
   std::vector<ParamSpec> schema_ = Schema();
   std::vector<PresetSpec> presets_ = Presets();

@@ -163,7 +163,6 @@ class MicrocylinderModel : public Model {
     return m;
   }
 
-
  private:
   std::vector<ParamSpec> schema_ = Schema();
   std::vector<PresetSpec> presets_ = Presets();

@@ -199,7 +199,6 @@ class WovenModel : public Model {
     return m;
   }
 
-
  private:
   std::vector<ParamSpec> schema_ = Schema();
   std::vector<PresetSpec> presets_ = Presets();

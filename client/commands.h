@@ -23,6 +23,7 @@ const Command& plot_command();
 const Command& slice_command();
 const Command& tab_command();
 const Command& render_command();
+const Command& yarn_command();
 const Command& health_command();
 
 }  // namespace loomlight::client

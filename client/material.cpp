@@ -8,18 +8,6 @@ namespace {
 
 namespace v1 = loomlight::v1;
 
-// "name=v1,v2,..." -> Param.
-v1::Param parse_param(const std::string& text) {
-  const auto eq = text.find('=');
-  if (eq == std::string::npos || eq == 0 || eq + 1 == text.size())
-    throw UsageError("--param needs NAME=V1[,V2...], got '" + text + "'");
-  v1::Param param;
-  param.set_name(text.substr(0, eq));
-  for (double v : parse_numbers(std::string_view(text).substr(eq + 1), "--param " + param.name()))
-    param.add_values(v);
-  return param;
-}
-
 // "name=path" -> Param with the file's text (e.g. pattern.wif=draft.wif).
 v1::Param parse_param_file(const std::string& text) {
   const auto eq = text.find('=');
@@ -39,6 +27,17 @@ std::string join_values(const v1::Param& param) {
 }
 
 }  // namespace
+
+v1::Param parse_param(const std::string& text, const std::string& option) {
+  const auto eq = text.find('=');
+  if (eq == std::string::npos || eq == 0 || eq + 1 == text.size())
+    throw UsageError(option + " needs NAME=V1[,V2...], got '" + text + "'");
+  v1::Param param;
+  param.set_name(text.substr(0, eq));
+  for (double v : parse_numbers(std::string_view(text).substr(eq + 1), option + " " + param.name()))
+    param.add_values(v);
+  return param;
+}
 
 std::string read_local_file(const std::string& path, const std::string& option) {
   std::ifstream in(path, std::ios::binary);
@@ -66,7 +65,7 @@ v1::EvaluateRequest material_request(const ParsedOptions& options) {
   if (auto preset = options.last("preset")) material.set_preset(*preset);
   if (auto model = options.last("model")) material.set_model(*model);
   if (material.preset().empty() && material.model().empty()) throw UsageError("give --preset NAME or --model NAME");
-  for (const auto& entry : options.matching({"param"})) *material.add_params() = parse_param(entry.value);
+  for (const auto& entry : options.matching({"param"})) *material.add_params() = parse_param(entry.value, "--param");
   for (const auto& entry : options.matching({"param-file"})) *material.add_params() = parse_param_file(entry.value);
   if (auto layer = options.last("layer")) material.mutable_transmission()->set_preset(*layer);
   request.set_precision(options.has("fp64") ? v1::PRECISION_FP64 : v1::PRECISION_FP32);

@@ -18,6 +18,9 @@ const OptionList& material_options();
 // The server checks names, counts and ranges; the client only checks the syntax.
 loomlight::v1::EvaluateRequest material_request(const ParsedOptions& options);
 
+// "NAME=V1[,V2...]" as a Param; a UsageError naming `option` when malformed.
+loomlight::v1::Param parse_param(const std::string& text, const std::string& option);
+
 // The bytes of a file on the client's machine (sent to the server as data); a UsageError naming `option`
 // when it cannot be read.
 std::string read_local_file(const std::string& path, const std::string& option);

@@ -167,6 +167,13 @@ void Client::render(const v1::RenderRequest& request, const std::function<void(c
   read_stream(context, *stub_->Render(&context, request), on_update);
 }
 
+void Client::yarn_geometry(const v1::YarnGeometryRequest& request,
+                           const std::function<void(const v1::YarnGeometryChunk&)>& on_chunk) {
+  grpc::ClientContext context;
+  prepare(context);
+  read_stream(context, *stub_->YarnGeometry(&context, request), on_chunk);
+}
+
 void print_timing(std::ostream& out, const v1::EvaluateResponse& response, int queries) {
   out << "model=" << response.model() << " precision=" << precision_name(response.precision())
       << " queries=" << queries << " queue_seconds=" << response.queue_seconds()

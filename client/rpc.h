@@ -50,6 +50,9 @@ class Client {
   void tabulate(const v1::TabulateRequest& request, const std::function<void(const v1::TabulateChunk&)>& on_chunk);
   // Streams a render: `on_update` sees every progress update and, last, the one with the image.
   void render(const v1::RenderRequest& request, const std::function<void(const v1::RenderUpdate&)>& on_update);
+  // Streams a yarn's fiber curves: `on_chunk` sees the summary first, then every chunk of curves in order.
+  void yarn_geometry(const v1::YarnGeometryRequest& request,
+                     const std::function<void(const v1::YarnGeometryChunk&)>& on_chunk);
 
  private:
   void prepare(grpc::ClientContext& context) const;

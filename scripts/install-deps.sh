@@ -7,6 +7,7 @@ packages=(
   libopenimageio-dev openimageio-tools
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev
+  libembree-dev
   libgtest-dev libgmock-dev
   fonts-dejavu-core
 )

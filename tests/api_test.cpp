@@ -7,6 +7,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -1019,6 +1020,79 @@ TEST_F(ApiTest, ListModelsDeclaresKnobsAndFiberAxesAsData) {
   }
   EXPECT_GE(knobs, 1);
   EXPECT_GE(fibers, 1);
+}
+// A per-query fiber axis gives, for every fiber model's presets, what a material with that axis as its
+// parameter gives (random axes, the shading normal's own direction among them: the frame's special case);
+// other models, a curtain, a wrong length or a non-unit axis are refused naming fiber_axis.
+TEST_F(ApiTest, PerQueryFiberAxisEqualsTheAxisParameter) {
+  auto stub = testing::Connect(server_->port());
+  grpc::ClientContext list_ctx;
+  v1::ListModelsResponse models;
+  ASSERT_TRUE(stub->ListModels(&list_ctx, v1::ListModelsRequest(), &models).ok());
+  std::mt19937 rng(5);
+  std::normal_distribution<float> normal;
+  int checked = 0;
+  for (const v1::ModelInfo& model : models.models()) {
+    if (model.fiber_axis_param().empty()) continue;
+    for (const v1::Preset& preset : model.presets()) {
+      SCOPED_TRACE(preset.name());
+      constexpr int kAxes = 12, kPairs = 16;
+      EvaluateRequest per_query = Request(preset.name(), kAxes * kPairs, 3);
+      std::vector<std::array<float, 3>> axes = {{0, 0, 1}, {0, 0, -1}, {1, 0, 0}};
+      while (axes.size() < kAxes) {
+        std::array<float, 3> a = {normal(rng), normal(rng), normal(rng)};
+        const float len = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        for (float& x : a) x /= len;
+        axes.push_back(a);
+      }
+      for (int i = 0; i < kAxes * kPairs; ++i) per_query.mutable_fiber_axis()->Add(axes[i / kPairs].begin(), axes[i / kPairs].end());
+      EvaluateResponse all;
+      ASSERT_TRUE(Call(*stub, per_query, &all).ok());
+      for (int a = 0; a < kAxes; ++a) {
+        EvaluateRequest one;
+        one.mutable_material()->set_preset(preset.name());
+        v1::Param* axis = one.mutable_material()->add_params();
+        axis->set_name(model.fiber_axis_param());
+        axis->mutable_values()->Add(axes[a].begin(), axes[a].end());
+        one.mutable_wi()->Add(per_query.wi().begin() + 3 * a * kPairs, per_query.wi().begin() + 3 * (a + 1) * kPairs);
+        one.mutable_wo()->Add(per_query.wo().begin() + 3 * a * kPairs, per_query.wo().begin() + 3 * (a + 1) * kPairs);
+        EvaluateResponse expected;
+        ASSERT_TRUE(Call(*stub, one, &expected).ok());
+        for (int i = 0; i < 3 * kPairs; ++i) {
+          const float want = expected.f(i), got = all.f(3 * a * kPairs + i);
+          EXPECT_NEAR(got, want, 1e-3f * std::fabs(want) + 1e-5f) << "axis " << a << " value " << i;
+          ++checked;
+        }
+      }
+    }
+  }
+  EXPECT_GT(checked, 0);
+
+  const auto refused = [&](EvaluateRequest r) {
+    EvaluateResponse resp;
+    const grpc::Status s = Call(*stub, r, &resp);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_EQ(s.error_message().rfind("fiber_axis", 0), 0u) << s.error_message();
+  };
+  std::string fiber_preset;
+  for (const v1::ModelInfo& model : models.models())
+    if (!model.fiber_axis_param().empty()) fiber_preset = model.presets(0).name();
+  EvaluateRequest surface = Request("linen_plain", 2, 1);
+  for (float v : {0.f, 0.f, 1.f, 0.f, 0.f, 1.f}) surface.add_fiber_axis(v);
+  refused(surface);
+  EvaluateRequest curtain = Request(fiber_preset, 2, 1);
+  curtain.mutable_material()->mutable_transmission()->set_preset("cotton_curtain");
+  for (float v : {0.f, 0.f, 1.f, 0.f, 0.f, 1.f}) curtain.add_fiber_axis(v);
+  refused(curtain);
+  EvaluateRequest short_axis = Request(fiber_preset, 2, 1);
+  for (float v : {0.f, 0.f, 1.f}) short_axis.add_fiber_axis(v);
+  refused(short_axis);
+  EvaluateRequest long_axis = Request(fiber_preset, 1, 1);
+  for (float v : {0.f, 0.f, 2.f}) long_axis.add_fiber_axis(v);
+  refused(long_axis);
+  EvaluateRequest nan_axis = Request(fiber_preset, 1, 1);
+  for (float v : {NAN, 0.f, 1.f}) nan_axis.add_fiber_axis(v);
+  refused(nan_axis);
 }
 }  // namespace
 }  // namespace loomlight

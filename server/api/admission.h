@@ -26,7 +26,7 @@ inline grpc::Status Admit(batching::Budget* memory, batching::Budget* slots, siz
   if (slots && !slots->TryReserve(1, &out->slot))
     return {grpc::StatusCode::RESOURCE_EXHAUSTED, "the server is running its limit of " +
                                                       std::to_string(slots->limit()) +
-                                                      " long-running calls (TextureSlice, Tabulate, Render); retry later"};
+                                                      " long-running calls (TextureSlice, Tabulate, Render, YarnGeometry); retry later"};
   if (!memory->TryReserve(bytes, &out->bytes)) {
     out->slot.Release();
     return {grpc::StatusCode::RESOURCE_EXHAUSTED,

@@ -22,6 +22,10 @@ inline batching::Clock::time_point CallDeadline(grpc::CallbackServerContext* con
   return received + (deadline - std::chrono::system_clock::now());
 }
 
+inline double SecondsSince(batching::Clock::time_point t) {
+  return std::chrono::duration<double>(batching::Clock::now() - t).count();
+}
+
 // Why a call's work should stop now, or OK: its deadline passed, or the client cancelled or went away
 // (`stream_broken`: a write failed). A cancellation that arrives within batching::kDeadlineSlack of the
 // deadline is the deadline (the client's own timer cancels first), so it is counted as DEADLINE_EXCEEDED.

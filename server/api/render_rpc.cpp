@@ -23,7 +23,6 @@ using Clock = batching::Clock;
 using render::Rgb;
 using render::Vec3;
 
-double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
 std::string Indexed(const std::string& field, int i) { return field + "[" + std::to_string(i) + "]"; }
 

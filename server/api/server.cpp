@@ -93,6 +93,7 @@ void LoomlightServer::Watch() {
         {"host worker", service_->worker_busy_since()},
         {"asset loader", service_->loader_busy_since()},
         {"preparer", service_->preparer_busy_since()},
+        {"geometry worker", service_->geometry_busy_since()},
         {"kernel launch", batcher_->busy_since()}};
     for (const auto& [what, since] : busy)
       if (since != batching::Clock::time_point::max() && now - since > options_.stall_limit)

@@ -9,6 +9,7 @@
 #include "server/api/render_rpc.h"
 #include "server/api/tabulate.h"
 #include "server/api/texture_slice.h"
+#include "server/api/yarn_rpc.h"
 #include "server/models/material.h"
 #include "server/models/material_plan.h"
 
@@ -32,10 +33,6 @@ void AddParams(const models::ParamValues& values, google::protobuf::RepeatedPtrF
     p->set_name(name);
     p->mutable_values()->Add(v.begin(), v.end());
   }
-}
-
-double SecondsSince(batching::Clock::time_point t) {
-  return std::chrono::duration<double>(batching::Clock::now() - t).count();
 }
 
 // One Evaluate call. Start (inline on the gRPC thread for a small request of a cached material, else on the
@@ -81,9 +78,22 @@ struct EvaluateCall {
       if (std::string error = ValidateTextureCoordinates(request.uv(), n, "uv"); !error.empty())
         return call->Finish(Invalid(error));
     }
+    if (request.fiber_axis_size() > 0) {
+      const models::Model& model = *call->material->model;
+      if (model.fiber_axis_param().empty())
+        return call->Finish(Invalid("fiber_axis: model '" + model.name() + "' is not a fiber model; send no fiber_axis"));
+      if (call->material->transmission)
+        return call->Finish(Invalid("fiber_axis: not with material.transmission (a fiber is not a curtain)"));
+      if (request.fiber_axis_size() != request.wi_size())
+        return call->Finish(Invalid("fiber_axis: length " + std::to_string(request.fiber_axis_size()) +
+                                    " differs from wi length " + std::to_string(request.wi_size())));
+      if (std::string error = ValidateDirections(request.fiber_axis(), "fiber_axis"); !error.empty())
+        return call->Finish(Invalid(error));
+    }
     call->response->mutable_f()->Resize(static_cast<int>(3 * n), 0.0f);
-    call->plan = std::make_unique<models::EvaluationPlan>(*call->material, request.wi().data(), request.wo().data(),
-                                                          request.uv_size() > 0 ? request.uv().data() : nullptr, n);
+    call->plan = std::make_unique<models::EvaluationPlan>(
+        *call->material, request.wi().data(), request.wo().data(), request.uv_size() > 0 ? request.uv().data() : nullptr,
+        n, request.fiber_axis_size() > 0 ? request.fiber_axis().data() : nullptr);
     call->remaining = call->plan->parts();
     float* f = call->response->mutable_f()->mutable_data();
     SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
@@ -135,6 +145,7 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
   deps_.materials = &materials_;
   deps_.worker = &worker_;
   deps_.loader = &loader_;
+  deps_.geometry = &geometry_;
 }
 
 grpc::Status LoomlightService::Serving() const {
@@ -224,6 +235,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
   response->set_max_queries_per_call(kMaxQueriesPerCall);
   response->set_unit_tolerance(kUnitTolerance);
   for (const std::string& name : deps_.environments->Names()) response->add_environment_maps(name);
+  DescribeYarnModel(response->mutable_yarn());
   return Reply(context, "ListModels", received, grpc::Status::OK);
 }
 
@@ -291,6 +303,15 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* LoomlightService::Render(grpc::Callb
     return new RejectedStream<v1::RenderUpdate>(s);
   }
   return HandleRender(deps_, context, request);
+}
+
+grpc::ServerWriteReactor<v1::YarnGeometryChunk>* LoomlightService::YarnGeometry(grpc::CallbackServerContext* context,
+                                                                               const v1::YarnGeometryRequest* request) {
+  if (grpc::Status s = Serving(); !s.ok()) {
+    deps_.metrics->Call("YarnGeometry", s.error_code(), 0);
+    return new RejectedStream<v1::YarnGeometryChunk>(s);
+  }
+  return HandleYarnGeometry(deps_, context, request);
 }
 
 }  // namespace loomlight::api

@@ -47,6 +47,7 @@ struct ServiceDeps {
   models::MaterialCache* materials = nullptr;
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
   HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
+  HostWorker* geometry = nullptr;  // generating yarn geometry, off the host worker
   batching::Budget* memory = nullptr;      // bytes every call reserves (server/api/admission.h)
   batching::Budget* long_calls = nullptr;  // slots of long-running calls
   assets::EnvironmentMaps* environments = nullptr;
@@ -77,6 +78,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   batching::Clock::time_point worker_busy_since() const { return worker_.busy_since(); }
   batching::Clock::time_point loader_busy_since() const { return loader_.busy_since(); }
   batching::Clock::time_point preparer_busy_since() const { return preparer_.busy_since(); }
+  batching::Clock::time_point geometry_busy_since() const { return geometry_.busy_since(); }
   const models::MaterialCache& materials() const { return materials_; }
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
@@ -92,6 +94,9 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // Delegates to HandleRender (server/api/render_rpc.h).
   grpc::ServerWriteReactor<v1::RenderUpdate>* Render(grpc::CallbackServerContext* context,
                                                     const v1::RenderRequest* request) override;
+  // Delegates to HandleYarnGeometry (server/api/yarn_rpc.h).
+  grpc::ServerWriteReactor<v1::YarnGeometryChunk>* YarnGeometry(grpc::CallbackServerContext* context,
+                                                               const v1::YarnGeometryRequest* request) override;
 
  private:
   // Finishes a call on the default reactor and records it.
@@ -108,6 +113,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   HostWorker worker_;
   HostWorker loader_;
   HostWorker preparer_;  // Evaluate's material packing and large requests' validation and planning
+  HostWorker geometry_;  // yarn generation
 };
 
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or

@@ -20,7 +20,6 @@ constexpr uint32_t kMaxPhiHSamples = 1024;  // the cell limit binds first (23 fo
 using Clock = batching::Clock;
 using tabulation::CosSin;
 
-double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
 // "1,048,576": limits in messages are read by people.
 std::string Grouped(uint64_t n) {

@@ -18,7 +18,6 @@ constexpr double kR2[2] = {0.7548776662, 0.5698402910};
 
 using Clock = batching::Clock;
 
-double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
 // splitmix64's finaliser: a fixed, well-mixed hash of the pixel index.
 uint64_t MixBits(uint64_t x) {

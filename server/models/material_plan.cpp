@@ -24,7 +24,7 @@ double CurtainReflectionScale(double transmittance_wi, double transmittance_wo) 
 }
 
 EvaluationPlan::EvaluationPlan(const PreparedMaterial& material, const float* wi, const float* wo, const float* uv,
-                               size_t n)
+                               size_t n, const float* axis)
     : wi_(wi), wo_(wo), uv_(uv), n_(n) {
   if (material.model->transmission()) {
     transmittance_.resize(n);
@@ -33,6 +33,12 @@ EvaluationPlan::EvaluationPlan(const PreparedMaterial& material, const float* wi
   const PreparedMaterial* layer = material.transmission.get();
   if (!layer) {
     parts_.push_back({&material, true, {}, {}, {}, {}, false});
+    if (axis) {
+      Part& part = parts_.back();
+      part.wi.assign(wi, wi + 3 * n);
+      part.wo.assign(wo, wo + 3 * n);
+      material.model->AlignToAxis(material.values, axis, n, part.wi.data(), part.wo.data());
+    }
     return;
   }
   parts_.resize(2);

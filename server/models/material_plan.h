@@ -51,7 +51,10 @@ double CurtainReflectionScale(double transmittance_wi, double transmittance_wo);
 // curtain's reflection and its layer), and how their results combine. The request's arrays must outlive it.
 class EvaluationPlan {
  public:
-  EvaluationPlan(const PreparedMaterial& material, const float* wi, const float* wo, const float* uv, size_t n);
+  // `axis` (xyz per query, unit; nullptr: none) is each query's fiber axis, for a fiber model without a layer
+  // (the caller checks): the model re-expresses each pair about the material's own axis (Model::AlignToAxis).
+  EvaluationPlan(const PreparedMaterial& material, const float* wi, const float* wo, const float* uv, size_t n,
+                 const float* axis = nullptr);
 
   size_t parts() const { return parts_.size(); }
   const Model& model(size_t k) const { return *parts_[k].material->model; }
@@ -59,8 +62,8 @@ class EvaluationPlan {
   // Part k's queries and their directions (uv nullptr when the request has none or the part's model does not
   // vary over the surface).
   size_t size(size_t k) const { return parts_[k].whole ? n_ : parts_[k].index.size(); }
-  const float* wi(size_t k) const { return parts_[k].whole ? wi_ : parts_[k].wi.data(); }
-  const float* wo(size_t k) const { return parts_[k].whole ? wo_ : parts_[k].wo.data(); }
+  const float* wi(size_t k) const { return parts_[k].wi.empty() ? wi_ : parts_[k].wi.data(); }
+  const float* wo(size_t k) const { return parts_[k].wo.empty() ? wo_ : parts_[k].wo.data(); }
   const float* uv(size_t k) const;
   // Where part k's results go, for a kernel writing them straight into the request's f (3 per request query):
   // part query i is request query slots(k)[i] (nullptr: i), scaled by scale(k)[request query] (nullptr: 1).
@@ -72,9 +75,9 @@ class EvaluationPlan {
  private:
   struct Part {
     const PreparedMaterial* material = nullptr;
-    bool whole = false;               // every query, the request's own arrays
-    std::vector<size_t> index;        // the part's queries in the request
-    std::vector<float> wi, wo, uv;    // their directions
+    bool whole = false;               // every query, in order
+    std::vector<size_t> index;        // the part's queries in the request, when not whole
+    std::vector<float> wi, wo, uv;    // their directions; wi and wo empty: the request's own
     bool scaled = false;              // a curtain's reflection: times scale_[query]
   };
   const float *wi_, *wo_, *uv_;

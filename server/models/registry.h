@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "server/models/weave/pattern.h"
+
 namespace loomlight::models {
 namespace host {
 struct HostKernel;
@@ -115,11 +117,20 @@ class Model {
   // A fiber model (f about a fiber's axis, not about the surface normal) names the parameter holding the
   // axis; "" for surface models. Served by ListModels, so clients choose views without knowing model names.
   virtual std::string fiber_axis_param() const { return ""; }
+  // Fiber models: rewrites n query pairs in place so that f about each query's own fiber axis (axis, xyz per
+  // query, unit) is the material's f of the rewritten pair: an exact change of frame, so the kernels take a
+  // per-query axis without a per-query kernel input. Only called for models with a fiber_axis_param.
+  virtual void AlignToAxis(const ParamValues& values, const float* axis, size_t n, float* wi, float* wo) const {}
   virtual AccuracyKnob accuracy_knob() const { return {}; }
   // The estimated relative error of f at each accuracy-knob setting (cheapest first; the exact one's is 0) for
   // the material `values` describe. The default measures it (accuracy::MeasureKnobErrors: the reference at
   // each setting against the exact one); a model with a cheaper or sharper estimate overrides it.
   virtual std::vector<double> KnobErrors(const ParamValues& values) const;
+  // Models whose material is woven to a weave pattern (cells or a WIF draft among its parameters) give it,
+  // e.g. for laying out yarns (server/yarn/layout.h). Returns "" and fills *out, or why not.
+  virtual std::string WeavePatternOf(const ParamValues& values, weave::WeavePattern* out) const {
+    return "model '" + name() + "' has no weave pattern";
+  }
   // Threads across one repeat of the material's pattern, the larger of its two directions (the fidelity
   // chooser compares a thread's width with a pixel's footprint); 1 for materials without a pattern.
   virtual double ThreadsPerRepeat(const ParamValues& values) const { return 1; }

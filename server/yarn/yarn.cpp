@@ -1,6 +1,7 @@
 #include "server/yarn/yarn.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <numeric>
@@ -642,7 +643,16 @@ std::string GenerateYarn(const YarnParams& p, const YarnCurve& curve, const Deta
       }
     }
   };
-  ParallelFor(tasks.size(), options.threads, [&](size_t t) { run_task(tasks[t]); });
+  std::atomic<bool> stopped{false};
+  ParallelFor(tasks.size(), options.threads, [&](size_t t) {
+    if (stopped.load(std::memory_order_relaxed)) return;
+    if (options.stop && options.stop()) {
+      stopped = true;
+      return;
+    }
+    run_task(tasks[t]);
+  });
+  if (stopped) return "cancelled";
   out->fibers = std::move(result);
   out->control_points = points;
   out->lambda = lod.lambda;

@@ -45,6 +45,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -144,6 +145,9 @@ struct DetailOptions {
   double footprint = 0;      // Eq. 4's omega^LoD in world units; 0 = full detail. Needs core.
   int points_per_twist = 16; // control points per shortest period, [kMinPointsPerTwist, kMaxPointsPerTwist]
   int threads = 1;           // [1, 64]; the output does not depend on it
+  // Polled between fibers (from the generating threads); once it returns true, generation ends with
+  // "cancelled" and no geometry. Unset: never. For deadlines and clients that go away.
+  std::function<bool()> stop;
 };
 std::string ValidateDetailOptions(const DetailOptions& o);
 

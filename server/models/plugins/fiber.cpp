@@ -151,6 +151,34 @@ std::vector<PresetSpec> Presets() {
 
 double Norm(const std::vector<double>& v) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
 
+template <class A, class B>
+double Dot3(const A* a, const B* b) {
+  return double(a[0]) * b[0] + double(a[1]) * b[1] + double(a[2]) * b[2];
+}
+
+// The fiber frame of an axis (any length > 0): t along it, u = +z made perpendicular to t (x instead when t is
+// along z), v = t x u. Rounded to float, so that the double reference and the float kernels use the same
+// frame (the lobe peaks are sharp enough that a 6e-8 tilt of the axis would show as 1e-5 differences).
+struct Frame {
+  double t[3], u[3], v[3];
+};
+Frame FrameOf(const double* axis) {
+  const double len = std::sqrt(Dot3(axis, axis));
+  const double t[3] = {axis[0] / len, axis[1] / len, axis[2] / len};
+  double u[3] = {-t[2] * t[0], -t[2] * t[1], 1.0 - t[2] * t[2]};
+  if (std::hypot(u[0], u[1], u[2]) < 1e-6) {
+    u[0] = 1.0 - t[0] * t[0];
+    u[1] = -t[0] * t[1];
+    u[2] = -t[0] * t[2];
+  }
+  const double ul = std::hypot(u[0], u[1], u[2]);
+  for (double& x : u) x /= ul;
+  const double v[3] = {t[1] * u[2] - t[2] * u[1], t[2] * u[0] - t[0] * u[2], t[0] * u[1] - t[1] * u[0]};
+  Frame f;
+  for (int k = 0; k < 3; ++k) f.t[k] = float(t[k]), f.u[k] = float(u[k]), f.v[k] = float(v[k]);
+  return f;
+}
+
 class FiberModel : public Model {
  public:
   std::string name() const override { return "fiber"; }
@@ -165,6 +193,20 @@ class FiberModel : public Model {
 
   std::string fiber_axis_param() const override { return "axis"; }
 
+  // Each pair's coordinates in its query's frame (t', u', v') become the same coordinates in the material's
+  // frame (t, u, v): f depends on the directions only through them.
+  void AlignToAxis(const ParamValues& values, const float* axis, size_t n, float* wi, float* wo) const override {
+    const Frame m = FrameOf(values.at("axis").data());
+    for (size_t q = 0; q < n; ++q) {
+      const double a[3] = {axis[3 * q], axis[3 * q + 1], axis[3 * q + 2]};
+      const Frame f = FrameOf(a);
+      for (float* w : {wi + 3 * q, wo + 3 * q}) {
+        const double x = Dot3(f.t, w), y = Dot3(f.u, w), z = Dot3(f.v, w);
+        for (int k = 0; k < 3; ++k) w[k] = float(x * m.t[k] + y * m.u[k] + z * m.v[k]);
+      }
+    }
+  }
+
   std::string Validate(const ParamValues& v) const override {
     if (Norm(v.at("axis")) < 1e-6) return "axis: must not be the zero vector";
     return "";
@@ -175,25 +217,12 @@ class FiberModel : public Model {
     m.uniform = static_cast<int>(v.at("mode")[0]);
     m.data.assign(FB_MATERIAL_SIZE, 0.0);
     double* d = m.data.data();
-    // Frame: t, u = +z made perpendicular to t (x instead when t is along z), v = t x u.
-    const std::vector<double>& axis = v.at("axis");
-    const double len = Norm(axis);
-    const double t[3] = {axis[0] / len, axis[1] / len, axis[2] / len};
-    double u[3] = {-t[2] * t[0], -t[2] * t[1], 1.0 - t[2] * t[2]};
-    if (std::hypot(u[0], u[1], u[2]) < 1e-6) {
-      u[0] = 1.0 - t[0] * t[0];
-      u[1] = -t[0] * t[1];
-      u[2] = -t[0] * t[2];
-    }
-    const double ul = std::hypot(u[0], u[1], u[2]);
-    for (double& x : u) x /= ul;
-    const double w[3] = {t[1] * u[2] - t[2] * u[1], t[2] * u[0] - t[0] * u[2], t[0] * u[1] - t[1] * u[0]};
+    const Frame frame = FrameOf(v.at("axis").data());
+    const double *t = frame.t, *u = frame.u, *w = frame.v;
     for (int k = 0; k < 3; ++k) {
-      // Rounded to float here, so that the double reference and the float kernels use the same frame (the
-      // lobe peaks are sharp enough that a 6e-8 tilt of the axis would show as 1e-5 differences).
-      d[FB_T + k] = float(t[k]);
-      d[FB_U + k] = float(u[k]);
-      d[FB_V + k] = float(w[k]);
+      d[FB_T + k] = t[k];
+      d[FB_U + k] = u[k];
+      d[FB_V + k] = w[k];
       d[FB_KD + k] = v.at("kd")[k] / M_PI;
       d[FB_KS + k] = v.at("ks")[k];
       d[FB_CR + k] = v.at("c_r")[k];

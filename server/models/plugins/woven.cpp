@@ -179,6 +179,8 @@ class WovenModel : public Model {
     return PatternOf(v, &pattern);
   }
 
+  std::string WeavePatternOf(const ParamValues& v, weave::WeavePattern* out) const override { return PatternOf(v, out); }
+
   PackedMaterial PackLayout(const ParamValues& v) const override {
     weave::WeavePattern pattern;
     PatternOf(v, &pattern);

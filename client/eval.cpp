@@ -63,8 +63,28 @@ void print_csv(const v1::EvaluateRequest& request, const v1::EvaluateResponse& r
   }
 }
 
+// --ambient: the ambient factor of fiber models toward each wo (EvaluateRequest.quantity AMBIENT).
+int run_ambient(const ParsedOptions& options, v1::EvaluateRequest request) {
+  if (!options.matching({"wi", "wi-deg"}).empty() || options.last("csv"))
+    throw UsageError("--ambient takes outgoing directions only (--wo or --wo-deg)");
+  for (const auto& wo : options.matching({"wo", "wo-deg"})) {
+    for (double c : direction_option(wo)) request.add_wo(static_cast<float>(c));
+  }
+  if (request.wo_size() == 0) throw UsageError("no directions: give --wo or --wo-deg");
+  request.set_quantity(v1::QUANTITY_AMBIENT);
+  Client client(options);
+  const v1::EvaluateResponse response = client.evaluate(request);
+  if (options.has("verbose")) print_timing(std::cerr, response, request.wo_size() / 3);
+  std::printf("wox,woy,woz,r,g,b\n");
+  for (int q = 0; q < response.f_size() / 3; ++q)
+    std::printf("%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n", request.wo(3 * q), request.wo(3 * q + 1), request.wo(3 * q + 2),
+                response.f(3 * q), response.f(3 * q + 1), response.f(3 * q + 2));
+  return 0;
+}
+
 int run_eval(const ParsedOptions& options) {
   v1::EvaluateRequest request = material_request(options);
+  if (options.has("ambient")) return run_ambient(options, std::move(request));
   const bool from_args = !options.matching({"wi", "wi-deg", "wo", "wo-deg"}).empty();
   if (auto csv = options.last("csv")) {
     if (from_args) throw UsageError("give directions either with --csv or with --wi/--wo, not both");
@@ -89,6 +109,7 @@ OptionList eval_options() {
       {"wi-deg", "THETA,PHI", "incoming direction by angles in degrees (repeatable)"},
       {"wo-deg", "THETA,PHI", "outgoing direction by angles in degrees (repeatable)"},
       {"csv", "FILE", "read rows wix,wiy,wiz,wox,woy,woz from FILE ('-' = stdin)"},
+      {"ambient", "", "fiber models: the ambient factor toward each wo instead of f (no wi; Eqs. 7-10)"},
       {"verbose", "", "print the server's timing and batching to stderr"},
   });
   return options;
@@ -109,6 +130,8 @@ const Command& eval_command() {
       "In --csv input a first line starting with a letter is a header and is skipped.\n"
       "Output: CSV wix,wiy,wiz,wox,woy,woz,r,g,b (f in 1/sr, without the cosine), one row per query,\n"
       "plus a column t (direct transmittance) for models with transmission.\n"
+      "--ambient (fiber models): the integral of f(wi, wo) cos(theta_i) over the sphere of wi per --wo, as\n"
+      "CSV wox,woy,woz,r,g,b: the radiance out per unit of constant ambient radiance.\n"
       "Example: loomlight eval --preset linen_plain --wi-deg 30,0 --wo-deg 30,180",
       eval_options(),
       run_eval,

@@ -41,7 +41,9 @@ v1::ScenePreset parse_scene(const std::string& name) {
   if (n == "cylinders") return v1::SCENE_CYLINDERS;
   if (n == "swatch") return v1::SCENE_SWATCH;
   if (n == "curtain") return v1::SCENE_CURTAIN;
-  throw UsageError("--scene: expected sphere, cylinders, swatch or curtain, got '" + name + "'");
+  if (n == "yarn") return v1::SCENE_YARN;
+  if (n == "woven-patch") return v1::SCENE_WOVEN_PATCH;
+  throw UsageError("--scene: expected sphere, cylinders, swatch, curtain, yarn or woven-patch, got '" + name + "'");
 }
 
 void add_triple(google::protobuf::RepeatedField<double>* out, const std::string& text, const std::string& what) {
@@ -110,6 +112,15 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
     request.set_error_target(parse_number(*target_error, "--error-target"));
   request.set_force_full_fidelity(options.has("full-fidelity"));
   if (auto exposure = options.last("exposure")) request.set_exposure(parse_number(*exposure, "--exposure"));
+  if (auto yarn = options.last("yarn")) request.mutable_yarn()->set_preset(*yarn);
+  if (auto weave = options.last("weave")) request.mutable_woven()->mutable_weave()->set_preset(*weave);
+  if (auto detail = options.last("fiber-detail")) {
+    if (*detail == "auto") request.set_fiber_detail(v1::FIBER_DETAIL_AUTO);
+    else if (*detail == "full") request.set_fiber_detail(v1::FIBER_DETAIL_FULL);
+    else if (*detail == "cores") request.set_fiber_detail(v1::FIBER_DETAIL_CORES);
+    else throw UsageError("--fiber-detail: expected auto, full or cores, got '" + *detail + "'");
+  }
+  if (auto ambient = options.last("ambient")) request.set_ambient(parse_number(*ambient, "--ambient"));
   request.set_format(output_format(options, out));
   return request;
 }
@@ -164,7 +175,11 @@ int run_render(const ParsedOptions& options) {
 OptionList render_options() {
   OptionList options = material_options();
   options.insert(options.end(), {
-      {"scene", "NAME", "sphere (default), cylinders, swatch or curtain"},
+      {"scene", "NAME", "sphere (default), cylinders, swatch, curtain; fiber scenes: yarn, woven-patch"},
+      {"yarn", "PRESET", "fiber scenes: the yarn, cotton1 (default), cotton2, polyester1, rayon2 or silk1"},
+      {"weave", "PRESET", "woven-patch: lay out warp and weft by this woven preset's pattern (default cotton_twill)"},
+      {"fiber-detail", "auto|full|cores", "fiber scenes: Eq. 4's level of detail (auto: from the pixel footprint)"},
+      {"ambient", "X", "fiber scenes: constant ambient radiance (default: the scene's with default lighting)"},
       {"size", "WxH", "image size in pixels (default 256x256)"},
       {"spp", "N", "samples per pixel (default 16)"},
       {"seed", "N", "random seed (default 0): the same request and seed give the same image"},
@@ -201,7 +216,8 @@ const Command& render_command() {
       "the scene's default lighting is used (README \"Render\"). A progress bar is drawn on stderr (plain\n"
       "lines when it is not a terminal); the chosen fidelity is printed at the end.\n"
       "Example: loomlight render --preset polyester_satin_charmeuse_front --scene cylinders --size 512x256 \\\n"
-      "           --spp 64 --out satin.png",
+      "           --spp 64 --out satin.png\n"
+      "Fibers: loomlight render --preset cotton --scene yarn --yarn cotton1 --size 512x256 --out yarn.png",
       render_options(),
       run_render,
   };

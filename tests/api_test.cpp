@@ -1094,5 +1094,90 @@ TEST_F(ApiTest, PerQueryFiberAxisEqualsTheAxisParameter) {
   for (float v : {NAN, 0.f, 1.f}) nan_axis.add_fiber_axis(v);
   refused(nan_axis);
 }
+
+// Evaluate's ambient quantity (Wu and Yuksel Eqs. 7-10) served through the kernels equals direct quadrature
+// of Evaluate's own f: the integral of f(wi, wo) cos(theta_i) dw_i over the sphere, dw = cos(theta) dtheta
+// dphi in the fiber frame (t = the axis parameter, +x), for the widest-lobed presets (fleece; the simple mode)
+// at several wo; a per-query fiber axis gives the same as the axis parameter; misuse is refused naming the field.
+TEST_F(ApiTest, AmbientQuantityEqualsQuadratureOfF) {
+  auto stub = testing::Connect(server_->port());
+  constexpr int kTheta = 720, kPhi = 180;  // 0.25 and 2 degrees: the narrowest lobe here is 5 degrees wide
+  const std::vector<std::array<float, 3>> wos = {{0, 0, 1}, {0.5f, 0, 0.8660254f}, {-0.8f, 0.36f, 0.48f}};
+  for (const auto& [name, params] : {std::pair<std::string, std::vector<std::pair<std::string, std::vector<double>>>>{
+                                         "fleece", {}},
+                                     {"fleece", {{"mode", {0}}, {"kd", {0.3, 0.2, 0.1}}}}}) {
+    SCOPED_TRACE(name + (params.empty() ? "" : " simple"));
+    EvaluateRequest ambient;
+    ambient.mutable_material()->set_preset(name);
+    for (const auto& [p, v] : params) {
+      v1::Param* param = ambient.mutable_material()->add_params();
+      param->set_name(p);
+      param->mutable_values()->Add(v.begin(), v.end());
+    }
+    ambient.set_quantity(v1::QUANTITY_AMBIENT);
+    for (const auto& wo : wos) ambient.mutable_wo()->Add(wo.begin(), wo.end());
+    EvaluateResponse served;
+    ASSERT_TRUE(Call(*stub, ambient, &served).ok());
+    ASSERT_EQ(served.f_size(), 3 * static_cast<int>(wos.size()));
+    for (size_t o = 0; o < wos.size(); ++o) {
+      EvaluateRequest grid;
+      *grid.mutable_material() = ambient.material();
+      std::vector<double> weight;
+      for (int a = 0; a < kTheta; ++a) {
+        const double theta = -M_PI / 2 + (a + 0.5) * M_PI / kTheta;  // midpoint rule: smooth periodic-free ends
+        for (int b = 0; b < kPhi; ++b) {
+          const double phi = (b + 0.5) * 2 * M_PI / kPhi;
+          // Fiber frame (t, u, v) = (x, z, -y) for axis +x: u is +z made perpendicular to t.
+          const double s = std::sin(theta), c = std::cos(theta);
+          grid.add_wi(float(s));
+          grid.add_wi(float(-c * std::sin(phi)));
+          grid.add_wi(float(c * std::cos(phi)));
+          grid.mutable_wo()->Add(wos[o].begin(), wos[o].end());
+          weight.push_back(c * c * (M_PI / kTheta) * (2 * M_PI / kPhi));  // cos(theta_i) x dw
+        }
+      }
+      EvaluateResponse f;
+      ASSERT_TRUE(Call(*stub, grid, &f).ok());
+      for (int ch = 0; ch < 3; ++ch) {
+        double sum = 0;
+        for (size_t q = 0; q < weight.size(); ++q) sum += weight[q] * f.f(3 * q + ch);
+        EXPECT_NEAR(served.f(3 * o + ch), sum, 5e-3 * sum + 1e-6) << "wo " << o << " channel " << ch;
+        EXPECT_GT(sum, 0.0);
+      }
+    }
+    // The same factors about a per-query axis: +y in the query's frame, with wo turned to match.
+    EvaluateRequest turned = ambient;
+    turned.clear_wo();
+    for (const auto& wo : wos) {
+      for (float v : {-wo[1], wo[0], wo[2]}) turned.add_wo(v);  // rotated 90 degrees about z: +x -> +y
+      for (float v : {0.f, 1.f, 0.f}) turned.add_fiber_axis(v);
+    }
+    EvaluateResponse about_axis;
+    ASSERT_TRUE(Call(*stub, turned, &about_axis).ok());
+    for (int i = 0; i < served.f_size(); ++i) EXPECT_NEAR(about_axis.f(i), served.f(i), 1e-4f * served.f(i) + 1e-6f);
+  }
+
+  const auto refused = [&](EvaluateRequest r, const std::string& field) {
+    EvaluateResponse resp;
+    const grpc::Status s = Call(*stub, r, &resp);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_EQ(s.error_message().rfind(field, 0), 0u) << s.error_message();
+  };
+  EvaluateRequest with_wi = Request("fleece", 2, 1);
+  with_wi.set_quantity(v1::QUANTITY_AMBIENT);
+  refused(with_wi, "wi");
+  EvaluateRequest surface = Request("linen_plain", 2, 1);
+  surface.clear_wi();
+  surface.set_quantity(v1::QUANTITY_AMBIENT);
+  refused(surface, "quantity");
+  EvaluateRequest curtain = surface;
+  curtain.mutable_material()->set_preset("fleece");
+  curtain.mutable_material()->mutable_transmission()->set_preset("cotton_curtain");
+  refused(curtain, "quantity");
+  EvaluateRequest unknown = surface;
+  unknown.mutable_material()->set_preset("fleece");
+  unknown.set_quantity(static_cast<v1::Quantity>(7));
+  refused(unknown, "quantity");
+}
 }  // namespace
 }  // namespace loomlight

@@ -389,6 +389,36 @@ TEST_F(RenderTest, EveryInvalidFieldIsNamed) {
       {"error_target", [](auto& r) { r.set_error_target(2); }},
       {"error_target", [](auto& r) { r.set_error_target(NAN); }},
       {"precision", [](auto& r) { r.set_precision(static_cast<v1::Precision>(5)); }},
+      {"fiber_detail", [](auto& r) { r.set_fiber_detail(static_cast<v1::FiberDetail>(9)); }},
+      {"fiber_detail", [](auto& r) { r.set_fiber_detail(v1::FIBER_DETAIL_CORES); }},  // not a fiber scene
+      {"ambient", [](auto& r) { r.set_ambient(NAN); }},
+      {"yarn", [](auto& r) { r.mutable_yarn()->set_preset("cotton1"); }},  // not a fiber scene
+      {"woven", [](auto& r) { r.mutable_woven()->mutable_weave()->set_preset("cotton_twill"); }},
+      // Fiber scenes: the yarn's own fields, its layout's, and a material that is not a fiber model.
+      {"yarn.preset", [](auto& r) {
+         r.set_scene(v1::SCENE_YARN);
+         r.mutable_yarn()->set_preset("no_such_yarn");
+       }},
+      {"woven.weave.preset", [](auto& r) {
+         r.set_scene(v1::SCENE_WOVEN_PATCH);
+         r.mutable_woven()->mutable_weave()->set_preset("no_such_weave");
+       }},
+      {"woven", [](auto& r) {
+         r.set_scene(v1::SCENE_YARN);
+         r.mutable_woven()->mutable_weave()->set_preset("cotton_twill");
+       }},
+      {"yarn", [](auto& r) {  // more fibers than Render generates
+         r.set_scene(v1::SCENE_YARN);
+         r.mutable_material()->set_preset("cotton");
+         v1::Param* p = r.mutable_yarn()->add_params();
+         p->set_name("fibers_per_ply");
+         p->add_values(20000);
+         p = r.mutable_yarn()->add_params();
+         p->set_name("plies");
+         p->add_values(12);
+         r.set_fiber_detail(v1::FIBER_DETAIL_FULL);
+       }},
+      {"material", [](auto& r) { r.set_scene(v1::SCENE_YARN); }},  // linen_plain is a surface model
   };
   for (const Case& c : cases) {
     RenderRequest request = Request("linen_plain", v1::SCENE_SPHERE, 8, 8, 1);
@@ -451,4 +481,81 @@ TEST_F(RenderTest, ClientWritesTheImageWithProgress) {
 }
 
 }  // namespace
+
+// The fiber scenes (Wu and Yuksel Fig. 7's straight yarn; a woven patch close-up): images decode at the requested
+// size with finite, positive radiance; the same seed gives the same bytes; the fidelity report names the
+// geometry's level of detail, which follows the pixel footprint (Eq. 4) unless the request fixes it.
+TEST_F(RenderTest, FiberScenesRenderDeterministicallyWithTheirDetailReported) {
+  for (v1::ScenePreset scene : {v1::SCENE_YARN, v1::SCENE_WOVEN_PATCH}) {
+    SCOPED_TRACE(scene);
+    RenderRequest request = Request("cotton", scene, 48, 32, 2, v1::RENDER_FORMAT_PNG);
+    const Rendered a = Render(*stub_, request), b = Render(*stub_, request);
+    ASSERT_TRUE(a.status.ok()) << a.status.error_message();
+    ASSERT_TRUE(b.status.ok()) << b.status.error_message();
+    EXPECT_EQ(a.last().image(), b.last().image());
+    const testing::DecodedImage image = testing::DecodeImage(a.last().image(), "fibers.png");
+    EXPECT_EQ(image.width, 48);
+    EXPECT_EQ(image.height, 32);
+    ASSERT_EQ(a.last().mean_size(), 3);
+    for (double m : a.last().mean()) EXPECT_TRUE(std::isfinite(m) && m > 0) << m;
+    ASSERT_EQ(a.last().fidelity_size(), 1);
+    const v1::FidelityChoice* geometry = Choice(a.last().fidelity(0), "geometry");
+    ASSERT_NE(geometry, nullptr);
+    EXPECT_EQ(geometry->full(), "full");
+    EXPECT_NE(geometry->reason().find("fiber curves"), std::string::npos) << geometry->reason();
+  }
+  // Close up (the default camera, 512 pixels high) every fiber is kept; from 20 times as far at 32 pixels,
+  // fibers are far below a pixel and Eq. 4 thins them; CORES and force_full_fidelity are obeyed.
+  RenderRequest request = Request("cotton", v1::SCENE_YARN, 8, 512, 1);
+  auto chosen = [&](const RenderRequest& r) {
+    const Rendered out = Render(*stub_, r);
+    EXPECT_TRUE(out.status.ok()) << out.status.error_message();
+    const v1::FidelityChoice* c = out.status.ok() ? Choice(out.last().fidelity(0), "geometry") : nullptr;
+    return c ? c->chosen() : std::string("none");
+  };
+  EXPECT_EQ(chosen(request), "full");
+  request.set_height(32);
+  Append(request.mutable_camera()->mutable_position(), {7, 0, 0.5});
+  Append(request.mutable_camera()->mutable_look_at(), {0, 0, 0.5});
+  const std::string far = chosen(request);
+  EXPECT_TRUE(far == "lod" || far == "cores") << far;
+  request.set_force_full_fidelity(true);
+  EXPECT_EQ(chosen(request), "full");
+  request.set_force_full_fidelity(false);
+  request.set_fiber_detail(v1::FIBER_DETAIL_CORES);
+  EXPECT_EQ(chosen(request), "cores");
+}
+
+// Ambient light alone (a black light, ambient radiance 1): each pixel averages the fiber's ambient factor
+// (Evaluate's AMBIENT, Eqs. 7-10) times the traced visibility, so no pixel exceeds the largest ambient factor
+// over wo, and the yarn is not black (its outer fibers see much of the sky).
+TEST_F(RenderTest, FiberAmbientTermIsBoundedByTheAmbientFactor) {
+  v1::EvaluateRequest ambient;
+  ambient.mutable_material()->set_preset("cotton");
+  ambient.set_quantity(v1::QUANTITY_AMBIENT);
+  for (int k = 0; k <= 90; ++k) {
+    const double a = k * M_PI / 180;  // wo from along the axis (+x) to across it
+    for (float v : {float(std::cos(a)), 0.f, float(std::sin(a))}) ambient.add_wo(v);
+  }
+  v1::EvaluateResponse factors;
+  grpc::ClientContext ctx;
+  ASSERT_TRUE(stub_->Evaluate(&ctx, ambient, &factors).ok());
+  float most = 0;
+  for (float f : factors.f()) most = std::max(most, f);
+  ASSERT_GT(most, 0.1f);
+
+  RenderRequest request = Request("cotton", v1::SCENE_YARN, 64, 32, 16);
+  v1::RenderLight* dark = request.add_lights();
+  Append(dark->mutable_direction(), {0, 1, 0});
+  Append(dark->mutable_rgb(), {0, 0, 0});
+  request.set_ambient(1);
+  const std::vector<float> image = Linear(*stub_, request);
+  ASSERT_EQ(image.size(), 64u * 32 * 3);
+  double sum = 0;
+  for (float v : image) {
+    EXPECT_LE(v, most * 1.0001f);
+    sum += v;
+  }
+  EXPECT_GT(sum / image.size(), 0.05 * most);
+}
 }  // namespace loomlight

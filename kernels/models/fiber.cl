@@ -6,7 +6,7 @@
 
 LL_DEFINE_EVAL_KERNEL(fiber_eval, fb_eval)
 
-// The ambient factor of Eq. 7 for each query's wo (wi is ignored), from the packed tables: built with the
-// model so it is ready for an API that serves it; the tests check the same source on the host.
+// The ambient factor of Eq. 7 for each query's wo (wi is ignored), from the packed tables (Evaluate's
+// QUANTITY_AMBIENT; the renderer's ambient term).
 #define FB_AMBIENT_EVAL(mat, uniform, ix, iy, iz, ox, oy, oz, out) fb_ambient(mat, ox, oy, oz, out)
 LL_DEFINE_EVAL_KERNEL(fiber_ambient, FB_AMBIENT_EVAL)

@@ -84,6 +84,7 @@ inline void SubmitPlan(batching::Batcher* batcher, const models::EvaluationPlan&
     part_sink.scale = plan.scale(k);
     auto job = NewJob(&plan.model(k), plan.packed(k), fp64, deadline, context, plan.wi(k), plan.wo(k), plan.uv(k),
                       plan.size(k), part_sink);
+    job->quantity = plan.quantity();
     job->priority = priority;
     job->done = [done, k](batching::JobResult r) { done(k, std::move(r)); };
     if (grpc::Status s = SubmitJob(batcher, std::move(job)); !s.ok()) {

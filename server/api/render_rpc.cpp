@@ -13,6 +13,8 @@
 #include "server/render/fidelity.h"
 #include "server/render/shading.h"
 #include "server/render/tone_map.h"
+#include "server/api/yarn_rpc.h"
+#include "server/yarn/fiber_scene.h"
 
 namespace loomlight::api {
 namespace {
@@ -77,7 +79,73 @@ render::SceneKind ToSceneKind(v1::ScenePreset scene) {
     case v1::SCENE_CYLINDERS: return render::SceneKind::kCylinders;
     case v1::SCENE_SWATCH: return render::SceneKind::kSwatch;
     case v1::SCENE_CURTAIN: return render::SceneKind::kCurtain;
+    case v1::SCENE_YARN: return render::SceneKind::kYarn;
+    case v1::SCENE_WOVEN_PATCH: return render::SceneKind::kWovenPatch;
     default: return render::SceneKind::kSphere;
+  }
+}
+
+bool IsFiberScene(v1::ScenePreset scene) { return scene == v1::SCENE_YARN || scene == v1::SCENE_WOVEN_PATCH; }
+
+// The camera a request asks for, or its scene's.
+render::CameraSpec CameraOf(const v1::RenderRequest& r, const render::Scene& scene) {
+  render::CameraSpec camera = scene.default_camera;
+  if (r.has_camera()) {
+    camera.position = ToVec(r.camera().position());
+    camera.look_at = ToVec(r.camera().look_at());
+    camera.up = r.camera().up().empty() ? Vec3{0, 1, 0} : ToVec(r.camera().up());
+    if (r.camera().fov_deg() > 0) camera.fov_deg = r.camera().fov_deg();
+  }
+  return camera;
+}
+
+// A fiber scene's yarn: the request's yarn and layout (the woven patch's default: cotton_twill, 2 x 2 repeats),
+// at the detail it asks for. Validation only (cheap); `detail` is filled in by ChooseFiberDetail.
+std::string FiberJobOf(const models::Registry& registry, const v1::RenderRequest& r, YarnJob* job) {
+  v1::WovenYarnLayout woven = r.woven();
+  if (r.scene() == v1::SCENE_WOVEN_PATCH) {
+    if (!woven.has_weave()) woven.mutable_weave()->set_preset("cotton_twill");
+    if (woven.repeats_u() == 0) woven.set_repeats_u(2);
+    if (woven.repeats_v() == 0) woven.set_repeats_v(2);
+  }
+  job->limits.max_fibers = static_cast<int64_t>(kMaxRenderFibers);
+  job->limits.max_control_points = static_cast<int64_t>(kMaxRenderFiberPoints);
+  return YarnJobOf(registry, r.yarn(), r.scene() == v1::SCENE_WOVEN_PATCH ? &woven : nullptr, 0, job);
+}
+
+// Eq. 4's level of detail for a fiber scene: from the pixel footprint at the camera's look-at point (AUTO), or
+// as the request says. Sets job->detail and the fidelity report's entry.
+void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderSetup::FiberDetail* report) {
+  const render::Scene scene = render::MakeScene(ToSceneKind(r.scene()));
+  const render::CameraSpec camera = CameraOf(r, scene);
+  const render::PinholeCamera pinhole(camera, static_cast<int>(r.height()), static_cast<int>(r.height()));
+  const double footprint = pinhole.pixel_angle() * render::Length(camera.look_at - camera.position);
+  const yarn::YarnParams& p = job->params;
+  const double ply_width = yarn::PlyWidth(p);
+  yarn::DetailOptions& d = job->detail;
+  d.threads = 2;
+  report->full = "full";
+  const v1::FiberDetail asked = r.force_full_fidelity() ? v1::FIBER_DETAIL_FULL : r.fiber_detail();
+  char text[256];
+  if (asked == v1::FIBER_DETAIL_FULL) {
+    d.footprint = 0;
+    report->chosen = "full";
+    report->reason = r.force_full_fidelity() ? "force_full_fidelity" : "fiber_detail FULL";
+  } else if (asked == v1::FIBER_DETAIL_CORES) {
+    d.footprint = ply_width;
+    report->chosen = "cores";
+    report->reason = "fiber_detail CORES: one core fiber per ply";
+  } else {
+    d.footprint = footprint;
+    const yarn::LodChoice lod = yarn::ChooseLod(p.fiber_width, ply_width, footprint, p.fibers_per_ply,
+                                                d.core_radius, d.points_per_twist);
+    report->chosen = lod.lambda >= 1 ? "full" : lod.lambda <= 0 ? "cores" : "lod";
+    std::snprintf(text, sizeof text,
+                  "a pixel covers %.3g at the look-at point, fibers are %.3g wide (%.3g pixels), plies %.3g: "
+                  "Eq. 4 lambda %.3g keeps %d of %d fibers per ply",
+                  footprint, p.fiber_width, p.fiber_width / footprint, ply_width, lod.lambda, lod.fibers,
+                  p.fibers_per_ply);
+    report->reason = text;
   }
 }
 
@@ -116,16 +184,21 @@ class CachedVariants final : public render::MaterialVariants {
 class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
-             std::shared_ptr<const models::PreparedMaterial> material, Admission admission, Clock::time_point received)
+             std::shared_ptr<const models::PreparedMaterial> material, std::unique_ptr<YarnJob> fiber_job,
+             render::RenderSetup::FiberDetail fiber_detail, Admission admission, Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), request_(request),
-        material_(std::move(material)), fp64_(request.precision() == v1::PRECISION_FP64) {
+        material_(std::move(material)), fp64_(request.precision() == v1::PRECISION_FP64),
+        fiber_job_(std::move(fiber_job)), fiber_detail_(std::move(fiber_detail)) {
     const v1::RenderEnvironment& env = request_.environment();
-    if (!env.name().empty() || !env.data().empty()) {
-      // Reading and decoding a map runs on the asset loader, never on the host worker every streaming call
-      // shares; the call cannot finish meanwhile (Pump waits for loading_ to clear).
+    const bool map = !env.name().empty() || !env.data().empty();
+    if (map || fiber_job_) {
+      // Reading and decoding a map runs on the asset loader, generating fibers and their BVH on the geometry
+      // worker, never on the host worker every streaming call shares; the call cannot finish meanwhile (Pump
+      // waits for loading_ to clear).
       loading_ = true;
-      deps_.loader->Post([this] {
-        grpc::Status status = LoadEnvironment();
+      (fiber_job_ ? deps_.geometry : deps_.loader)->Post([this, map] {
+        grpc::Status status = map ? LoadEnvironment() : grpc::Status::OK;
+        if (status.ok() && fiber_job_) status = BuildFibers();
         deps_.worker->Post([this, status] {
           loading_ = false;
           if (status.ok()) SetUp();
@@ -179,18 +252,52 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     return Invalid(field + ": " + error);
   }
 
+  // On the geometry worker: the fiber scene's yarn and its Embree BVH, within the call's deadline, while the
+  // client is there, and within the memory budget (the BVH's bytes, estimated before it is built, are
+  // admitted first and bound the build).
+  grpc::Status BuildFibers() {
+    const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
+    fiber_job_->detail.stop = stop;
+    std::vector<yarn::YarnGeometry> yarns;
+    std::vector<LaidYarn> laid;
+    if (std::string e = GenerateYarnJob(fiber_job_.get(), &yarns, &laid); !e.empty()) {
+      if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return s;
+      return Invalid("yarn: " + e + " (Render's fiber limits; README \"Render: fibers\")");
+    }
+    std::vector<const yarn::YarnGeometry*> pointers;
+    int64_t points = 0;
+    for (const yarn::YarnGeometry& y : yarns) {
+      pointers.push_back(&y);
+      points += y.control_points;
+    }
+    const yarn::FiberSceneEstimate estimate = yarn::EstimateFiberScene(pointers);
+    if (!admission_.bytes.Grow(static_cast<size_t>(estimate.total_bytes)))
+      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+              "bvh_memory: the fibers' BVH needs up to " + std::to_string(estimate.total_bytes) +
+                  " bytes, more than the server has free now"};
+    yarn::FiberSceneOptions options;
+    options.max_bytes = std::max<int64_t>(estimate.total_bytes, 1);
+    options.threads = 2;
+    options.cancel = stop;
+    auto scene = std::make_shared<yarn::FiberScene>();
+    std::string e = yarn::FiberScene::Build(pointers, options, scene.get());
+    if (!e.empty()) {
+      if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return s;
+      if (e.rfind("bvh_memory", 0) == 0) return {grpc::StatusCode::RESOURCE_EXHAUSTED, e};
+      return {grpc::StatusCode::INTERNAL, "building the fibers' BVH: " + e};
+    }
+    fibers_ = std::move(scene);
+    fiber_count_ = static_cast<uint64_t>(fibers_->stats().curves);
+    return grpc::Status::OK;
+  }
+
   // Scene, camera, lights, environment and the fidelity choice; on failure status_ says why.
   void SetUp() {
     const v1::RenderRequest& r = request_;
     render::RenderSetup& s = setup_;
     s.scene = render::MakeScene(ToSceneKind(r.scene()));
-    render::CameraSpec camera = s.scene.default_camera;
-    if (r.has_camera()) {
-      camera.position = ToVec(r.camera().position());
-      camera.look_at = ToVec(r.camera().look_at());
-      camera.up = r.camera().up().empty() ? Vec3{0, 1, 0} : ToVec(r.camera().up());
-      if (r.camera().fov_deg() > 0) camera.fov_deg = r.camera().fov_deg();
-    }
+    s.scene.fibers = fibers_;
+    const render::CameraSpec camera = CameraOf(r, s.scene);
     s.width = static_cast<int>(r.width());
     s.height = static_cast<int>(r.height());
     s.samples_per_pixel = SamplesPerPixel(r);
@@ -211,7 +318,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
     const bool default_lighting = r.lights().empty() && !r.has_environment();
     if (default_lighting) s.lights = s.scene.default_lights;
-    if (default_lighting || r.has_environment()) {
+    s.ambient = r.ambient() > 0 ? r.ambient() : default_lighting ? s.scene.default_ambient : 0.0;
+    if ((default_lighting && s.scene.default_environment) || r.has_environment()) {
       // A copy with its own transform; the decoded map itself is shared (a cached map is not copied).
       auto environment = std::make_shared<render::Environment>(environment_ ? *environment_
                                                                             : render::Environment::Builtin());
@@ -222,6 +330,15 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
 
     if (!material_ && !(status_ = PrepareMaterial(deps_, r.material(), &material_)).ok()) return;
+    if (fiber_job_) {
+      if (material_->model->fiber_axis_param().empty() || material_->transmission) {
+        status_ = Invalid("material: the fiber scenes shade each fiber with a fiber model (e.g. preset cotton), not '" +
+                          material_->model->name() + "'" + (material_->transmission ? " with a layer" : ""));
+        return;
+      }
+      s.fiber_detail = fiber_detail_;
+      s.fiber_detail.reason += "; " + std::to_string(fiber_count_) + " fiber curves";
+    }
     render::MaterialInfo info;
     info.model = material_->model;
     info.values = material_->values;
@@ -301,8 +418,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       if (b.size() == 0) continue;
       const render::Evaluator& evaluator = plan_.evaluators[e];
       chunk.f[e].resize(3 * b.size());
-      chunk.plans[e] = std::make_unique<models::EvaluationPlan>(*evaluator.material, b.wi.data(), b.wo.data(),
-                                                                evaluator.with_uv ? b.uv.data() : nullptr, b.size());
+      chunk.plans[e] = render::PlanOf(evaluator, b);
       chunk.jobs_in_flight += chunk.plans[e]->parts();
     }
     if (chunk.jobs_in_flight == 0) {  // nothing to evaluate (e.g. only background): the chunk is done at once
@@ -453,6 +569,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   const v1::RenderRequest request_;
   std::shared_ptr<const models::PreparedMaterial> material_;  // set by SetUp
   const bool fp64_;
+  std::unique_ptr<YarnJob> fiber_job_;  // fiber scenes: the yarn to generate (null otherwise)
+  render::RenderSetup::FiberDetail fiber_detail_;
+  std::shared_ptr<const yarn::FiberScene> fibers_;
+  uint64_t fiber_count_ = 0;
   bool loading_ = false;  // the asset loader is reading the environment map
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
 
@@ -477,8 +597,12 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
 size_t RenderBytes(const v1::RenderRequest& r) {
   const size_t pixels = size_t{r.width()} * r.height();
   // Per pixel: the sums (24), the linear image (12) and its encoding (at most 16); two chunk buffers of
-  // queries (wi, wo, uv, weight and tag: 48; the kernel's result and its copy: 48); the request's map bytes.
-  return pixels * 52 + 2 * kRenderChunkQueries * 96 + r.environment().data().size();
+  // queries (wi, wo, uv, axis, weight and tag: 60; the kernel's result and its copy: 48); the request's map
+  // bytes. A fiber scene's yarn and BVH are admitted when generated (RenderCall::BuildFibers).
+  size_t fibers = 0;
+  if (IsFiberScene(r.scene()))  // the generated curves, held while the BVH is built
+    fibers = kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber;
+  return pixels * 52 + 2 * kRenderChunkQueries * 108 + r.environment().data().size() + fibers;
 }
 
 std::string ValidateRenderRequest(const v1::RenderRequest& r) {
@@ -527,6 +651,15 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
     return "error_target: " + std::to_string(r.error_target()) + " is outside 0..1 (relative; 0 = the default " +
            std::to_string(render::kDefaultErrorTarget) + ")";
   if (!v1::Precision_IsValid(r.precision())) return "precision: unknown value " + std::to_string(r.precision());
+  if (!v1::FiberDetail_IsValid(r.fiber_detail()))
+    return "fiber_detail: unknown value " + std::to_string(r.fiber_detail());
+  if (!std::isfinite(r.ambient()) || r.ambient() < 0 || r.ambient() > kMaxLightValue)
+    return "ambient: " + std::to_string(r.ambient()) + " must be finite in 0.." + std::to_string(kMaxLightValue);
+  if (!IsFiberScene(r.scene())) {
+    if (r.has_yarn()) return "yarn: only for the fiber scenes (SCENE_YARN, SCENE_WOVEN_PATCH)";
+    if (r.fiber_detail() != v1::FIBER_DETAIL_AUTO) return "fiber_detail: only for the fiber scenes";
+  }
+  if (r.has_woven() && r.scene() != v1::SCENE_WOVEN_PATCH) return "woven: only for SCENE_WOVEN_PATCH";
   return "";
 }
 
@@ -544,10 +677,19 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   if (std::string error = ValidateRenderRequest(*request); !error.empty()) return reject(Invalid(error));
   if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
     return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+  std::unique_ptr<YarnJob> fiber_job;
+  render::RenderSetup::FiberDetail detail;
+  if (IsFiberScene(request->scene())) {
+    fiber_job = std::make_unique<YarnJob>();
+    if (std::string error = FiberJobOf(*deps.registry, *request, fiber_job.get()); !error.empty())
+      return reject(Invalid(error));
+    ChooseFiberDetail(*request, fiber_job.get(), &detail);
+  }
   Admission admission;
   if (grpc::Status s = Admit(deps.memory, deps.long_calls, RenderBytes(*request), &admission); !s.ok())
     return reject(s);
-  return new RenderCall(deps, context, *request, std::move(material), std::move(admission), received);
+  return new RenderCall(deps, context, *request, std::move(material), std::move(fiber_job), std::move(detail),
+                        std::move(admission), received);
 }
 
 }  // namespace loomlight::api

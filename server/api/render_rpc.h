@@ -30,6 +30,10 @@ constexpr double kMinFovDeg = 1, kMaxFovDeg = 150;
 // Queries per chunk (whole pixels): a quarter of one Evaluate call, so that a render takes turns with
 // other clients' launches often and its host work (ray casting, accumulation) overlaps the kernels.
 constexpr size_t kRenderChunkQueries = kMaxQueriesPerCall / 4;
+// Fiber scenes: the most fiber curves and control points one render generates (about 16 times a 2 x 2 repeat
+// twill patch of cotton1 at full detail); their BVH is bounded by the memory budget as it is built.
+constexpr uint64_t kMaxRenderFibers = 100'000;
+constexpr uint64_t kMaxRenderFiberPoints = 2'000'000;
 
 using RenderDeps = ServiceDeps;
 

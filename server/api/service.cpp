@@ -68,9 +68,17 @@ struct EvaluateCall {
     } else {
       call->approximation = models::DescribeOwnSettings(*call->material);
     }
-    const size_t n = request.wi_size() / 3;
+    const bool ambient = request.quantity() == v1::QUANTITY_AMBIENT;
+    const size_t n = request.wo_size() / 3;
     for (const auto& [field, w] : {std::pair{"wi", &request.wi()}, std::pair{"wo", &request.wo()}})
       if (std::string error = ValidateDirections(*w, field); !error.empty()) return call->Finish(Invalid(error));
+    if (ambient) {
+      const models::Model& model = *call->material->model;
+      if (!model.has_ambient())
+        return call->Finish(Invalid("quantity: model '" + model.name() + "' has no ambient factor (ModelInfo.ambient)"));
+      if (call->material->transmission)
+        return call->Finish(Invalid("quantity: the ambient factor is not served with material.transmission"));
+    }
     if (request.uv_size() > 0) {
       if (!call->material->model->spatially_varying())
         return call->Finish(
@@ -84,16 +92,17 @@ struct EvaluateCall {
         return call->Finish(Invalid("fiber_axis: model '" + model.name() + "' is not a fiber model; send no fiber_axis"));
       if (call->material->transmission)
         return call->Finish(Invalid("fiber_axis: not with material.transmission (a fiber is not a curtain)"));
-      if (request.fiber_axis_size() != request.wi_size())
+      if (request.fiber_axis_size() != request.wo_size())
         return call->Finish(Invalid("fiber_axis: length " + std::to_string(request.fiber_axis_size()) +
-                                    " differs from wi length " + std::to_string(request.wi_size())));
+                                    " differs from wo length " + std::to_string(request.wo_size())));
       if (std::string error = ValidateDirections(request.fiber_axis(), "fiber_axis"); !error.empty())
         return call->Finish(Invalid(error));
     }
     call->response->mutable_f()->Resize(static_cast<int>(3 * n), 0.0f);
     call->plan = std::make_unique<models::EvaluationPlan>(
         *call->material, request.wi().data(), request.wo().data(), request.uv_size() > 0 ? request.uv().data() : nullptr,
-        n, request.fiber_axis_size() > 0 ? request.fiber_axis().data() : nullptr);
+        n, request.fiber_axis_size() > 0 ? request.fiber_axis().data() : nullptr,
+        ambient ? models::Quantity::kAmbient : models::Quantity::kScattering);
     call->remaining = call->plan->parts();
     float* f = call->response->mutable_f()->mutable_data();
     SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
@@ -208,6 +217,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
     info->set_reciprocal(model->reciprocal());
     info->set_energy_conserving(model->energy_conserving());
     info->set_fiber_axis_param(model->fiber_axis_param());
+    info->set_ambient(model->has_ambient());
     if (const models::AccuracyKnob knob = model->accuracy_knob(); !knob.param.empty()) {
       info->mutable_accuracy_knob()->set_param(knob.param);
       info->mutable_accuracy_knob()->mutable_settings()->Add(knob.settings.begin(), knob.settings.end());
@@ -250,10 +260,17 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
   if (fp64 && !deps_.has_fp64)
     return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
-  if (request->wi_size() != request->wo_size())
+  if (!v1::Quantity_IsValid(request->quantity()))
+    return reject(Invalid("quantity: unknown value " + std::to_string(request->quantity())));
+  const bool ambient = request->quantity() == v1::QUANTITY_AMBIENT;
+  if (ambient && request->wi_size() > 0)
+    return reject(Invalid("wi: the ambient factor depends on wo only; send no wi with quantity AMBIENT"));
+  if (ambient && request->uv_size() > 0)
+    return reject(Invalid("uv: the ambient factor takes no texture coordinates; send no uv with quantity AMBIENT"));
+  if (!ambient && request->wi_size() != request->wo_size())
     return reject(Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
                           std::to_string(request->wi_size())));
-  const size_t n = request->wi_size() / 3;
+  const size_t n = request->wo_size() / 3;
   if (n > kMaxQueriesPerCall)
     return reject(Invalid("wi: " + std::to_string(n) + " queries exceed the limit of " +
                           std::to_string(kMaxQueriesPerCall) + " per call"));

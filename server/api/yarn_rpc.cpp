@@ -32,18 +32,6 @@ v1::FiberType ToProto(yarn::FiberType type) {
   return v1::FIBER_MIGRATION;
 }
 
-// What a validated request asks for: everything GenerateYarn or GenerateLayout needs.
-struct YarnJob {
-  yarn::YarnParams params;
-  yarn::DetailOptions detail;
-  yarn::YarnLimits limits;
-  double straight_length = 1;
-  bool woven = false;  // else one straight yarn
-  models::weave::WeavePattern pattern;
-  yarn::LayoutParams layout;
-  size_t layout_bytes = 0;  // the centre polylines' estimated size
-};
-
 std::string DetailOf(const v1::YarnDetail& d, yarn::DetailOptions* out) {
   if (d.has_core()) out->core = d.core();
   if (d.has_core_radius()) out->core_radius = d.core_radius();
@@ -94,16 +82,9 @@ std::string WovenOf(const models::Registry& registry, const v1::WovenYarnLayout&
 }
 
 std::string Validate(const models::Registry& registry, const v1::YarnGeometryRequest& r, YarnJob* job) {
-  if (std::string e = YarnParamsOf(r.yarn(), &job->params); !e.empty()) return e;
   if (std::string e = DetailOf(r.detail(), &job->detail); !e.empty()) return e;
   if (std::string e = LimitsOf(r, &job->limits); !e.empty()) return e;
-  if (r.has_woven()) return WovenOf(registry, r.woven(), job);
-  const double length = r.straight().length() == 0 ? 1.0 : r.straight().length();
-  if (!(length >= yarn::kMinLength && length <= yarn::kMaxLength))
-    return "straight.length: must be a finite number in [" + std::to_string(yarn::kMinLength) + ", " +
-           std::to_string(yarn::kMaxLength) + "]";
-  job->straight_length = length;
-  return "";
+  return YarnJobOf(registry, r.yarn(), r.has_woven() ? &r.woven() : nullptr, r.straight().length(), job);
 }
 
 // One YarnGeometry call in flight: generation on the geometry worker, then chunks written from the host worker.
@@ -121,25 +102,13 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
     const auto started = Clock::now();
     job_.detail.stop = [this] { return !StopStatus(context_, deadline_).ok(); };
     auto geometry = std::make_shared<Geometry>();
-    std::string error;
-    if (job_.woven) {
-      yarn::WovenLayout layout;
-      error = yarn::BuildLayout(job_.pattern, job_.layout, &layout);
-      yarn::LayoutGeometry fibers;
-      if (error.empty()) error = yarn::GenerateLayout(job_.params, layout, job_.detail, job_.limits, &fibers);
-      if (error.empty()) {
-        geometry->yarns = std::move(fibers.yarns);
-        for (const yarn::LayoutYarn& y : layout.yarns) {
-          v1::LaidYarn& laid = geometry->laid.emplace_back();
-          laid.set_warp(y.warp);
-          laid.set_thread(static_cast<uint32_t>(y.thread));
-          laid.set_length(y.curve.Length());
-        }
-      }
-    } else {
-      job_.params.length = job_.straight_length;
-      error = yarn::GenerateStraightYarn(job_.params, job_.detail, job_.limits, &geometry->yarns.emplace_back());
-      geometry->laid.emplace_back().set_length(job_.straight_length);
+    std::vector<LaidYarn> laid;
+    std::string error = GenerateYarnJob(&job_, &geometry->yarns, &laid);
+    for (const LaidYarn& y : laid) {
+      v1::LaidYarn& out = geometry->laid.emplace_back();
+      out.set_warp(y.warp);
+      out.set_thread(static_cast<uint32_t>(y.thread));
+      out.set_length(y.length);
     }
     const double seconds = SecondsSince(started);
     deps_.worker->Post([this, geometry = std::move(geometry), error = std::move(error), seconds] {
@@ -312,6 +281,43 @@ void DescribeYarnModel(v1::YarnModelInfo* out) {
   }
   out->set_max_fibers(kMaxYarnFibers);
   out->set_max_control_points(kMaxYarnControlPoints);
+}
+
+std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const v1::WovenYarnLayout* woven,
+                      double straight_length, YarnJob* job) {
+  if (std::string e = YarnParamsOf(yarn, &job->params); !e.empty()) return e;
+  if (woven) return WovenOf(registry, *woven, job);
+  const double length = straight_length == 0 ? 1.0 : straight_length;
+  if (!(length >= yarn::kMinLength && length <= yarn::kMaxLength))
+    return "straight.length: must be a finite number in [" + std::to_string(yarn::kMinLength) + ", " +
+           std::to_string(yarn::kMaxLength) + "]";
+  job->straight_length = length;
+  return "";
+}
+
+std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns, std::vector<LaidYarn>* laid) {
+  yarns->clear();
+  laid->clear();
+  std::string error;
+  if (job->woven) {
+    yarn::WovenLayout layout;
+    error = yarn::BuildLayout(job->pattern, job->layout, &layout);
+    yarn::LayoutGeometry fibers;
+    if (error.empty()) error = yarn::GenerateLayout(job->params, layout, job->detail, job->limits, &fibers);
+    if (error.empty()) {
+      *yarns = std::move(fibers.yarns);
+      for (const yarn::LayoutYarn& y : layout.yarns) laid->push_back({y.warp, y.thread, y.curve.Length()});
+    }
+  } else {
+    job->params.length = job->straight_length;
+    error = yarn::GenerateStraightYarn(job->params, job->detail, job->limits, &yarns->emplace_back());
+    laid->push_back({false, 0, job->straight_length});
+  }
+  if (!error.empty()) {
+    yarns->clear();
+    laid->clear();
+  }
+  return error;
 }
 
 grpc::ServerWriteReactor<v1::YarnGeometryChunk>* HandleYarnGeometry(const ServiceDeps& deps,

@@ -10,6 +10,8 @@
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/service.h"
+#include "server/models/registry.h"
+#include "server/yarn/layout.h"
 #include "server/yarn/yarn.h"
 
 namespace loomlight::api {
@@ -29,6 +31,35 @@ constexpr size_t kYarnChunkBytes = size_t{1} << 20;
 // Yarn parameters of a request: the preset (default cotton1) with its overrides and seed. Returns "" or
 // "yarn.field: reason".
 std::string YarnParamsOf(const v1::Yarn& yarn, yarn::YarnParams* out);
+
+// What a validated yarn request asks for (YarnGeometry, Render's yarn scenes): everything GenerateYarn or
+// GenerateLayout needs.
+struct YarnJob {
+  yarn::YarnParams params;
+  yarn::DetailOptions detail;
+  yarn::YarnLimits limits;
+  double straight_length = 1;
+  bool woven = false;  // else one straight yarn
+  models::weave::WeavePattern pattern;
+  yarn::LayoutParams layout;
+  size_t layout_bytes = 0;  // the centre polylines' estimated size
+};
+
+// The yarn of a request and its layout: a woven patch (`woven` not null; fields under "woven.") or one
+// straight yarn of `straight_length` (0 = 1; "straight.length"). Detail and limits are the caller's. Returns ""
+// or "field: reason".
+std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const v1::WovenYarnLayout* woven,
+                      double straight_length, YarnJob* job);
+
+// One generated yarn of a job: a layout's warp or weft, or the straight yarn.
+struct LaidYarn {
+  bool warp = false;
+  int thread = 0;
+  double length = 0;
+};
+// Generates a job's fibers (GenerateLayout or GenerateStraightYarn): one YarnGeometry per yarn. Returns "" or
+// their error ("cancelled", "max_fibers: ...", ...), leaving both outputs empty.
+std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns, std::vector<LaidYarn>* laid);
 
 // The schema and presets ListModels reports under `yarn`.
 void DescribeYarnModel(v1::YarnModelInfo* out);

@@ -7,7 +7,7 @@ namespace {
 
 bool SameKernel(const Job& a, const Job& b) {
   return a.model == b.model && a.fp64 == b.fp64 && a.material->uniform == b.material->uniform &&
-         (a.uv != nullptr) == (b.uv != nullptr);
+         (a.uv != nullptr) == (b.uv != nullptr) && a.quantity == b.quantity;
 }
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
@@ -168,7 +168,7 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
 
   const runtime::LaunchArgs args{.model = model, .fp64 = live.front()->fp64, .uniform = live.front()->material->uniform,
                                  .materials = &materials, .material_index = &index, .wi = wi, .wo = wo, .uv = uv,
-                                 .n = n};
+                                 .n = n, .quantity = live.front()->quantity};
   std::string error;
   const Clock::time_point start = Clock::now();
   double kernel_seconds = 0;

@@ -55,6 +55,7 @@ struct Job {
   const float* wo = nullptr;
   const float* uv = nullptr;  // texture coordinates (spatially varying models): the BTF kernel
   size_t n = 0;
+  models::Quantity quantity = models::Quantity::kScattering;  // kAmbient: the model's ambient entry
   Clock::time_point deadline = Clock::time_point::max();
   std::function<bool()> cancelled;        // polled before launch; may be empty
   std::function<void(JobResult)> done;    // called exactly once, on the batcher's thread

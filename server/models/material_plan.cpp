@@ -24,9 +24,12 @@ double CurtainReflectionScale(double transmittance_wi, double transmittance_wo) 
 }
 
 EvaluationPlan::EvaluationPlan(const PreparedMaterial& material, const float* wi, const float* wo, const float* uv,
-                               size_t n, const float* axis)
-    : wi_(wi), wo_(wo), uv_(uv), n_(n) {
-  if (material.model->transmission()) {
+                               size_t n, const float* axis, Quantity quantity)
+    : wi_(quantity == Quantity::kAmbient ? wo : wi), wo_(wo), uv_(quantity == Quantity::kAmbient ? nullptr : uv), n_(n),
+      quantity_(quantity) {
+  wi = wi_;
+  uv = uv_;
+  if (material.model->transmission() && quantity == Quantity::kScattering) {
     transmittance_.resize(n);
     material.model->DirectTransmittance(material.packed, wo, n, transmittance_.data());
   }

@@ -53,8 +53,12 @@ class EvaluationPlan {
  public:
   // `axis` (xyz per query, unit; nullptr: none) is each query's fiber axis, for a fiber model without a layer
   // (the caller checks): the model re-expresses each pair about the material's own axis (Model::AlignToAxis).
+  // `quantity` kAmbient (models with has_ambient(), without a layer; the caller checks) evaluates the ambient
+  // factor toward each wo (wi is not read and may be wo).
   EvaluationPlan(const PreparedMaterial& material, const float* wi, const float* wo, const float* uv, size_t n,
-                 const float* axis = nullptr);
+                 const float* axis = nullptr, Quantity quantity = Quantity::kScattering);
+
+  Quantity quantity() const { return quantity_; }
 
   size_t parts() const { return parts_.size(); }
   const Model& model(size_t k) const { return *parts_[k].material->model; }
@@ -82,6 +86,7 @@ class EvaluationPlan {
   };
   const float *wi_, *wo_, *uv_;
   size_t n_;
+  Quantity quantity_;
   std::vector<Part> parts_;
   std::vector<double> transmittance_;
   std::vector<double> scale_;  // curtains: the reflection scale per query

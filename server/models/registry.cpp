@@ -63,6 +63,14 @@ void Model::NativeEval(const PackedMaterial& m, const float* wi, const float* wo
   host::RunNative(kernel, m.data32.data(), m.uniform, wi, wo, uv, n, f);
 }
 
+void Model::ReferenceAmbient(const PackedMaterial& m, const float* wo, size_t n, double* a) const {
+  host::RunReference(HostKernelOf(*this, spec().ambient_function), m.data.data(), m.uniform, wo, wo, nullptr, n, a);
+}
+
+void Model::NativeAmbient(const PackedMaterial& m, const float* wo, size_t n, float* a) const {
+  host::RunNative(HostKernelOf(*this, spec().ambient_function), m.data32.data(), m.uniform, wo, wo, nullptr, n, a);
+}
+
 void Model::DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const {
   const std::string& name = spec().transmittance_function;
   if (name.empty()) {

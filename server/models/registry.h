@@ -54,13 +54,19 @@ struct PackedMaterial {
 // kernels/common/eval_kernel.h. `function` evaluates f(wi, wo); a spatially varying model also names
 // `uv_function`, f(wi, wo, uv) (its BTF), used when a request carries texture coordinates; a model that lets
 // light through names `transmittance_function`, the direct (unscattered) transmittance toward each wo in
-// every channel (wi ignored).
+// every channel (wi ignored); a fiber model may name `ambient_function`, the ambient factor of Wu and Yuksel's
+// Eq. 7 toward each wo (the integral of f(wi, wo) cos(theta_i) over the sphere of wi; wi ignored).
 struct KernelSpec {
   std::string source;
   std::string function;
   std::string uv_function = "";             // "" when the model does not vary over the surface
   std::string transmittance_function = "";  // "" when the model lets no light through
+  std::string ambient_function = "";        // "" when the model serves no ambient factor
 };
+
+// What a launch computes per query: f(wi, wo) (or the BTF with texture coordinates), or the ambient factor
+// toward wo (KernelSpec::ambient_function).
+enum class Quantity : uint8_t { kScattering, kAmbient };
 
 // A model's accuracy knob, declared as data: a parameter whose settings trade speed for accuracy, cheapest
 // first and exact last, and how the error of a cheaper setting is estimated. Evaluate's error_target picks
@@ -96,6 +102,12 @@ class Model {
   // Float native baseline (same source, -O3 -march=native, all cores).
   void NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                   float* f) const;
+
+  // The ambient factor (KernelSpec::ambient_function) toward each of n directions wo, RGB: the double
+  // reference and the float native build. Only for models with has_ambient().
+  void ReferenceAmbient(const PackedMaterial& m, const float* wo, size_t n, double* a) const;
+  void NativeAmbient(const PackedMaterial& m, const float* wo, size_t n, float* a) const;
+  bool has_ambient() const { return !spec().ambient_function.empty(); }
 
   bool spatially_varying() const { return !spec().uv_function.empty(); }
   // Models that let light through the cloth (non-zero f with wi and wo on opposite sides) also report the

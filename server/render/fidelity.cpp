@@ -44,7 +44,8 @@ struct Config {
 int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e) {
   for (size_t i = 0; i < evaluators->size(); ++i) {
     const Evaluator& x = (*evaluators)[i];
-    if (x.material == e.material && x.with_uv == e.with_uv && x.transmission == e.transmission)
+    if (x.material == e.material && x.with_uv == e.with_uv && x.transmission == e.transmission &&
+        x.fiber_axis == e.fiber_axis && x.quantity == e.quantity)
       return static_cast<int>(i);
   }
   evaluators->push_back(e);
@@ -142,6 +143,22 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
   plan->fidelity.clear();
   for (size_t o = 0; o < setup.scene.objects.size(); ++o) {
     ObjectFidelity out{setup.scene.objects[o].name, m.model->name(), {}, 0, 0};
+    if (setup.scene.objects[o].fibers) {
+      // Fibers span pixels here: each fiber is shaded by the fiber model about its own axis, plus the ambient
+      // term; the geometry's level of detail was chosen from the pixel footprint when it was generated.
+      const models::PreparedMaterial* material = variants.Requested();
+      if (!material) return failed;
+      ObjectShading shading;
+      shading.evaluator = EvaluatorIndex(&plan->evaluators, {material, false, false, true});
+      if (setup.ambient > 0 && m.model->has_ambient())
+        shading.ambient_evaluator =
+            EvaluatorIndex(&plan->evaluators, {material, false, false, true, models::Quantity::kAmbient});
+      const RenderSetup::FiberDetail& d = setup.fiber_detail;
+      out.choices.push_back({"geometry", d.chosen, d.full, 0, d.reason});
+      plan->objects.push_back(shading);
+      plan->fidelity.push_back(std::move(out));
+      continue;
+    }
     const std::vector<ShadingPoint>& points = pilot.points(static_cast<int>(o));
     Config chosen = full;
     FidelityChoice path{"path", varying ? "BTF" : "BRDF", varying ? "BTF" : "BRDF", 0,

@@ -5,6 +5,8 @@
 #include <numbers>
 #include <utility>
 
+#include "server/yarn/fiber_scene.h"
+
 namespace loomlight::render {
 namespace {
 
@@ -120,9 +122,38 @@ Vec3 PinholeCamera::Direction(double px, double py) const {
   return Normalize(forward_ + x * right_ + y * up_);
 }
 
+namespace {
+yarn::FiberRay ToFiberRay(Vec3 o, Vec3 d, double lo, double hi) {
+  return {{float(o.x), float(o.y), float(o.z)}, {float(d.x), float(d.y), float(d.z)}, float(lo), float(hi)};
+}
+Vec3 ToVec(yarn::Float3 v) { return {v.x, v.y, v.z}; }
+}  // namespace
+
 bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const {
   bool found = false;
+  if (fibers) {
+    const yarn::FiberRay ray = ToFiberRay(origin, direction, min_distance, max_distance);
+    yarn::FiberHit h;
+    if (fibers->Intersect({&ray, 1}, {&h, 1}).empty() && h.hit && h.t < max_distance) {
+      found = true;
+      max_distance = h.t;
+      hit->distance = h.t;
+      hit->object = fiber_object;
+      hit->position = origin + double(h.t) * direction;
+      hit->normal = ToVec(h.normal);
+      hit->fiber = true;
+      hit->fiber_axis = ToVec(h.tangent);
+      hit->fiber_radius = 0.5 * h.width;
+      // The axis made perpendicular to the normal (they are perpendicular on a straight fiber's side).
+      Vec3 along = hit->fiber_axis - Dot(hit->fiber_axis, hit->normal) * hit->normal;
+      if (Length(along) < 1e-9) along = Cross(hit->normal, Length(Cross(hit->normal, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});
+      hit->tangent_s = Normalize(along);
+      hit->tangent_t = Cross(hit->normal, hit->tangent_s);
+      hit->s = hit->t = 0;
+    }
+  }
   for (size_t i = 0; i < objects.size(); ++i) {
+    if (objects[i].fibers) continue;
     Hit candidate;
     if (IntersectShape(objects[i].shape, origin, direction, min_distance, max_distance, &candidate)) {
       max_distance = candidate.distance;
@@ -134,11 +165,15 @@ bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double m
   return found;
 }
 
-bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance) const {
+bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance, double min_distance) const {
   Hit ignored;
   for (const SceneObject& object : objects)
-    if (IntersectShape(object.shape, origin, direction, 0.0, max_distance, &ignored)) return true;
-  return false;
+    if (!object.fibers && IntersectShape(object.shape, origin, direction, min_distance, max_distance, &ignored))
+      return true;
+  if (!fibers) return false;
+  const yarn::FiberRay ray = ToFiberRay(origin, direction, min_distance, max_distance);
+  uint8_t occluded = 0;
+  return fibers->Occluded({&ray, 1}, {&occluded, 1}).empty() && occluded;
 }
 
 Scene MakeScene(SceneKind kind) {
@@ -173,6 +208,26 @@ Scene MakeScene(SceneKind kind) {
       scene.default_texture_scale = 8;
       scene.default_lights.push_back({Light::Type::kDirectional, Normalize({0.3, 0.35, -1}), {}, {4, 3.8, 3.4}});
       scene.default_environment_intensity = 0.4;
+      break;
+    case SceneKind::kYarn:
+      // Wu and Yuksel Fig. 7: a straight yarn along +z (the caller's fibers, length 1), seen from the side at
+      // about three yarn widths across, lit from the upper left front, with a dim ambient term.
+      scene.objects.push_back({"yarn (fibers)", Shape{}, 0, true});
+      scene.fiber_object = 0;
+      scene.default_camera = {{0.35, 0.02, 0.5}, {0, 0, 0.5}, {0, 1, 0}, 32};
+      scene.default_lights.push_back({Light::Type::kDirectional, Normalize({0.8, 0.7, 0.4}), {}, {3, 3, 3}});
+      scene.default_environment = false;
+      scene.default_ambient = 0.25;
+      break;
+    case SceneKind::kWovenPatch:
+      // A close-up of a woven patch (the caller's layout, in the xy plane, normal +z, about 1 x 1): looking
+      // down at 35 degrees from the normal at a part a few yarns wide.
+      scene.objects.push_back({"woven patch (fibers)", Shape{}, 0, true});
+      scene.fiber_object = 0;
+      scene.default_camera = {{0.5, 0.1, 0.65}, {0.5, 0.5, 0}, {0, 1, 0}, 30};
+      scene.default_lights.push_back({Light::Type::kDirectional, Normalize({-0.5, 0.4, 0.8}), {}, {3, 3, 3}});
+      scene.default_environment = false;
+      scene.default_ambient = 0.25;
       break;
   }
   return scene;

@@ -3,14 +3,21 @@
 // space is right-handed, +y up, lengths in scene units (README "Render").
 #pragma once
 
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "server/render/vec.h"
 
+namespace loomlight::yarn {
+class FiberScene;
+}
+
 namespace loomlight::render {
 
-enum class SceneKind { kSphere, kCylinders, kSwatch, kCurtain };
+// kYarn and kWovenPatch are fiber scenes: their one object is fiber curves (Scene::fibers, which the caller
+// generates and builds: server/api/render_rpc.cpp), shaded one fiber at a time.
+enum class SceneKind { kSphere, kCylinders, kSwatch, kCurtain, kYarn, kWovenPatch };
 
 struct CameraSpec {
   Vec3 position, look_at;
@@ -56,15 +63,20 @@ struct SceneObject {
   std::string name;
   Shape shape;
   double thread_angle_deg = 0;  // the object's thread 1 direction, from the surface's s axis toward t
+  bool fibers = false;          // the object is Scene::fibers (its shape is unused)
 };
 
 // A ray-surface intersection. (tangent_s, tangent_t, normal) is right-handed and orthonormal; s and t are
-// surface coordinates in scene units along the tangents (arc lengths on curved shapes).
+// surface coordinates in scene units along the tangents (arc lengths on curved shapes). On a fiber, normal
+// faces the ray, tangent_s is the fiber's axis made perpendicular to it, and fiber_axis the axis itself.
 struct Hit {
   double distance = 0;
   int object = -1;
   Vec3 position, normal, tangent_s, tangent_t;
   double s = 0, t = 0;
+  bool fiber = false;
+  Vec3 fiber_axis;
+  double fiber_radius = 0;
 };
 
 struct Scene {
@@ -73,10 +85,16 @@ struct Scene {
   double default_texture_scale = 8;      // pattern repeats per unit
   std::vector<Light> default_lights;     // used, with the built-in sky, when a request gives no lighting
   double default_environment_intensity = 1;
+  bool default_environment = true;       // default lighting includes the built-in sky
+  // Fiber scenes: the fiber curves, hit as object fiber_object; constant ambient radiance (Wu and Yuksel
+  // Eq. 7's L_amb) for the default lighting.
+  std::shared_ptr<const yarn::FiberScene> fibers;
+  int fiber_object = -1;
+  double default_ambient = 0;
 
   // The nearest hit with distance in (min_distance, max_distance); false when there is none.
   bool Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;
-  bool Occluded(Vec3 origin, Vec3 direction, double max_distance) const;
+  bool Occluded(Vec3 origin, Vec3 direction, double max_distance, double min_distance = 0) const;
 };
 
 Scene MakeScene(SceneKind kind);

@@ -9,6 +9,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "server/models/material_plan.h"
@@ -31,6 +32,13 @@ struct RenderSetup {
   uint64_t seed = 0;
   int width = 1, height = 1;
   uint32_t samples_per_pixel = 1;
+  // Fiber scenes: constant ambient radiance (Wu and Yuksel Eq. 7's L_amb), times each fiber hit's visibility
+  // (an occlusion ray traced through the fibers per sample).
+  double ambient = 0;
+  // Fiber scenes: the level of detail the geometry was generated at, for the fidelity report.
+  struct FiberDetail {
+    std::string chosen, full, reason;
+  } fiber_detail;
 };
 
 struct LightSample {
@@ -45,6 +53,12 @@ struct ShadingPoint {
   float u = 0, v = 0;    // texture coordinates in pattern repeats, wrapped into [0, 1) (the pattern tiles)
   double footprint = 0;  // world size of the pixel at the hit (its shorter axis)
   std::vector<LightSample> lights;
+  // A fiber hit: the frame's x is the fiber's axis made perpendicular to the normal; `axis` is the axis itself
+  // in the shading frame (each query's fiber axis), and light samples weigh cos(theta_i) about it (SPEC.md
+  // section 5), from the whole sphere. `ambient` is L_amb times the hit's ambient visibility.
+  bool fiber = false;
+  Vec3 axis;
+  Rgb ambient;
 };
 
 // Casts the ray through image position (px, py) and samples the lights; `rng` supplies the environment
@@ -57,20 +71,27 @@ void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample,
 
 // One kernel path: a prepared material (with a curtain's layer), evaluated with texture coordinates (its BTF)
 // or without, with light through the cloth (pairs on opposite sides, and what is seen through it) or without.
+// A fiber object's evaluators carry each query's fiber axis; its ambient evaluator computes the ambient factor
+// (models::Quantity::kAmbient) toward wo.
 struct Evaluator {
   const models::PreparedMaterial* material = nullptr;
   bool with_uv = false;
   bool transmission = false;
+  bool fiber_axis = false;
+  models::Quantity quantity = models::Quantity::kScattering;
 };
 
-// How one object's light samples are evaluated: the index of its evaluator.
+// How one object's light samples are evaluated: the index of its evaluator (and, on fibers, of its ambient
+// evaluator; -1: none).
 struct ObjectShading {
   int evaluator = -1;
+  int ambient_evaluator = -1;
 };
 
 // Queries of one evaluator, structure of arrays; `tag` says whose radiance each query adds to.
 struct QueryBucket {
   std::vector<float> wi, wo, uv, weight;  // 3, 3, 2 (with_uv only), 3 per query
+  std::vector<float> axis;                // 3 per query (fiber_axis only)
   std::vector<uint32_t> tag;
   size_t size() const { return tag.size(); }
   void Clear();
@@ -80,6 +101,9 @@ struct QueryBucket {
 // needs no query (the background seen straight through transmitting cloth).
 Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const std::vector<Evaluator>& evaluators,
                   uint32_t tag, std::vector<QueryBucket>* buckets);
+
+// The kernel work of one evaluator's bucket (the bucket must outlive it).
+std::unique_ptr<models::EvaluationPlan> PlanOf(const Evaluator& evaluator, const QueryBucket& bucket);
 
 // f (3 per query) of one evaluator's bucket on the host (the native build; the fidelity pilot).
 void EvaluateOnHost(const Evaluator& evaluator, const QueryBucket& bucket, std::vector<double>* f);

@@ -189,6 +189,7 @@ void ClRuntime::Target::Close() {
   for (auto& [key, p] : programs) {
     if (p.kernel) clReleaseKernel(p.kernel);
     if (p.uv_kernel) clReleaseKernel(p.uv_kernel);
+    if (p.ambient_kernel) clReleaseKernel(p.ambient_kernel);
     if (p.program) clReleaseProgram(p.program);
   }
   programs.clear();
@@ -232,7 +233,8 @@ bool ClRuntime::Build(Target& target, const models::KernelSpec& spec, bool fp64,
              std::to_string(err) + "):\n" + log;
     return false;
   }
-  for (auto [function, kernel] : {std::pair{&spec.function, &out->kernel}, std::pair{&spec.uv_function, &out->uv_kernel}}) {
+  for (auto [function, kernel] : {std::pair{&spec.function, &out->kernel}, std::pair{&spec.uv_function, &out->uv_kernel},
+                                  std::pair{&spec.ambient_function, &out->ambient_kernel}}) {
     if (function->empty()) continue;
     *kernel = clCreateKernel(out->program, function->c_str(), &err);
     if (err != CL_SUCCESS) {
@@ -271,6 +273,9 @@ bool ClRuntime::Warm(const models::Registry& registry, std::string* error) {
           std::vector<double> f;
           if (!RunSingle(*model, m, fp64, wi.data(), wi.data(), spatial ? uvs.data() : nullptr, n, &f, error))
             return false;
+          if (!spatial && model->has_ambient() &&
+              !RunSingle(*model, m, fp64, wi.data(), wi.data(), nullptr, n, &f, error, models::Quantity::kAmbient))
+            return false;
         }
       }
     }
@@ -279,11 +284,12 @@ bool ClRuntime::Warm(const models::Registry& registry, std::string* error) {
 }
 
 bool ClRuntime::RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
-                          const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error) {
+                          const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error,
+                          models::Quantity quantity) {
   const std::vector<int> index(n, 0);
   const std::vector<const models::PackedMaterial*> materials = {&m};
   const LaunchArgs args{.model = &model, .fp64 = fp64, .uniform = m.uniform, .materials = &materials,
-                        .material_index = &index, .wi = wi, .wo = wo, .uv = uv, .n = n};
+                        .material_index = &index, .wi = wi, .wo = wo, .uv = uv, .n = n, .quantity = quantity};
   LaunchResults results;
   if (!Run(args, &results, error)) return false;
   f->assign(3 * n, 0.0);
@@ -317,9 +323,10 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
     return false;
   }
   const Program& program = it->second;
-  cl_kernel k = a.uv ? program.uv_kernel : program.kernel;
+  const bool ambient = a.quantity == models::Quantity::kAmbient;
+  cl_kernel k = ambient ? program.ambient_kernel : a.uv ? program.uv_kernel : program.kernel;
   if (!k) {
-    *error = "model '" + a.model->name() + "' is not spatially varying";
+    *error = "model '" + a.model->name() + (ambient ? "' has no ambient entry" : "' is not spatially varying");
     return false;
   }
   // Each distinct material once, in the kernel's precision; material m starts at offset[m].

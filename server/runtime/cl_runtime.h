@@ -42,6 +42,7 @@ struct LaunchArgs {
   const float* wo = nullptr;
   const float* uv = nullptr;  // nullptr: f(wi, wo)
   size_t n = 0;
+  models::Quantity quantity = models::Quantity::kScattering;  // kAmbient: the model's ambient entry (uv nullptr)
 };
 
 // Where one caller's results go, written straight from the device's output in the caller's precision (a
@@ -83,7 +84,8 @@ class ClRuntime {
   bool Run(const LaunchArgs& args, LaunchResults* results, std::string* error);
   // One material for all n queries (uv nullptr: f(wi, wo)).
   bool RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
-                 const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error);
+                 const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error,
+                 models::Quantity quantity = models::Quantity::kScattering);
 
   bool has_fp64() const { return has_fp64_; }
   const std::string& device_name() const { return main_.device_name; }
@@ -99,6 +101,7 @@ class ClRuntime {
     cl_program program = nullptr;
     cl_kernel kernel = nullptr;
     cl_kernel uv_kernel = nullptr;  // spatially varying models only
+    cl_kernel ambient_kernel = nullptr;  // models with an ambient entry only
     int width = 1;                  // queries per work-item
   };
   // Host memory and an OpenCL buffer over it (CL_MEM_USE_HOST_PTR), kept between launches and grown on demand:

@@ -189,7 +189,9 @@ class FiberModel : public Model {
   }
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
-  KernelSpec kernel() const override { return {"models/fiber.cl", "fiber_eval", ""}; }
+  KernelSpec kernel() const override {
+    return {.source = "models/fiber.cl", .function = "fiber_eval", .ambient_function = "fiber_ambient"};
+  }
 
   std::string fiber_axis_param() const override { return "axis"; }
 

@@ -21,6 +21,8 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/render_rpc.h"
 #include "server/api/server.h"
+#include "server/render/shading.h"
+#include "server/yarn/fiber_scene.h"
 #include "tests/testing.h"
 
 // After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
@@ -557,5 +559,86 @@ TEST_F(RenderTest, FiberAmbientTermIsBoundedByTheAmbientFactor) {
     sum += v;
   }
   EXPECT_GT(sum / image.size(), 0.05 * most);
+}
+
+// A straight fiber shades like an analytic cylinder: every camera ray through a thin round fiber along +z hits
+// where the ray meets the cylinder x^2 + y^2 = r^2, the shading frame's normal is the cylinder's, the light
+// sample weighs cos(theta_i) = sqrt(1 - (wi.t)^2) about the axis (SPEC.md section 5) and is never shadowed by
+// the fiber itself, and the shaded f (per-query axis, through the material plan) equals the fiber model's f of
+// the world-space pair about the world axis.
+TEST(FiberShading, StraightFiberShadesLikeAnAnalyticCylinder) {
+  using render::Vec3;
+  constexpr double r = 0.01;
+  yarn::YarnGeometry geometry;
+  yarn::FiberCurve& curve = geometry.fibers.emplace_back();
+  curve.width = 2 * r;
+  curve.points = {{0, 0, -1}, {0, 0, 1}};
+  const yarn::YarnGeometry* yarns[] = {&geometry};
+  auto fibers = std::make_shared<yarn::FiberScene>();
+  ASSERT_EQ(yarn::FiberScene::Build(yarns, {}, fibers.get()), "");
+
+  render::RenderSetup setup;
+  setup.scene = render::MakeScene(render::SceneKind::kYarn);
+  setup.scene.fibers = fibers;
+  setup.width = setup.height = 48;
+  const render::CameraSpec camera{{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8};
+  setup.camera = render::PinholeCamera(camera, 48, 48);
+  const Vec3 light = render::Normalize({0.3, 0.8, -0.5});
+  setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}}};
+
+  const models::PresetSpec* preset = nullptr;
+  const models::Model* model = models::Registry::Global().FindPreset("cotton", &preset);
+  ASSERT_NE(model, nullptr);
+  models::PreparedMaterial material;
+  material.model = model;
+  material.values = model->PresetValues(*preset);
+  material.values["axis"] = {0, 0, 1};  // the world's fiber axis, for the world-space reference
+  material.packed = model->Pack(material.values);
+  models::PreparedMaterial shading_material;
+  shading_material.model = model;
+  shading_material.values = material.values;
+  shading_material.values["axis"] = {1, 0, 0};
+  shading_material.packed = model->Pack(shading_material.values);
+  const render::Evaluator evaluator{&shading_material, false, false, true};
+
+  int hits = 0;
+  for (int j = 0; j < 48; ++j)
+    for (int i = 0; i < 48; ++i) {
+      const Vec3 o = setup.camera.position(), d = setup.camera.Direction(i + 0.5, j + 0.5);
+      const double a = d.x * d.x + d.y * d.y, b = o.x * d.x + o.y * d.y, c = o.x * o.x + o.y * o.y - r * r;
+      const double disc = b * b - a * c;
+      render::ShadingPoint point;
+      render::TraceSample(setup, i + 0.5, j + 0.5, render::CounterRng(1, j * 48 + i), &point);
+      if (disc < 1e-3 * b * b) {  // a miss, or too near the silhouette to tell
+        if (disc < -1e-3 * b * b) EXPECT_LT(point.object, 0) << i << "," << j;
+        continue;
+      }
+      ASSERT_EQ(point.object, 0) << i << "," << j;
+      ASSERT_TRUE(point.fiber);
+      ++hits;
+      const double t = (-b - std::sqrt(disc)) / a;
+      const Vec3 p = o + t * d, n{p.x / r, p.y / r, 0};
+      EXPECT_NEAR(point.wo.z, render::Dot(n, -1.0 * d), 2e-3);  // the frame's normal is the cylinder's
+      EXPECT_NEAR(render::Length(point.axis), 1, 1e-5);
+      const double side = point.wo.x * point.axis.x + point.wo.y * point.axis.y + point.wo.z * point.axis.z;
+      EXPECT_NEAR(std::fabs(side), std::fabs(d.z), 1e-4);
+      ASSERT_EQ(point.lights.size(), 1u) << "the fiber shadowed itself at " << i << "," << j;
+      const render::LightSample& l = point.lights[0];
+      EXPECT_NEAR(l.weight.x, 2 * std::sqrt(1 - light.z * light.z), 1e-6);
+      EXPECT_NEAR(l.wi.z, render::Dot(n, light), 2e-3);
+
+      std::vector<render::QueryBucket> buckets(1);
+      render::AppendQueries(point, {0, -1}, {evaluator}, 0, &buckets);
+      ASSERT_EQ(buckets[0].size(), 1u);
+      std::vector<double> shaded;
+      render::EvaluateOnHost(evaluator, buckets[0], &shaded);
+      const float wi[3] = {float(light.x), float(light.y), float(light.z)};
+      const float wo[3] = {float(-d.x), float(-d.y), float(-d.z)};
+      float expected[3];
+      model->NativeEval(material.packed, wi, wo, nullptr, 1, expected);
+      for (int ch = 0; ch < 3; ++ch)
+        EXPECT_NEAR(shaded[ch], expected[ch], 2e-3 * std::fabs(expected[ch]) + 1e-6) << i << "," << j << " ch " << ch;
+    }
+  EXPECT_GT(hits, 100);
 }
 }  // namespace loomlight

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <thread>
 #include <vector>
 
 #include "server/api/admission.h"
@@ -387,8 +388,31 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     for (render::QueryBucket& b : chunk.buckets) b.Clear();
     chunk.direct.assign(chunk.pixels, Rgb{});
     chunk.queries = 0;
+    // Fiber scenes spend their time casting rays (camera, shadow and occlusion rays through the BVH), so their
+    // chunks are traced on kFiberTraceThreads threads, each a contiguous run of pixels into its own buckets,
+    // appended in pixel order: every pixel's queries stay in sample order and the image does not depend on
+    // the split.
+    const uint64_t threads = setup_.scene.fibers ? std::clamp<uint64_t>(chunk.pixels, 1, kFiberTraceThreads) : 1;
+    std::vector<std::vector<render::QueryBucket>> parts(threads > 1 ? threads - 1 : 0,
+                                                        std::vector<render::QueryBucket>(plan_.evaluators.size()));
+    std::vector<std::thread> workers;
+    const uint64_t per_thread = (chunk.pixels + threads - 1) / threads;
+    for (uint64_t t = 1; t < threads; ++t)
+      workers.emplace_back([this, &chunk, &parts, t, per_thread] {
+        TraceRange(chunk, std::min(chunk.pixels, t * per_thread), std::min(chunk.pixels, (t + 1) * per_thread),
+                   &parts[t - 1]);
+      });
+    TraceRange(chunk, 0, std::min(chunk.pixels, per_thread), &chunk.buckets);
+    for (std::thread& w : workers) w.join();
+    for (const std::vector<render::QueryBucket>& part : parts)
+      for (size_t e = 0; e < part.size(); ++e) chunk.buckets[e].Append(part[e]);
+    for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
+  }
+
+  // Traces pixels [begin, end) of the chunk: their queries into `buckets`, what needs none into chunk.direct.
+  void TraceRange(Chunk& chunk, uint64_t begin, uint64_t end, std::vector<render::QueryBucket>* buckets) const {
     render::ShadingPoint point;
-    for (uint64_t p = 0; p < chunk.pixels; ++p) {
+    for (uint64_t p = begin; p < end; ++p) {
       const uint64_t pixel = chunk.first_pixel + p;
       Rgb direct;
       for (uint32_t s = 0; s < setup_.samples_per_pixel; ++s) {
@@ -397,11 +421,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
           direct = direct + point.background;
         else
           direct = direct + render::AppendQueries(point, plan_.objects[point.object], plan_.evaluators,
-                                                  static_cast<uint32_t>(p), &chunk.buckets);
+                                                  static_cast<uint32_t>(p), buckets);
       }
       chunk.direct[p] = direct;
     }
-    for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
   }
 
   // Sends the next chunk's jobs when none is in flight.

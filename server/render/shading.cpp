@@ -162,6 +162,15 @@ void QueryBucket::Clear() {
   tag.clear();
 }
 
+void QueryBucket::Append(const QueryBucket& other) {
+  wi.insert(wi.end(), other.wi.begin(), other.wi.end());
+  wo.insert(wo.end(), other.wo.begin(), other.wo.end());
+  uv.insert(uv.end(), other.uv.begin(), other.uv.end());
+  weight.insert(weight.end(), other.weight.begin(), other.weight.end());
+  axis.insert(axis.end(), other.axis.begin(), other.axis.end());
+  tag.insert(tag.end(), other.tag.begin(), other.tag.end());
+}
+
 Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const std::vector<Evaluator>& evaluators,
                   uint32_t tag, std::vector<QueryBucket>* buckets) {
   if (shading.evaluator < 0) return {};

@@ -95,6 +95,7 @@ struct QueryBucket {
   std::vector<uint32_t> tag;
   size_t size() const { return tag.size(); }
   void Clear();
+  void Append(const QueryBucket& other);  // other's queries after these
 };
 
 // Appends the queries of a shading point on an object to buckets[evaluator]; returns the radiance that

@@ -26,15 +26,21 @@ constexpr const char* kSatin = "polyester_satin_charmeuse_front";
 constexpr const char* kTwill = "cotton_twill";
 constexpr double kTargetSeconds = 1.0;  // 256 x 256 at 16 samples per pixel, chosen fidelity
 
-v1::RenderRequest Request(const char* preset, uint32_t side, uint32_t spp, bool full, uint64_t seed) {
+// A square EXR render of `preset` on `scene`.
+v1::RenderRequest SquareRequest(const char* preset, v1::ScenePreset scene, uint32_t side, uint32_t spp, uint64_t seed) {
   v1::RenderRequest r;
   r.mutable_material()->set_preset(preset);
-  r.set_scene(v1::SCENE_CYLINDERS);
+  r.set_scene(scene);
   r.set_width(side);
   r.set_height(side);
   r.set_samples_per_pixel(spp);
   r.set_seed(seed);
   r.set_format(v1::RENDER_FORMAT_EXR);
+  return r;
+}
+
+v1::RenderRequest Request(const char* preset, uint32_t side, uint32_t spp, bool full, uint64_t seed) {
+  v1::RenderRequest r = SquareRequest(preset, v1::SCENE_CYLINDERS, side, spp, seed);
   r.set_force_full_fidelity(full);
   return r;
 }
@@ -142,14 +148,7 @@ double MaxEstimatedError(const v1::RenderUpdate& update) {
 // at full detail, with Eq. 4's level of detail and with core fibers only, and a distant view where fibers are
 // under a pixel; each timed, with its error against a full-detail reference of many samples.
 v1::RenderRequest FiberRequest(uint32_t side, uint32_t spp, v1::FiberDetail detail, uint64_t seed, bool distant) {
-  v1::RenderRequest r;
-  r.mutable_material()->set_preset("cotton");
-  r.set_scene(v1::SCENE_WOVEN_PATCH);
-  r.set_width(side);
-  r.set_height(side);
-  r.set_samples_per_pixel(spp);
-  r.set_seed(seed);
-  r.set_format(v1::RENDER_FORMAT_EXR);
+  v1::RenderRequest r = SquareRequest("cotton", v1::SCENE_WOVEN_PATCH, side, spp, seed);
   r.set_fiber_detail(detail);
   if (distant) {  // 3 units above the patch's centre: a pixel covers ~2.4 fiber widths at 128 pixels
     for (double v : {0.51, 0.2, 3.0}) r.mutable_camera()->add_position(v);

@@ -266,11 +266,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       return Invalid("yarn: " + e + " (Render's fiber limits; README \"Render: fibers\")");
     }
     std::vector<const yarn::YarnGeometry*> pointers;
-    int64_t points = 0;
-    for (const yarn::YarnGeometry& y : yarns) {
-      pointers.push_back(&y);
-      points += y.control_points;
-    }
+    for (const yarn::YarnGeometry& y : yarns) pointers.push_back(&y);
     const yarn::FiberSceneEstimate estimate = yarn::EstimateFiberScene(pointers);
     if (!admission_.bytes.Grow(static_cast<size_t>(estimate.total_bytes)))
       return {grpc::StatusCode::RESOURCE_EXHAUSTED,
@@ -332,11 +328,6 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
 
     if (!material_ && !(status_ = PrepareMaterial(deps_, r.material(), &material_)).ok()) return;
     if (fiber_job_) {
-      if (material_->model->fiber_axis_param().empty() || material_->transmission) {
-        status_ = Invalid("material: the fiber scenes shade each fiber with a fiber model (e.g. preset cotton), not '" +
-                          material_->model->name() + "'" + (material_->transmission ? " with a layer" : ""));
-        return;
-      }
       s.fiber_detail = fiber_detail_;
       s.fiber_detail.reason += "; " + std::to_string(fiber_count_) + " fiber curves";
     }
@@ -706,6 +697,10 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
     fiber_job = std::make_unique<YarnJob>();
     if (std::string error = FiberJobOf(*deps.registry, *request, fiber_job.get()); !error.empty())
       return reject(Invalid(error));
+    // Checked before any fiber is generated (after the yarn's own fields): the material's model is known without packing it.
+    if (model->fiber_axis_param().empty() || request->material().has_transmission())
+      return reject(Invalid("material: the fiber scenes shade each fiber with a fiber model (e.g. preset cotton), not '" +
+                            model->name() + "'" + (request->material().has_transmission() ? " with a layer" : "")));
     ChooseFiberDetail(*request, fiber_job.get(), &detail);
   }
   Admission admission;

@@ -176,6 +176,21 @@ bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance, double mi
   return fibers->Occluded({&ray, 1}, {&occluded, 1}).empty() && occluded;
 }
 
+namespace {
+
+// A fiber scene: its one object is the caller's fibers, lit by one directional light and a dim ambient term
+// (no sky).
+void SetUpFiberScene(Scene* scene, std::string name, CameraSpec camera, Vec3 toward_light) {
+  scene->objects.push_back({std::move(name), Shape{}, 0, true});
+  scene->fiber_object = 0;
+  scene->default_camera = camera;
+  scene->default_lights.push_back({Light::Type::kDirectional, Normalize(toward_light), {}, {3, 3, 3}});
+  scene->default_environment = false;
+  scene->default_ambient = 0.25;
+}
+
+}  // namespace
+
 Scene MakeScene(SceneKind kind) {
   Scene scene;
   switch (kind) {
@@ -211,23 +226,14 @@ Scene MakeScene(SceneKind kind) {
       break;
     case SceneKind::kYarn:
       // Wu and Yuksel Fig. 7: a straight yarn along +z (the caller's fibers, length 1), seen from the side at
-      // about three yarn widths across, lit from the upper left front, with a dim ambient term.
-      scene.objects.push_back({"yarn (fibers)", Shape{}, 0, true});
-      scene.fiber_object = 0;
-      scene.default_camera = {{0.35, 0.02, 0.5}, {0, 0, 0.5}, {0, 1, 0}, 32};
-      scene.default_lights.push_back({Light::Type::kDirectional, Normalize({0.8, 0.7, 0.4}), {}, {3, 3, 3}});
-      scene.default_environment = false;
-      scene.default_ambient = 0.25;
+      // about three yarn widths across, lit from the upper left front.
+      SetUpFiberScene(&scene, "yarn (fibers)", {{0.35, 0.02, 0.5}, {0, 0, 0.5}, {0, 1, 0}, 32}, {0.8, 0.7, 0.4});
       break;
     case SceneKind::kWovenPatch:
       // A close-up of a woven patch (the caller's layout, in the xy plane, normal +z, about 1 x 1): looking
       // down at 35 degrees from the normal at a part a few yarns wide.
-      scene.objects.push_back({"woven patch (fibers)", Shape{}, 0, true});
-      scene.fiber_object = 0;
-      scene.default_camera = {{0.5, 0.1, 0.65}, {0.5, 0.5, 0}, {0, 1, 0}, 30};
-      scene.default_lights.push_back({Light::Type::kDirectional, Normalize({-0.5, 0.4, 0.8}), {}, {3, 3, 3}});
-      scene.default_environment = false;
-      scene.default_ambient = 0.25;
+      SetUpFiberScene(&scene, "woven patch (fibers)", {{0.5, 0.1, 0.65}, {0.5, 0.5, 0}, {0, 1, 0}, 30},
+                      {-0.5, 0.4, 0.8});
       break;
   }
   return scene;

@@ -610,7 +610,9 @@ TEST(FiberShading, StraightFiberShadesLikeAnAnalyticCylinder) {
       render::ShadingPoint point;
       render::TraceSample(setup, i + 0.5, j + 0.5, render::CounterRng(1, j * 48 + i), &point);
       if (disc < 1e-3 * b * b) {  // a miss, or too near the silhouette to tell
-        if (disc < -1e-3 * b * b) EXPECT_LT(point.object, 0) << i << "," << j;
+        if (disc < -1e-3 * b * b) {
+          EXPECT_LT(point.object, 0) << i << "," << j;
+        }
         continue;
       }
       ASSERT_EQ(point.object, 0) << i << "," << j;

@@ -131,6 +131,11 @@ double YarnCrossSection::Depth(double x, double y, double light_angle) const {
   return (1 - w) * Texel(depth_, k0, ps, pt) + w * Texel(depth_, k1, ps, pt);
 }
 
+double YarnCrossSection::Shadow(double x, double y, double light_angle, double own_radius) const {
+  const double own = std::isfinite(own_radius) ? std::max(0.0, own_radius) * Extinction(x, y) : 0.0;
+  return std::exp(-std::max(0.0, Depth(x, y, light_angle) - own));
+}
+
 double YarnCrossSection::DepthExact(double x, double y, double light_angle, int steps) const {
   const double c = std::cos(light_angle), s = std::sin(light_angle);
   // From the point to where the ray leaves the disk of radius extent * sqrt(2) (the texture's corners).

@@ -25,7 +25,7 @@
 //   for its distance-based occlusion; we keep the radial mean itself as a 1D table (the same information,
 //   without the fit's error).
 // - Own fiber: a shading point on a fiber's axis sits inside the density that fiber contributes; Depth and
-//   Occlusion are of the density as it is, and a caller subtracts what it deems its own.
+//   the occlusion textures are of the density as it is (as the paper's), Shadow subtracts the own fiber's part.
 #pragma once
 
 #include <string>
@@ -59,6 +59,11 @@ class YarnCrossSection {
   // Optical depth from (x, y) toward the light whose 2D direction (in the same frame) is at angle
   // `light_angle` (radians): the slices, trilinear. Outside the texture, the nearest texel's.
   double Depth(double x, double y, double light_angle) const;
+  // Self-shadow transmittance toward the light, exp(-depth), for a shading point on the axis of a fiber of
+  // radius own_radius: the depth less own_radius * Extinction(x, y), the density its own fiber contributes on
+  // the way out (measured on traced cotton1 and polyester1 yarns: without it the mean visibility comes out
+  // 0.47-0.50 against the traced 0.62, with it 0.59-0.61).
+  double Shadow(double x, double y, double light_angle, double own_radius) const;
   // The same integral by direct quadrature of Extinction (for tests and error reports): `steps` midpoints.
   double DepthExact(double x, double y, double light_angle, int steps = 4096) const;
 

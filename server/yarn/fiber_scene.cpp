@@ -13,6 +13,21 @@
 namespace loomlight::yarn {
 namespace {
 
+// Occluded's rule: a fiber blocks a ray where the ray enters it. A ray that starts inside a tube (the shading
+// fiber's neighbours overlap it: a ply's fibers together cover about its whole cross-section, so they
+// overlap) and leaves it is not blocked by that tube; Intersect still reports such exits (FiberHit.entering).
+// For round curves Ng is the outward normal, so entering is dot(Ng, direction) <= 0.
+void OnlyEnteringBlocks(const RTCFilterFunctionNArguments* args) {
+  for (unsigned i = 0; i < args->N; ++i) {
+    if (args->valid[i] != -1) continue;
+    const float along = RTCHitN_Ng_x(args->hit, args->N, i) * RTCRayN_dir_x(args->ray, args->N, i) +
+                        RTCHitN_Ng_y(args->hit, args->N, i) * RTCRayN_dir_y(args->ray, args->N, i) +
+                        RTCHitN_Ng_z(args->hit, args->N, i) * RTCRayN_dir_z(args->ray, args->N, i);
+    if (along > 0) args->valid[i] = 0;
+  }
+}
+
+
 constexpr int kMaxThreads = 64;
 constexpr int64_t kMaxBytesLimit = int64_t{1} << 50;
 // Embree's primitive and vertex ids are 32-bit, and ~0u is its "invalid" marker.
@@ -401,6 +416,7 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
     table.vertices = vertices;
     table.indices = indices;
     rtcSetGeometryBuildQuality(geom, ToEmbree(options.quality));
+    rtcSetGeometryOccludedFilterFunction(geom, OnlyEnteringBlocks);
     rtcCommitGeometry(geom);
     rtcAttachGeometryByID(scene.scene_, geom, static_cast<unsigned>(y));
     rtcReleaseGeometry(geom);  // the scene holds it now

@@ -171,7 +171,8 @@ class FiberScene {
 
   // hits.size() must equal rays.size() (else "hits: ..."); an empty scene misses everything. Closest hit.
   std::string Intersect(std::span<const FiberRay> rays, std::span<FiberHit> hits) const;
-  // Any hit in [tnear, tfar]: occluded[i] = 1 or 0. occluded.size() must equal rays.size().
+  // Any fiber the ray enters in [tnear, tfar]: occluded[i] = 1 or 0 (a tube the ray starts inside and leaves
+  // does not block it: a shadow ray from inside overlapping fibers). occluded.size() must equal rays.size().
   std::string Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded) const;
 
  private:

@@ -3,6 +3,7 @@
 #include <cctype>
 #include <cstdio>
 #include <fstream>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -70,6 +71,19 @@ void add_light(v1::RenderRequest& request, const std::string& text) {
   add_triple(light->mutable_rgb(), rgb, "--light rgb");
 }
 
+// --name VALUE as the proto enum value PREFIX + VALUE in capitals (its generated parser; "" when absent).
+template <class Enum>
+std::optional<Enum> enum_option(const ParsedOptions& options, const std::string& name, const std::string& prefix,
+                                bool (*parse)(const std::string&, Enum*)) {
+  const auto text = options.last(name);
+  if (!text) return std::nullopt;
+  std::string upper = *text;
+  for (char& c : upper) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  Enum value{};
+  if (!parse(prefix + upper, &value)) throw UsageError("--" + name + ": unknown value '" + *text + "' (see --help)");
+  return value;
+}
+
 void parse_size(const std::string& text, v1::RenderRequest& request) {
   const auto x = text.find('x');
   if (x == std::string::npos) throw UsageError("--size needs WIDTHxHEIGHT, got '" + text + "'");
@@ -114,12 +128,11 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
   if (auto exposure = options.last("exposure")) request.set_exposure(parse_number(*exposure, "--exposure"));
   if (auto yarn = options.last("yarn")) request.mutable_yarn()->set_preset(*yarn);
   if (auto weave = options.last("weave")) request.mutable_woven()->mutable_weave()->set_preset(*weave);
-  if (auto detail = options.last("fiber-detail")) {
-    if (*detail == "auto") request.set_fiber_detail(v1::FIBER_DETAIL_AUTO);
-    else if (*detail == "full") request.set_fiber_detail(v1::FIBER_DETAIL_FULL);
-    else if (*detail == "cores") request.set_fiber_detail(v1::FIBER_DETAIL_CORES);
-    else throw UsageError("--fiber-detail: expected auto, full or cores, got '" + *detail + "'");
-  }
+  if (auto v = enum_option(options, "fiber-detail", "FIBER_DETAIL_", v1::FiberDetail_Parse)) request.set_fiber_detail(*v);
+  if (auto v = enum_option(options, "fiber-shadows", "FIBER_SHADOWS_", v1::FiberShadows_Parse))
+    request.set_fiber_shadows(*v);
+  if (auto v = enum_option(options, "fiber-occlusion", "FIBER_OCCLUSION_", v1::FiberOcclusion_Parse))
+    request.set_fiber_occlusion(*v);
   if (auto ambient = options.last("ambient")) request.set_ambient(parse_number(*ambient, "--ambient"));
   request.set_format(output_format(options, out));
   return request;
@@ -179,6 +192,8 @@ OptionList render_options() {
       {"yarn", "PRESET", "fiber scenes: the yarn, cotton1 (default), cotton2, polyester1, rayon2 or silk1"},
       {"weave", "PRESET", "woven-patch: lay out warp and weft by this woven preset's pattern (default cotton_twill)"},
       {"fiber-detail", "auto|full|cores", "fiber scenes: Eq. 4's level of detail (auto: from the pixel footprint)"},
+      {"fiber-shadows", "auto|traced|slices", "fiber scenes: light through the fibers traced, or the self-shadow slices"},
+      {"fiber-occlusion", "auto|traced|texture|distance", "fiber scenes: ambient occlusion traced or approximated"},
       {"ambient", "X", "fiber scenes: constant ambient radiance (default: the scene's with default lighting)"},
       {"size", "WxH", "image size in pixels (default 256x256)"},
       {"spp", "N", "samples per pixel (default 16)"},

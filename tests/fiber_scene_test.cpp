@@ -358,6 +358,58 @@ TEST(FiberSceneTest, BentFiberJointHasNoGapAndNoInnerHit) {
   }
 }
 
+// Occluded can leave one yarn out (its fibers stand for themselves some other way): the others still block.
+TEST(FiberSceneTest, OccludedSkipsTheNamedYarnOnly) {
+  const YarnGeometry low = Geometry({Curve({{-1, 0, 0}, {1, 0, 0}}, 0.1)});
+  const YarnGeometry high = Geometry({Curve({{-1, 0, 1}, {1, 0, 1}}, 0.1)});
+  const FiberScene scene = MustBuild({&low, &high});
+  const auto blocked = [&](float z0, int skip) {
+    FiberRay ray{{0, 0, z0}, {0, 0, 1}};
+    uint8_t occluded = 0;
+    EXPECT_EQ(scene.Occluded({&ray, 1}, {&occluded, 1}, skip), "");
+    return occluded != 0;
+  };
+  EXPECT_TRUE(blocked(-1, -1));
+  EXPECT_TRUE(blocked(-1, 0));   // the high yarn still blocks
+  EXPECT_TRUE(blocked(-1, 1));   // the low one does
+  EXPECT_FALSE(blocked(0.5f, 1));  // above the low yarn, the high one skipped: nothing left
+  EXPECT_TRUE(blocked(0.5f, 0));
+  EXPECT_TRUE(blocked(0.5f, 7));   // no such yarn: nothing skipped
+}
+
+TEST(FiberSceneTest, ShadingTangentTurnsSmoothlyThroughAJoint) {
+  const double angle = 60 * 3.14159265358979323846 / 180;
+  const Vec3 a{0, 0, 0}, b{0, 0, 1}, c = b + Vec3{std::sin(angle), 0, std::cos(angle)};
+  const YarnGeometry g = Geometry({Curve({a, b, c}, 0.02)});
+  const FiberScene scene = MustBuild({&g});
+  const Vec3 first{0, 0, 1}, second = Unit(c - b), joint = Unit(first + second);
+  const auto shading_tangent_at = [&](Vec3 point) {
+    FiberRay ray{ToF(point + Vec3{0, 1, 0}), {0, -1, 0}};
+    FiberHit hit;
+    EXPECT_EQ(scene.Intersect({&ray, 1}, {&hit, 1}), "");
+    EXPECT_TRUE(hit.hit);
+    return std::pair{ToVec(hit.shading_tangent), double(hit.u)};
+  };
+  for (double along : {0.05, 0.5, 0.95}) {
+    const auto [t, u] = shading_tangent_at({0, 0, along});
+    const Vec3 expected = Unit((1 - u) * first + u * joint);  // a round end keeps the segment's own direction
+    EXPECT_NEAR(Norm(t - expected), 0, 1e-3) << along;
+  }
+  // Both sides of the joint agree: no jump where the segments meet.
+  const auto [before, u0] = shading_tangent_at({0, 0, 0.999});
+  const auto [after, u1] = shading_tangent_at(b + 0.001 * second);
+  EXPECT_NEAR(Norm(before - joint), 0, 2e-3);
+  EXPECT_NEAR(Norm(after - joint), 0, 2e-3);
+  // A straight polyline's shading tangent is its tangent.
+  const YarnGeometry straight = Geometry({Curve({a, b, Vec3{0, 0, 2}}, 0.02)});
+  const FiberScene line = MustBuild({&straight});
+  FiberRay ray{{0, 1, 0.99f}, {0, -1, 0}};
+  FiberHit hit;
+  ASSERT_EQ(line.Intersect({&ray, 1}, {&hit, 1}), "");
+  ASSERT_TRUE(hit.hit);
+  EXPECT_NEAR(Norm(ToVec(hit.shading_tangent) - ToVec(hit.tangent)), 0, 1e-6);
+}
+
 // Straight through the joint's outer side, where only the joint's round cap covers the bend.
 TEST(FiberSceneTest, BentFiberOuterJointIsCovered) {
   const double r = 0.05;

@@ -393,6 +393,10 @@ TEST_F(RenderTest, EveryInvalidFieldIsNamed) {
       {"precision", [](auto& r) { r.set_precision(static_cast<v1::Precision>(5)); }},
       {"fiber_detail", [](auto& r) { r.set_fiber_detail(static_cast<v1::FiberDetail>(9)); }},
       {"fiber_detail", [](auto& r) { r.set_fiber_detail(v1::FIBER_DETAIL_CORES); }},  // not a fiber scene
+      {"fiber_shadows", [](auto& r) { r.set_fiber_shadows(static_cast<v1::FiberShadows>(9)); }},
+      {"fiber_shadows", [](auto& r) { r.set_fiber_shadows(v1::FIBER_SHADOWS_SLICES); }},  // not a fiber scene
+      {"fiber_occlusion", [](auto& r) { r.set_fiber_occlusion(static_cast<v1::FiberOcclusion>(-2)); }},
+      {"fiber_occlusion", [](auto& r) { r.set_fiber_occlusion(v1::FIBER_OCCLUSION_TEXTURE); }},
       {"ambient", [](auto& r) { r.set_ambient(NAN); }},
       {"yarn", [](auto& r) { r.mutable_yarn()->set_preset("cotton1"); }},  // not a fiber scene
       {"woven", [](auto& r) { r.mutable_woven()->mutable_weave()->set_preset("cotton_twill"); }},
@@ -526,6 +530,58 @@ TEST_F(RenderTest, FiberScenesRenderDeterministicallyWithTheirDetailReported) {
   request.set_force_full_fidelity(false);
   request.set_fiber_detail(v1::FIBER_DETAIL_CORES);
   EXPECT_EQ(chosen(request), "cores");
+}
+
+// Shadows and occlusion by the yarn cross-section's approximations (Wu and Yuksel Sec. 4.1-4.2): obeyed when
+// requested, each reported with its pilot error against the traced rays; AUTO takes them only within the
+// target, force_full_fidelity never. Their image is within 15% of the traced one's mean (measured: see README
+// "Render: fibers").
+TEST_F(RenderTest, FiberShadowAndOcclusionApproximationsAreChosenAndReported) {
+  const auto render = [&](const RenderRequest& r, std::string* shadows, std::string* occlusion, double* mean) {
+    const Rendered out = Render(*stub_, r);
+    ASSERT_TRUE(out.status.ok()) << out.status.error_message();
+    const v1::FidelityChoice* s = Choice(out.last().fidelity(0), "fiber_shadows");
+    const v1::FidelityChoice* o = Choice(out.last().fidelity(0), "fiber_occlusion");
+    ASSERT_TRUE(s && o);
+    EXPECT_EQ(s->full(), "traced");
+    EXPECT_EQ(o->full(), "traced");
+    *shadows = s->chosen();
+    *occlusion = o->chosen();
+    *mean = out.last().mean(0) + out.last().mean(1) + out.last().mean(2);
+    if (!r.force_full_fidelity()) {
+      EXPECT_NE(s->reason().find("from traced"), std::string::npos) << s->reason();
+      EXPECT_NE(o->reason().find("from traced"), std::string::npos) << o->reason();
+    }
+  };
+  RenderRequest request = Request("cotton", v1::SCENE_WOVEN_PATCH, 96, 96, 8);
+  std::string shadows, occlusion;
+  double traced = 0, approximated = 0;
+  request.set_fiber_shadows(v1::FIBER_SHADOWS_TRACED);
+  request.set_fiber_occlusion(v1::FIBER_OCCLUSION_TRACED);
+  render(request, &shadows, &occlusion, &traced);
+  EXPECT_EQ(shadows + "/" + occlusion, "traced/traced");
+  ASSERT_GT(traced, 0);
+  for (auto [method, name] : {std::pair{v1::FIBER_OCCLUSION_TEXTURE, "texture"}, {v1::FIBER_OCCLUSION_DISTANCE, "distance"}}) {
+    request.set_fiber_shadows(v1::FIBER_SHADOWS_SLICES);
+    request.set_fiber_occlusion(method);
+    render(request, &shadows, &occlusion, &approximated);
+    EXPECT_EQ(shadows + "/" + occlusion, std::string("slices/") + name);
+    EXPECT_NEAR(approximated / traced, 1.0, 0.15) << name;
+  }
+  // AUTO: a loose target takes the approximations, a tight one keeps the rays; force_full_fidelity traces.
+  request.set_fiber_shadows(v1::FIBER_SHADOWS_AUTO);
+  request.set_fiber_occlusion(v1::FIBER_OCCLUSION_AUTO);
+  request.set_error_target(0.5);
+  render(request, &shadows, &occlusion, &approximated);
+  EXPECT_EQ(shadows, "slices");
+  EXPECT_NE(occlusion, "traced");
+  request.set_error_target(1e-9);
+  render(request, &shadows, &occlusion, &approximated);
+  EXPECT_EQ(shadows + "/" + occlusion, "traced/traced");
+  request.set_error_target(0.5);
+  request.set_force_full_fidelity(true);
+  render(request, &shadows, &occlusion, &approximated);
+  EXPECT_EQ(shadows + "/" + occlusion, "traced/traced");
 }
 
 // Ambient light alone (a black light, ambient radiance 1): each pixel averages the fiber's ambient factor

@@ -16,6 +16,7 @@
 #include "server/render/tone_map.h"
 #include "server/api/yarn_rpc.h"
 #include "server/yarn/fiber_scene.h"
+#include "server/yarn/visibility.h"
 
 namespace loomlight::api {
 namespace {
@@ -285,6 +286,19 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
     fibers_ = std::move(scene);
     fiber_count_ = static_cast<uint64_t>(fibers_->stats().curves);
+    // The cheap visibility (cross-section slices and occlusion, other yarns as tubes of the layout's radius):
+    // a few tubes and a shared cross-section, so built whatever the request chose (the chooser's pilot uses it).
+    std::vector<std::shared_ptr<const yarn::YarnCurve>> centres;
+    for (const LaidYarn& l : laid) centres.push_back(l.centre);
+    const double tube_radius = fiber_job_->woven ? fiber_job_->layout.yarn_radius : fiber_job_->params.yarn_radius;
+    auto visibility = std::make_shared<yarn::YarnVisibility>();
+    if (std::string v = yarn::YarnVisibility::Make(fiber_job_->params, std::move(centres), tube_radius, {}, stop,
+                                                   visibility.get());
+        !v.empty()) {
+      if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return s;
+      return {grpc::StatusCode::INTERNAL, "the yarn's cross-section: " + v};
+    }
+    fiber_visibility_ = std::move(visibility);
     return grpc::Status::OK;
   }
 
@@ -294,6 +308,13 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     render::RenderSetup& s = setup_;
     s.scene = render::MakeScene(ToSceneKind(r.scene()));
     s.scene.fibers = fibers_;
+    s.scene.fiber_visibility = fiber_visibility_;
+    s.fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_SLICES ? yarn::ShadowMethod::kSlices : yarn::ShadowMethod::kTraced;
+    s.fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_TEXTURE    ? yarn::OcclusionMethod::kTexture
+                        : r.fiber_occlusion() == v1::FIBER_OCCLUSION_DISTANCE ? yarn::OcclusionMethod::kDistance
+                                                                              : yarn::OcclusionMethod::kTraced;
+    s.choose_fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_AUTO;
+    s.choose_fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_AUTO;
     const render::CameraSpec camera = CameraOf(r, s.scene);
     s.width = static_cast<int>(r.width());
     s.height = static_cast<int>(r.height());
@@ -343,6 +364,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       status_ = {grpc::StatusCode::INTERNAL, e};
       return;
     }
+    s.fiber_shadows = plan_.fiber_shadows;
+    s.fiber_occlusion = plan_.fiber_occlusion;
 
     total_pixels_ = uint64_t(s.width) * s.height;
     const size_t per_pixel = std::max<size_t>(1, render::MaxQueriesPerSample(s)) * s.samples_per_pixel;
@@ -586,6 +609,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   std::unique_ptr<YarnJob> fiber_job_;  // fiber scenes: the yarn to generate (null otherwise)
   render::RenderSetup::FiberDetail fiber_detail_;
   std::shared_ptr<const yarn::FiberScene> fibers_;
+  std::shared_ptr<const yarn::YarnVisibility> fiber_visibility_;
   uint64_t fiber_count_ = 0;
   bool loading_ = false;  // the asset loader is reading the environment map
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
@@ -667,11 +691,17 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   if (!v1::Precision_IsValid(r.precision())) return "precision: unknown value " + std::to_string(r.precision());
   if (!v1::FiberDetail_IsValid(r.fiber_detail()))
     return "fiber_detail: unknown value " + std::to_string(r.fiber_detail());
+  if (!v1::FiberShadows_IsValid(r.fiber_shadows()))
+    return "fiber_shadows: unknown value " + std::to_string(r.fiber_shadows());
+  if (!v1::FiberOcclusion_IsValid(r.fiber_occlusion()))
+    return "fiber_occlusion: unknown value " + std::to_string(r.fiber_occlusion());
   if (!std::isfinite(r.ambient()) || r.ambient() < 0 || r.ambient() > kMaxLightValue)
     return "ambient: " + std::to_string(r.ambient()) + " must be finite in 0.." + std::to_string(kMaxLightValue);
   if (!IsFiberScene(r.scene())) {
     if (r.has_yarn()) return "yarn: only for the fiber scenes (SCENE_YARN, SCENE_WOVEN_PATCH)";
     if (r.fiber_detail() != v1::FIBER_DETAIL_AUTO) return "fiber_detail: only for the fiber scenes";
+    if (r.fiber_shadows() != v1::FIBER_SHADOWS_AUTO) return "fiber_shadows: only for the fiber scenes";
+    if (r.fiber_occlusion() != v1::FIBER_OCCLUSION_AUTO) return "fiber_occlusion: only for the fiber scenes";
   }
   if (r.has_woven() && r.scene() != v1::SCENE_WOVEN_PATCH) return "woven: only for SCENE_WOVEN_PATCH";
   return "";

@@ -306,12 +306,13 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns
     if (error.empty()) error = yarn::GenerateLayout(job->params, layout, job->detail, job->limits, &fibers);
     if (error.empty()) {
       *yarns = std::move(fibers.yarns);
-      for (const yarn::LayoutYarn& y : layout.yarns) laid->push_back({y.warp, y.thread, y.curve.Length()});
+      for (const yarn::LayoutYarn& y : layout.yarns)
+        laid->push_back({y.warp, y.thread, y.curve.Length(), std::make_shared<yarn::PolylineYarnCurve>(y.curve)});
     }
   } else {
     job->params.length = job->straight_length;
     error = yarn::GenerateStraightYarn(job->params, job->detail, job->limits, &yarns->emplace_back());
-    laid->push_back({false, 0, job->straight_length});
+    laid->push_back({false, 0, job->straight_length, std::make_shared<yarn::StraightYarnCurve>(job->straight_length)});
   }
   if (!error.empty()) {
     yarns->clear();

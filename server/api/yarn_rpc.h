@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
@@ -56,6 +57,7 @@ struct LaidYarn {
   bool warp = false;
   int thread = 0;
   double length = 0;
+  std::shared_ptr<const yarn::YarnCurve> centre;  // the centre curve its fibers were generated along
 };
 // Generates a job's fibers (GenerateLayout or GenerateStraightYarn): one YarnGeometry per yarn. Returns "" or
 // their error ("cancelled", "max_fibers: ...", ...), leaving both outputs empty.

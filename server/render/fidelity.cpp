@@ -127,6 +127,103 @@ double Median(std::vector<double> v) {
 
 std::string KnobText(double v) { return Format("%g", v); }
 
+// The fiber object's total pilot radiance (R + G + B over every pilot pixel and repeat) with the given
+// visibility methods: each pixel centre traced kFiberPilotRepeats times (own random streams: the light and
+// occlusion directions), shaded on the host.
+double FiberPilotTotal(RenderSetup setup, yarn::ShadowMethod shadows, yarn::OcclusionMethod occlusion,
+                       const std::vector<Evaluator>& evaluators, const ObjectShading& shading, int* hits) {
+  setup.fiber_shadows = shadows;
+  setup.fiber_occlusion = occlusion;
+  const int nx = std::min(kPilotGrid, setup.width), ny = std::min(kPilotGrid, setup.height);
+  std::vector<QueryBucket> buckets(evaluators.size());
+  ShadingPoint point;
+  double total = 0;
+  *hits = 0;
+  for (int k = 0; k < kFiberPilotRepeats; ++k)
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i) {
+        const CounterRng rng(setup.seed ^ 0x66696265725full, (uint64_t(k) * ny + j) * nx + i);
+        TraceSample(setup, (i + 0.5) * setup.width / nx, (j + 0.5) * setup.height / ny, rng, &point);
+        if (point.object != setup.scene.fiber_object) continue;
+        ++*hits;
+        AppendQueries(point, shading, evaluators, 0, &buckets);
+      }
+  std::vector<double> f;
+  for (size_t e = 0; e < evaluators.size(); ++e) {
+    if (buckets[e].size() == 0) continue;
+    EvaluateOnHost(evaluators[e], buckets[e], &f);
+    for (size_t q = 0; q < buckets[e].size(); ++q)
+      for (int c = 0; c < 3; ++c) {
+        const double value = double(buckets[e].weight[3 * q + c]) * f[3 * q + c];
+        if (std::isfinite(value)) total += value;
+      }
+  }
+  return total;
+}
+
+// The fiber scene's shadow and occlusion methods: the request's, or (where it left them to the chooser) the
+// approximation whose pilot radiance is closest to the traced one, when within the target.
+void ChooseFiberVisibility(const RenderSetup& setup, const std::vector<Evaluator>& evaluators,
+                           const ObjectShading& shading, double target, bool force_full, FidelityPlan* plan,
+                           ObjectFidelity* out) {
+  using yarn::OcclusionMethod;
+  using yarn::ShadowMethod;
+  FidelityChoice shadows{"fiber_shadows", yarn::ToString(setup.fiber_shadows), "traced", 0, "requested"};
+  FidelityChoice occlusion{"fiber_occlusion", yarn::ToString(setup.fiber_occlusion), "traced", 0, "requested"};
+  plan->fiber_shadows = setup.fiber_shadows;
+  plan->fiber_occlusion = setup.fiber_occlusion;
+  const bool have = setup.scene.fiber_visibility != nullptr;
+  if (force_full || !have) {
+    plan->fiber_shadows = ShadowMethod::kTraced;
+    plan->fiber_occlusion = OcclusionMethod::kTraced;
+    shadows.chosen = occlusion.chosen = "traced";
+    shadows.reason = occlusion.reason = force_full ? "force_full_fidelity" : "no cross-section approximation";
+  } else {
+    int hits = 0;
+    const double traced = FiberPilotTotal(setup, ShadowMethod::kTraced, OcclusionMethod::kTraced, evaluators, shading, &hits);
+    const auto error_of = [&](ShadowMethod s, OcclusionMethod o) {
+      const double value = FiberPilotTotal(setup, s, o, evaluators, shading, &hits);
+      return traced > 0 ? std::fabs(value - traced) / traced : 0.0;
+    };
+    const std::string pilot = Format("%d pilot samples", hits);
+    if (hits == 0) {
+      if (setup.choose_fiber_shadows) plan->fiber_shadows = ShadowMethod::kTraced;
+      if (setup.choose_fiber_occlusion) plan->fiber_occlusion = OcclusionMethod::kTraced;
+      shadows.reason = occlusion.reason = "no fiber hit by the pilot rays: traced";
+    } else {
+      const double slices = error_of(ShadowMethod::kSlices, OcclusionMethod::kTraced);
+      if (setup.choose_fiber_shadows) plan->fiber_shadows = slices <= target ? ShadowMethod::kSlices : ShadowMethod::kTraced;
+      shadows.reason = Format("self-shadow slices + other yarns as tubes: pilot radiance %.2g from traced (%s)%s", slices,
+                              pilot.c_str(), !setup.choose_fiber_shadows ? ", requested"
+                                             : slices <= target           ? ", within the target"
+                                                                          : ", over the target");
+      if (plan->fiber_shadows != ShadowMethod::kTraced) shadows.estimated_error = slices;
+      if (setup.ambient > 0) {
+        const double texture = error_of(ShadowMethod::kTraced, OcclusionMethod::kTexture);
+        const double distance = error_of(ShadowMethod::kTraced, OcclusionMethod::kDistance);
+        const OcclusionMethod best = distance <= texture ? OcclusionMethod::kDistance : OcclusionMethod::kTexture;
+        const double best_error = std::min(texture, distance);
+        if (setup.choose_fiber_occlusion) plan->fiber_occlusion = best_error <= target ? best : OcclusionMethod::kTraced;
+        occlusion.reason = Format("occlusion texture %.2g, distance-based %.2g from traced (pilot radiance, %s)%s", texture,
+                                  distance, pilot.c_str(), !setup.choose_fiber_occlusion ? ", requested"
+                                                           : best_error <= target         ? ", within the target"
+                                                                                          : ", over the target");
+        if (plan->fiber_occlusion != OcclusionMethod::kTraced)
+          occlusion.estimated_error = plan->fiber_occlusion == OcclusionMethod::kTexture ? texture : distance;
+      } else {
+        if (setup.choose_fiber_occlusion) plan->fiber_occlusion = OcclusionMethod::kTraced;
+        occlusion.reason = "no ambient light";
+      }
+    }
+    shadows.chosen = yarn::ToString(plan->fiber_shadows);
+    occlusion.chosen = yarn::ToString(plan->fiber_occlusion);
+  }
+  for (FidelityChoice* c : {&shadows, &occlusion}) {
+    out->estimated_error += c->estimated_error;
+    out->choices.push_back(*c);
+  }
+}
+
 }  // namespace
 
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, MaterialVariants& variants,
@@ -155,6 +252,7 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
             EvaluatorIndex(&plan->evaluators, {material, false, false, true, models::Quantity::kAmbient});
       const RenderSetup::FiberDetail& d = setup.fiber_detail;
       out.choices.push_back({"geometry", d.chosen, d.full, 0, d.reason});
+      ChooseFiberVisibility(setup, plan->evaluators, shading, target, force_full, plan, &out);
       plan->objects.push_back(shading);
       plan->fidelity.push_back(std::move(out));
       continue;

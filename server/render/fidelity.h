@@ -6,7 +6,12 @@
 //   (the BTF's mean) when the texture the pixel would average away is within the target;
 // - an accuracy parameter of the model (a small table by parameter name, e.g. microcylinder tangent
 //   samples): the smallest value whose pilot radiance is within the target of the schema's maximum;
-// - transmission: evaluated only when the light reaching the back of the cloth matters.
+// - transmission: evaluated only when the light reaching the back of the cloth matters;
+// - fiber scenes' shadows and ambient occlusion: rays traced through the fibers, or the yarn cross-section's
+//   approximations (Wu and Yuksel Sec. 4.1-4.2) when the pilot's radiance with them is within the target of
+//   the traced one. The approximations are statistical (a fiber gets the mean visibility at its place in the
+//   cross-section, not its own), so the error is that of the pilot's total radiance, averaged over
+//   kFiberPilotRepeats samples per pilot pixel.
 // Models are told apart by their properties (spatially_varying(), transmission()) and parameter names,
 // never by model name.
 #pragma once
@@ -21,6 +26,7 @@ namespace loomlight::render {
 
 constexpr double kDefaultErrorTarget = 0.02;  // when a request gives none
 constexpr int kPilotGrid = 24;                // pilot rays: 24 x 24 pixel centres
+constexpr int kFiberPilotRepeats = 8;         // samples per pilot pixel for the fiber visibility choice
 
 struct FidelityChoice {
   std::string aspect;  // "path", an accuracy parameter's name, "transmission"
@@ -56,6 +62,9 @@ struct FidelityPlan {
   std::vector<Evaluator> evaluators;   // distinct kernel paths; one batcher job each per chunk
   std::vector<ObjectShading> objects;  // per scene object
   std::vector<ObjectFidelity> fidelity;
+  // Fiber scenes: the visibility methods to render with (the setup's, or the chooser's where it chose).
+  yarn::ShadowMethod fiber_shadows = yarn::ShadowMethod::kTraced;
+  yarn::OcclusionMethod fiber_occlusion = yarn::OcclusionMethod::kTraced;
 };
 
 // Fills *plan for every object of setup.scene. Returns "" or why a variant could not be made (internal).

@@ -11,6 +11,7 @@
 
 namespace loomlight::yarn {
 class FiberScene;
+class YarnVisibility;
 }
 
 namespace loomlight::render {
@@ -77,6 +78,7 @@ struct Hit {
   bool fiber = false;
   Vec3 fiber_axis;
   double fiber_radius = 0;
+  int fiber_yarn = -1;  // the yarn the fiber belongs to (the fiber scene's yarn index)
 };
 
 struct Scene {
@@ -89,6 +91,8 @@ struct Scene {
   // Fiber scenes: the fiber curves, hit as object fiber_object; constant ambient radiance (Wu and Yuksel
   // Eq. 7's L_amb) for the default lighting.
   std::shared_ptr<const yarn::FiberScene> fibers;
+  // The same yarns' cheap visibility (cross-section slices and occlusion, other yarns as tubes).
+  std::shared_ptr<const yarn::YarnVisibility> fiber_visibility;
   int fiber_object = -1;
   double default_ambient = 0;
 

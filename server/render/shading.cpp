@@ -79,22 +79,40 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
   point->axis = frame.ToLocal(hit.fiber_axis);
   point->u = point->v = 0;
   const FiberRayStart start{hit.position - hit.fiber_radius * hit.normal, hit.fiber_axis, hit.fiber_radius};
+  // The approximations stand for the fibers only (a fiber scene has no other shapes to block light).
+  const yarn::YarnVisibility* approximate = setup.scene.fiber_visibility.get();
+  const bool slices = approximate && setup.fiber_shadows == yarn::ShadowMethod::kSlices;
+  const bool occlusion = approximate && setup.fiber_occlusion != yarn::OcclusionMethod::kTraced;
+  const auto to_yarn = [&](Vec3 v) { return yarn::Vec3{v.x, v.y, v.z}; };
   ForEachLight(setup, hit.position, rng, [&](Vec3 wi_world, double max_distance, Rgb incident) {
     const Vec3 wi = frame.ToLocal(wi_world);
     const double along = Dot(wi, point->axis);
     const double cos_theta = std::sqrt(std::max(0.0, 1.0 - along * along));  // SPEC.md section 5's cos(theta_i)
     if (cos_theta < kMinCosine) return;
-    if (setup.scene.Occluded(start.origin, wi_world, max_distance, start.MinDistance(wi_world))) return;
-    point->lights.push_back({wi, cos_theta * incident});
+    double transmittance = 1;
+    if (slices) {
+      if (approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(wi_world), max_distance)) return;
+      transmittance = approximate->SelfShadow(hit.fiber_yarn, to_yarn(start.origin), to_yarn(wi_world), hit.fiber_radius);
+    } else if (setup.scene.Occluded(start.origin, wi_world, max_distance, start.MinDistance(wi_world))) {
+      return;
+    }
+    point->lights.push_back({wi, (cos_theta * transmittance) * incident});
   });
   point->ambient = {};
   if (setup.ambient > 0) {
-    // Ambient visibility: one uniformly distributed direction on the sphere per sample (rng dimensions 5, 6).
+    // Ambient visibility: one uniformly distributed direction on the sphere per sample (rng dimensions 5, 6),
+    // traced through the fibers, or through the other yarns' tubes times the yarn's own occlusion.
     const double z = 1 - 2 * rng.Uniform(5), phi = 2 * std::numbers::pi * rng.Uniform(6);
     const double r = std::sqrt(std::max(0.0, 1 - z * z));
     const Vec3 w{r * std::cos(phi), r * std::sin(phi), z};
-    if (!setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w)))
-      point->ambient = {setup.ambient, setup.ambient, setup.ambient};
+    double visibility = 0;
+    if (occlusion) {
+      if (!approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(w), INFINITY))
+        visibility = approximate->Occlusion(hit.fiber_yarn, to_yarn(start.origin), setup.fiber_occlusion);
+    } else if (!setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w))) {
+      visibility = 1;
+    }
+    point->ambient = (setup.ambient * visibility) * Rgb{1, 1, 1};
   }
 }
 

@@ -17,6 +17,7 @@
 #include "server/render/environment.h"
 #include "server/render/rng.h"
 #include "server/render/scene.h"
+#include "server/yarn/visibility.h"
 
 namespace loomlight::render {
 
@@ -33,8 +34,14 @@ struct RenderSetup {
   int width = 1, height = 1;
   uint32_t samples_per_pixel = 1;
   // Fiber scenes: constant ambient radiance (Wu and Yuksel Eq. 7's L_amb), times each fiber hit's visibility
-  // (an occlusion ray traced through the fibers per sample).
+  // (one occlusion direction per sample).
   double ambient = 0;
+  // Fiber scenes: how light and ambient visibility reach a fiber: rays traced through the fibers, or the
+  // yarn's cross-section approximations (scene.fiber_visibility) with other yarns as tubes.
+  yarn::ShadowMethod fiber_shadows = yarn::ShadowMethod::kTraced;
+  yarn::OcclusionMethod fiber_occlusion = yarn::OcclusionMethod::kTraced;
+  // The request left the method to the fidelity chooser (FidelityPlan says which it took).
+  bool choose_fiber_shadows = false, choose_fiber_occlusion = false;
   // Fiber scenes: the level of detail the geometry was generated at, for the fidelity report.
   struct FiberDetail {
     std::string chosen, full, reason;

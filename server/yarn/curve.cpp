@@ -68,7 +68,42 @@ std::string PolylineYarnCurve::Make(std::vector<Vec3> vertices, std::vector<Vec3
   out->normals_ = std::move(normals);
   out->tangents_ = std::move(tangents);
   out->arc_ = std::move(arc);
+  out->keys_.clear();
+  const Vec3 chord = out->vertices_.back() - out->vertices_.front();
+  out->chord_ = Norm(chord) > 0 ? Normalized(chord) : directions[0];
+  bool advancing = true;
+  for (const Vec3& d : directions) advancing = advancing && Dot(d, out->chord_) > 0;
+  if (advancing)
+    for (const Vec3& v : out->vertices_) out->keys_.push_back(Dot(v, out->chord_));
   return "";
+}
+
+double PolylineYarnCurve::ClosestOnSegment(size_t i, Vec3 p, double* distance2) const {
+  const Vec3 d = vertices_[i + 1] - vertices_[i];
+  const double u = std::clamp(Dot(p - vertices_[i], d) / Dot(d, d), 0.0, 1.0);
+  const Vec3 off = p - (vertices_[i] + u * d);
+  *distance2 = Dot(off, off);
+  return arc_[i] + u * (arc_[i + 1] - arc_[i]);
+}
+
+double PolylineYarnCurve::ClosestArc(Vec3 p) const {
+  if (vertices_.size() < 2 || !Finite(p)) return 0;
+  const size_t segments = vertices_.size() - 1;
+  size_t lo = 0, hi = segments;
+  if (!keys_.empty()) {
+    // Within a yarn radius of the curve, the nearest point lies on the segment over p's chord coordinate or
+    // close to it (segments turn less than 60 degrees): two on either side are searched.
+    const size_t k = std::upper_bound(keys_.begin(), keys_.end(), Dot(p, chord_)) - keys_.begin();
+    lo = k > 3 ? k - 3 : 0;
+    hi = std::min(segments, k + 2);
+  }
+  double best = INFINITY, arc = 0;
+  for (size_t i = lo; i < hi; ++i) {
+    double d2 = 0;
+    const double a = ClosestOnSegment(i, p, &d2);
+    if (d2 < best) best = d2, arc = a;
+  }
+  return arc;
 }
 
 CurveFrame PolylineYarnCurve::At(double arc) const {

@@ -3,6 +3,7 @@
 // Fig. 7 and a woven layout's warp and weft (over and under, as polylines) go through the same code.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <string>
@@ -42,6 +43,10 @@ class YarnCurve {
   virtual ~YarnCurve() = default;
   virtual double Length() const = 0;
   virtual CurveFrame At(double arc) const = 0;
+  // The arc length of the curve point nearest to p (for a point within the yarn: where its cross-section is).
+  virtual double ClosestArc(Vec3 p) const = 0;
+  // The centre as a polyline (a straight yarn: its two ends), e.g. for a thick tube standing for the yarn.
+  virtual std::vector<Vec3> CentrePolyline() const = 0;
 };
 
 // The straight yarn of Fig. 7: from the origin along +z, N_yarn = +x (so B_yarn = +y).
@@ -50,6 +55,8 @@ class StraightYarnCurve final : public YarnCurve {
   explicit StraightYarnCurve(double length) : length_(length) {}
   double Length() const override { return length_; }
   CurveFrame At(double arc) const override { return {{0, 0, arc}, {0, 0, 1}, {1, 0, 0}}; }
+  double ClosestArc(Vec3 p) const override { return std::isfinite(p.z) ? std::clamp(p.z, 0.0, length_) : 0.0; }
+  std::vector<Vec3> CentrePolyline() const override { return {{0, 0, 0}, {0, 0, length_}}; }
 
  private:
   double length_;
@@ -73,12 +80,20 @@ class PolylineYarnCurve final : public YarnCurve {
 
   double Length() const override { return arc_.empty() ? 0 : arc_.back(); }
   CurveFrame At(double arc) const override;
+  // Polylines that advance along their chord (every segment does: a woven layout's yarns) are searched by
+  // binary search on the chord and the neighbouring segments; others segment by segment.
+  double ClosestArc(Vec3 p) const override;
+  std::vector<Vec3> CentrePolyline() const override { return vertices_; }
 
  private:
+  double ClosestOnSegment(size_t i, Vec3 p, double* distance2) const;
+
   std::vector<Vec3> vertices_;
   std::vector<Vec3> normals_;
   std::vector<Vec3> tangents_;  // per vertex
   std::vector<double> arc_;     // arc length at each vertex, arc_[0] = 0
+  Vec3 chord_;                  // unit, first vertex to last
+  std::vector<double> keys_;    // Dot(vertex, chord_) per vertex when increasing, else empty
 };
 
 }  // namespace loomlight::yarn

@@ -17,9 +17,20 @@ namespace {
 // fiber's neighbours overlap it: a ply's fibers together cover about its whole cross-section, so they
 // overlap) and leaves it is not blocked by that tube; Intersect still reports such exits (FiberHit.entering).
 // For round curves Ng is the outward normal, so entering is dot(Ng, direction) <= 0.
+// Occluded's context: Embree hands the filter the context it was given, so it can carry the yarn to skip.
+struct OccludedContext {
+  RTCIntersectContext base;  // first, so a pointer to it is one to the whole
+  int skip_yarn = -1;
+};
+
 void OnlyEnteringBlocks(const RTCFilterFunctionNArguments* args) {
+  const int skip = reinterpret_cast<const OccludedContext*>(args->context)->skip_yarn;
   for (unsigned i = 0; i < args->N; ++i) {
     if (args->valid[i] != -1) continue;
+    if (skip >= 0 && RTCHitN_geomID(args->hit, args->N, i) == unsigned(skip)) {
+      args->valid[i] = 0;
+      continue;
+    }
     const float along = RTCHitN_Ng_x(args->hit, args->N, i) * RTCRayN_dir_x(args->ray, args->N, i) +
                         RTCHitN_Ng_y(args->hit, args->N, i) * RTCRayN_dir_y(args->ray, args->N, i) +
                         RTCHitN_Ng_z(args->hit, args->N, i) * RTCRayN_dir_z(args->ray, args->N, i);
@@ -449,6 +460,23 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
   return "";
 }
 
+// The tangent a hit is shaded with: at each joint the mean of the two segments' directions, linear along the
+// segment between its two joints (a round end keeps the segment's own), so a narrow lobe's highlight slides
+// along a polyline fiber instead of lighting whole segments (the curve's true tangent turns smoothly).
+Float3 FiberScene::ShadingTangent(const YarnTable& table, uint32_t seg, const float* v0, Float3 tangent, float u) {
+  const uint32_t c = table.segment_curve[seg];
+  const uint32_t first = table.curve_first[c];
+  const uint32_t end = c + 1 < table.curve_first.size() ? table.curve_first[c + 1]
+                                                        : static_cast<uint32_t>(table.segment_curve.size());
+  const auto direction = [](const float* a, const float* b) { return Normalized(b[0] - a[0], b[1] - a[1], b[2] - a[2]); };
+  const auto mean = [](Float3 a, Float3 b) { return Normalized(a.x + b.x, a.y + b.y, a.z + b.z); };
+  const Float3 left = seg > first ? mean(direction(v0 - 4, v0), tangent) : tangent;
+  const Float3 right = seg + 1 < end ? mean(tangent, direction(v0 + 4, v0 + 8)) : tangent;
+  const float w = std::clamp(u, 0.0f, 1.0f);
+  const Float3 t = Normalized((1 - w) * left.x + w * right.x, (1 - w) * left.y + w * right.y, (1 - w) * left.z + w * right.z);
+  return t == Float3{} ? tangent : t;
+}
+
 std::string FiberScene::Intersect(std::span<const FiberRay> rays, std::span<FiberHit> hits) const {
   if (hits.size() != rays.size()) {
     return "hits: has " + std::to_string(hits.size()) + " entries for " + std::to_string(rays.size()) + " rays";
@@ -505,6 +533,7 @@ std::string FiberScene::Intersect(std::span<const FiberRay> rays, std::span<Fibe
     h.t = t;
     h.position = p;
     h.tangent = tangent;
+    h.shading_tangent = ShadingTangent(table, seg, v0, tangent, rh.hit.u);
     h.normal = n;
     h.u = std::clamp(rh.hit.u, 0.0f, 1.0f);
     h.type = info.type;
@@ -518,13 +547,14 @@ std::string FiberScene::Intersect(std::span<const FiberRay> rays, std::span<Fibe
   return "";
 }
 
-std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded) const {
+std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded, int skip_yarn) const {
   if (occluded.size() != rays.size()) {
     return "occluded: has " + std::to_string(occluded.size()) + " entries for " + std::to_string(rays.size()) +
            " rays";
   }
-  RTCIntersectContext context;
-  rtcInitIntersectContext(&context);
+  OccludedContext context;
+  rtcInitIntersectContext(&context.base);
+  context.skip_yarn = skip_yarn;
   for (size_t i = 0; i < rays.size(); ++i) {
     const FiberRay& r = rays[i];
     occluded[i] = 0;
@@ -542,7 +572,7 @@ std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8
     ray.mask = ~0u;
     ray.id = 0;
     ray.flags = 0;
-    rtcOccluded1(scene_, &context, &ray);
+    rtcOccluded1(scene_, &context.base, &ray);
     // Embree marks an occluded ray by setting tfar to -inf.
     occluded[i] = ray.tfar < 0 ? 1 : 0;
   }

@@ -134,6 +134,7 @@ struct FiberHit {
   float t = std::numeric_limits<float>::infinity();
   Float3 position;  // origin + t direction
   Float3 tangent;   // unit, along the fiber's segment, in the curve's point order
+  Float3 shading_tangent;  // unit: the joints' mean directions interpolated along the segment (for shading)
   Float3 normal;    // unit surface normal (Embree's Ng for round curves), facing the ray (dot(normal, dir) <= 0)
   float u = 0;      // position along the segment, [0, 1]
   FiberType type = FiberType::kMigration;
@@ -173,7 +174,9 @@ class FiberScene {
   std::string Intersect(std::span<const FiberRay> rays, std::span<FiberHit> hits) const;
   // Any fiber the ray enters in [tnear, tfar]: occluded[i] = 1 or 0 (a tube the ray starts inside and leaves
   // does not block it: a shadow ray from inside overlapping fibers). occluded.size() must equal rays.size().
-  std::string Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded) const;
+  // skip_yarn >= 0: that yarn's fibers block nothing (a yarn's thick tube when its own fibers' shadow is
+  // approximated otherwise).
+  std::string Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded, int skip_yarn = -1) const;
 
  private:
   struct Monitor;
@@ -191,6 +194,7 @@ class FiberScene {
     std::vector<CurveInfo> curves;        // per input curve
   };
   void Release();
+  static Float3 ShadingTangent(const YarnTable& table, uint32_t seg, const float* v0, Float3 tangent, float u);
 
   RTCDeviceTy* device_ = nullptr;
   RTCSceneTy* scene_ = nullptr;

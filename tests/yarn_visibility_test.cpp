@@ -142,7 +142,7 @@ TEST(YarnVisibility, ApproximationsOnAWovenPatchAgainstRaysTracedThroughTheFiber
     const Vec3 l{light[0], light[1], light[2]};
     shadow_traced += traced(l);
     if (!patch->visibility.OtherYarnsBlock(hit.yarn, origin, l, INFINITY))
-      shadow_slices += patch->visibility.SelfShadow(hit.yarn, origin, l, r);
+      shadow_slices += patch->visibility.SelfShadow(patch->visibility.Locate(hit.yarn, origin), l, r);
     double tubes = 0;
     for (int m = 0; m < ambient_rays; ++m) {
       const double z = 1 - 2 * unit(rng), phi = 2 * kPi * unit(rng), rho = std::sqrt(1 - z * z);
@@ -150,8 +150,9 @@ TEST(YarnVisibility, ApproximationsOnAWovenPatchAgainstRaysTracedThroughTheFiber
       ambient_traced += traced(w) / ambient_rays;
       tubes += patch->visibility.OtherYarnsBlock(hit.yarn, origin, w, INFINITY) ? 0.0 : 1.0 / ambient_rays;
     }
-    ambient_texture += tubes * patch->visibility.Occlusion(hit.yarn, origin, OcclusionMethod::kTexture);
-    ambient_distance += tubes * patch->visibility.Occlusion(hit.yarn, origin, OcclusionMethod::kDistance);
+    const CrossSectionPoint at = patch->visibility.Locate(hit.yarn, origin);
+    ambient_texture += tubes * patch->visibility.Occlusion(at, OcclusionMethod::kTexture);
+    ambient_distance += tubes * patch->visibility.Occlusion(at, OcclusionMethod::kDistance);
     ++hits;
   }
   ASSERT_GT(hits, 400);
@@ -161,7 +162,7 @@ TEST(YarnVisibility, ApproximationsOnAWovenPatchAgainstRaysTracedThroughTheFiber
   EXPECT_NEAR(shadow_slices, shadow_traced, 0.08);
   EXPECT_NEAR(ambient_texture, ambient_traced, 0.08);
   EXPECT_NEAR(ambient_distance, ambient_traced, 0.08);
-  EXPECT_EQ(patch->visibility.Occlusion(0, {0, 0, 0}, OcclusionMethod::kTraced), 1);
+  EXPECT_EQ(patch->visibility.Occlusion(patch->visibility.Locate(0, {0, 0, 0}), OcclusionMethod::kTraced), 1);
 }
 
 TEST(YarnVisibility, RefusesBadInput) {
@@ -175,7 +176,9 @@ TEST(YarnVisibility, RefusesBadInput) {
   EXPECT_EQ(YarnVisibility::Make(p, one, 0.03, {}, nullptr, &v).rfind("plies:", 0), 0u);
   // A yarn index out of range sees nothing (never reads past the curves).
   ASSERT_EQ(YarnVisibility::Make(YarnParams{}, one, 0.03, {}, nullptr, &v), "");
-  EXPECT_EQ(v.SelfShadow(7, {0, 0, 0.5}, {1, 0, 0}, 0.001), 1);
+  EXPECT_EQ(v.Locate(7, {0, 0, 0.5}).yarn, -1);
+  EXPECT_EQ(v.SelfShadow(v.Locate(7, {0, 0, 0.5}), {1, 0, 0}, 0.001), 1);
+  EXPECT_EQ(v.Occlusion(v.Locate(-3, {0, 0, 0.5}), OcclusionMethod::kTexture), 1);
   EXPECT_FALSE(v.OtherYarnsBlock(-1, {0, 0, 0.5}, {1, 0, 0}, INFINITY));
 }
 

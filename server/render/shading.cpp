@@ -84,6 +84,8 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
   const bool slices = approximate && setup.fiber_shadows == yarn::ShadowMethod::kSlices;
   const bool occlusion = approximate && setup.fiber_occlusion != yarn::OcclusionMethod::kTraced;
   const auto to_yarn = [&](Vec3 v) { return yarn::Vec3{v.x, v.y, v.z}; };
+  const yarn::CrossSectionPoint in_yarn =
+      slices || occlusion ? approximate->Locate(hit.fiber_yarn, to_yarn(start.origin)) : yarn::CrossSectionPoint{};
   ForEachLight(setup, hit.position, rng, [&](Vec3 wi_world, double max_distance, Rgb incident) {
     const Vec3 wi = frame.ToLocal(wi_world);
     const double along = Dot(wi, point->axis);
@@ -92,7 +94,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
     double transmittance = 1;
     if (slices) {
       if (approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(wi_world), max_distance)) return;
-      transmittance = approximate->SelfShadow(hit.fiber_yarn, to_yarn(start.origin), to_yarn(wi_world), hit.fiber_radius);
+      transmittance = approximate->SelfShadow(in_yarn, to_yarn(wi_world), hit.fiber_radius);
     } else if (setup.scene.Occluded(start.origin, wi_world, max_distance, start.MinDistance(wi_world))) {
       return;
     }
@@ -108,7 +110,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
     double visibility = 0;
     if (occlusion) {
       if (!approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(w), INFINITY))
-        visibility = approximate->Occlusion(hit.fiber_yarn, to_yarn(start.origin), setup.fiber_occlusion);
+        visibility = approximate->Occlusion(in_yarn, setup.fiber_occlusion);
     } else if (!setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w))) {
       visibility = 1;
     }

@@ -39,6 +39,13 @@ std::string YarnCrossSection::Make(const YarnParams& p, const CrossSectionOption
   x.ply_norm_ = p.fiber_width * p.fibers_per_ply / (p.ellipse_n * p.ellipse_b * disk);
 
   const int n = o.resolution;
+  // The extinction per texel centre, for Shadow's own-fiber correction (bilinear: D's exp and pow per ply
+  // cost more than the rest of a lookup).
+  x.extinction_.resize(size_t(n) * n);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      x.extinction_[size_t(j) * n + i] =
+          float(x.Extinction(-x.extent_ + (i + 0.5) * x.cell_, -x.extent_ + (j + 0.5) * x.cell_));
   const double slice_angle = kTwoPi / (p.plies * o.slices);
   x.depth_.assign(size_t(o.slices) * n * n, 0.0f);
   for (int k = 0; k < o.slices; ++k) {
@@ -47,14 +54,15 @@ std::string YarnCrossSection::Make(const YarnParams& p, const CrossSectionOption
       const double t = -x.extent_ + (j + 0.5) * x.cell_;
       // Slice (s, t) is the frame's R(gamma) (s, t): the light comes from +s.
       const auto at = [&](double u) { return x.Extinction(c * u - s * t, s * u + c * t); };
-      float* row = &x.depth_[(size_t(k) * n + j) * n];
+      // Slices innermost: a lookup's two slices share cache lines.
+      const auto texel = [&](int i) -> float& { return x.depth_[(size_t(j) * n + i) * o.slices + k]; };
       double u_last = -x.extent_ + (n - 0.5) * x.cell_;
       double depth = 0.5 * x.cell_ * at(u_last + 0.25 * x.cell_);  // the last half texel, to the edge
-      row[n - 1] = float(depth);
+      texel(n - 1) = float(depth);
       for (int i = n - 2; i >= 0; --i) {
         const double u = -x.extent_ + (i + 0.5) * x.cell_;
         depth += 0.5 * x.cell_ * (at(u + 0.25 * x.cell_) + at(u + 0.75 * x.cell_));
-        row[i] = float(depth);
+        texel(i) = float(depth);
       }
     }
   }
@@ -71,7 +79,7 @@ std::string YarnCrossSection::Make(const YarnParams& p, const CrossSectionOption
       double sum = 0;
       for (int m = 0; m < directions; ++m) {
         const double c = cosines[m], s = sines[m];
-        sum += std::exp(-x.Texel(x.depth_, m % o.slices, c * px + s * py, -s * px + c * py));
+        sum += std::exp(-x.Texel(x.depth_, o.slices, m % o.slices, c * px + s * py, -s * px + c * py));
       }
       x.occlusion_[size_t(j) * n + i] = float(sum / directions);
     }
@@ -108,32 +116,46 @@ double YarnCrossSection::Extinction(double x, double y) const {
   return ply_norm_ * total;
 }
 
-double YarnCrossSection::Texel(const std::vector<float>& t, int slice, double s, double u) const {
+double YarnCrossSection::Texel(const std::vector<float>& t, int stride, int slice, double s, double u) const {
   const int n = options_.resolution;
   const double fi = std::clamp((s + extent_) / cell_ - 0.5, 0.0, n - 1.0);
   const double fj = std::clamp((u + extent_) / cell_ - 0.5, 0.0, n - 1.0);
   const int i = std::min(int(fi), n - 2), j = std::min(int(fj), n - 2);
   const double a = fi - i, b = fj - j;
-  const float* row = &t[(size_t(slice) * n + j) * n];
-  return (1 - b) * ((1 - a) * row[i] + a * row[i + 1]) + b * ((1 - a) * row[n + i] + a * row[n + i + 1]);
+  const float* p = &t[(size_t(j) * n + i) * stride + slice];
+  const size_t right = stride, down = size_t(n) * stride;
+  return (1 - b) * ((1 - a) * p[0] + a * p[right]) + b * ((1 - a) * p[down] + a * p[down + right]);
 }
 
 double YarnCrossSection::Depth(double x, double y, double light_angle) const {
-  if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(light_angle)) return 0;
-  const double c = std::cos(light_angle), s = std::sin(light_angle);
-  const double ps = c * x + s * y, pt = -s * x + c * y;  // R(-light_angle) (x, y): the slice's coordinates
+  if (!std::isfinite(light_angle)) return 0;
+  return DepthToward(x, y, std::cos(light_angle), std::sin(light_angle));
+}
+
+double YarnCrossSection::DepthToward(double x, double y, double dx, double dy) const {
+  if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(dx) || !std::isfinite(dy)) return 0;
+  const double length = std::hypot(dx, dy);
+  // A light along the yarn: any 2D direction (the parallel-fiber depth does not depend on the elevation).
+  const double c = length > 1e-12 ? dx / length : 1.0, s = length > 1e-12 ? dy / length : 0.0;
+  const double ps = c * x + s * y, pt = -s * x + c * y;  // R(-light angle) (x, y): the slice's coordinates
   // The slice index: the light angle modulo the plies' symmetry, in units of the slice spacing.
   const double slice_angle = kTwoPi / (params_.plies * options_.slices);
-  double f = std::fmod(light_angle / slice_angle, double(options_.slices));
+  double f = std::fmod(std::atan2(s, c) / slice_angle, double(options_.slices));
   if (f < 0) f += options_.slices;
   const int k0 = std::min(int(f), options_.slices - 1), k1 = (k0 + 1) % options_.slices;
   const double w = f - k0;
-  return (1 - w) * Texel(depth_, k0, ps, pt) + w * Texel(depth_, k1, ps, pt);
+  return (1 - w) * Texel(depth_, options_.slices, k0, ps, pt) + w * Texel(depth_, options_.slices, k1, ps, pt);
 }
 
 double YarnCrossSection::Shadow(double x, double y, double light_angle, double own_radius) const {
-  const double own = std::isfinite(own_radius) ? std::max(0.0, own_radius) * Extinction(x, y) : 0.0;
-  return std::exp(-std::max(0.0, Depth(x, y, light_angle) - own));
+  if (!std::isfinite(light_angle)) return 1;
+  return ShadowToward(x, y, std::cos(light_angle), std::sin(light_angle), own_radius);
+}
+
+double YarnCrossSection::ShadowToward(double x, double y, double dx, double dy, double own_radius) const {
+  if (!std::isfinite(x) || !std::isfinite(y)) return 1;
+  const double own = std::isfinite(own_radius) ? std::max(0.0, own_radius) * Texel(extinction_, 1, 0, x, y) : 0.0;
+  return std::exp(-std::max(0.0, DepthToward(x, y, dx, dy) - own));
 }
 
 double YarnCrossSection::DepthExact(double x, double y, double light_angle, int steps) const {
@@ -149,7 +171,7 @@ double YarnCrossSection::DepthExact(double x, double y, double light_angle, int 
 
 double YarnCrossSection::Occlusion(double x, double y) const {
   if (!std::isfinite(x) || !std::isfinite(y)) return 1;
-  return Texel(occlusion_, 0, x, y);
+  return Texel(occlusion_, 1, 0, x, y);
 }
 
 double YarnCrossSection::DistanceOcclusion(double r) const {

@@ -428,6 +428,7 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
     table.indices = indices;
     rtcSetGeometryBuildQuality(geom, ToEmbree(options.quality));
     rtcSetGeometryOccludedFilterFunction(geom, OnlyEnteringBlocks);
+    rtcSetGeometryMask(geom, 1u << (y % 32));  // Occluded skips a yarn by its bit (where no other shares it)
     rtcCommitGeometry(geom);
     rtcAttachGeometryByID(scene.scene_, geom, static_cast<unsigned>(y));
     rtcReleaseGeometry(geom);  // the scene holds it now
@@ -569,7 +570,9 @@ std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8
     ray.dir_z = r.direction.z;
     ray.time = 0;
     ray.tfar = r.tfar;
-    ray.mask = ~0u;
+    // Skipping a yarn by its mask bit spares intersecting its segments at all (the filter alone would reject
+    // each hit); with more than 32 yarns bits are shared, so the filter does it.
+    ray.mask = skip_yarn >= 0 && skip_yarn < 32 && tables_.size() <= 32 ? ~(1u << skip_yarn) : ~0u;
     ray.id = 0;
     ray.flags = 0;
     rtcOccluded1(scene_, &context.base, &ray);

@@ -97,7 +97,13 @@ std::string YarnVisibility::Make(const YarnParams& params, std::vector<std::shar
       FiberCurve tube;
       tube.type = FiberType::kCore;
       tube.width = 2 * tube_radius;
-      tube.points = centres[i]->CentrePolyline();
+      // Vertices at least a tube radius apart: a tube overlaps itself less and a ray tests fewer segments
+      // (measured on a cotton1 plain weave: 236 ns a ray instead of 300 at the layout's 16 points per
+      // crossing); the chords cut into a crimped yarn's crest by under a tenth of its radius there.
+      const std::vector<Vec3> polyline = centres[i]->CentrePolyline();
+      for (size_t k = 0; k < polyline.size(); ++k)
+        if (k == 0 || k + 1 == polyline.size() || Norm(polyline[k] - tube.points.back()) >= tube_radius)
+          tube.points.push_back(polyline[k]);
       tubes[i].control_points = static_cast<int64_t>(tube.points.size());
       tubes[i].fibers.push_back(std::move(tube));
       pointers.push_back(&tubes[i]);
@@ -119,24 +125,27 @@ CrossSectionPoint YarnVisibility::Locate(int yarn, Vec3 p) const {
   const YarnCurve& curve = *centres_[size_t(yarn)];
   const double arc = curve.ClosestArc(p);
   const CurveFrame f = curve.At(arc);
+  out.yarn = yarn;
   out.normal = f.normal;
   out.binormal = Cross(f.tangent, f.normal);
-  out.phase = kTwoPi * arc / alpha_yarn_;
+  const double phase = kTwoPi * arc / alpha_yarn_;
+  out.cos_phase = std::cos(phase);
+  out.sin_phase = std::sin(phase);
   const Vec3 d = p - f.position;
   const double n = Dot(d, out.normal), b = Dot(d, out.binormal);
-  const double c = std::cos(out.phase), s = std::sin(out.phase);
   // Turned back by the phase: ply j's centre is then at angle 2 pi j / K, as in the cross-section.
-  out.x = c * n + s * b;
-  out.y = -s * n + c * b;
+  out.x = out.cos_phase * n + out.sin_phase * b;
+  out.y = -out.sin_phase * n + out.cos_phase * b;
   return out;
 }
 
-double YarnVisibility::SelfShadow(int yarn, Vec3 p, Vec3 w, double own_radius) const {
-  if (yarn < 0 || yarn >= yarns()) return 1;
-  const CrossSectionPoint x = Locate(yarn, p);
-  // The light's direction in the cross-section (its component along the yarn does not change the depth).
-  const double angle = std::atan2(Dot(w, x.binormal), Dot(w, x.normal)) - x.phase;
-  return cross_section_->Shadow(x.x, x.y, angle, own_radius);
+double YarnVisibility::SelfShadow(const CrossSectionPoint& x, Vec3 w, double own_radius) const {
+  if (x.yarn < 0) return 1;
+  // The light's direction in the cross-section, turned back likewise (its component along the yarn does not
+  // change the depth).
+  const double n = Dot(w, x.normal), b = Dot(w, x.binormal);
+  return cross_section_->ShadowToward(x.x, x.y, x.cos_phase * n + x.sin_phase * b, -x.sin_phase * n + x.cos_phase * b,
+                                      own_radius);
 }
 
 bool YarnVisibility::OtherYarnsBlock(int yarn, Vec3 p, Vec3 w, double max_distance) const {
@@ -146,9 +155,8 @@ bool YarnVisibility::OtherYarnsBlock(int yarn, Vec3 p, Vec3 w, double max_distan
   return tubes_->Occluded({&ray, 1}, {&blocked, 1}, yarn).empty() && blocked;
 }
 
-double YarnVisibility::Occlusion(int yarn, Vec3 p, OcclusionMethod method) const {
-  if (method == OcclusionMethod::kTraced || yarn < 0 || yarn >= yarns()) return 1;
-  const CrossSectionPoint x = Locate(yarn, p);
+double YarnVisibility::Occlusion(const CrossSectionPoint& x, OcclusionMethod method) const {
+  if (method == OcclusionMethod::kTraced || x.yarn < 0) return 1;
   return method == OcclusionMethod::kTexture ? cross_section_->Occlusion(x.x, x.y)
                                              : cross_section_->DistanceOcclusion(std::hypot(x.x, x.y));
 }

@@ -34,9 +34,10 @@ const char* ToString(OcclusionMethod m);
 
 // A point in its yarn's untwisted cross-section frame (YarnCrossSection's).
 struct CrossSectionPoint {
+  int yarn = -1;  // -1: not in a yarn (an index out of range); the approximations then see nothing
   double x = 0, y = 0;
-  double phase = 0;  // the ply twist turned back: 2 pi arc / alpha_yarn
-  Vec3 normal, binormal;  // the yarn's N_yarn and B_yarn there
+  double cos_phase = 1, sin_phase = 0;  // the ply twist turned back: phase 2 pi arc / alpha_yarn
+  Vec3 normal, binormal;                // the yarn's N_yarn and B_yarn there
 };
 
 class YarnVisibility {
@@ -47,15 +48,16 @@ class YarnVisibility {
                           double tube_radius, const CrossSectionOptions& options, std::function<bool()> stop,
                           YarnVisibility* out);
 
-  // The point p of yarn `yarn` in that yarn's cross-section.
+  // The point p of yarn `yarn` in that yarn's cross-section (once per shading point: it finds the nearest
+  // point of the centre curve).
   CrossSectionPoint Locate(int yarn, Vec3 p) const;
-  // Transmittance from a fiber of radius own_radius at p (on its axis) toward the light in direction w
-  // (unit), within its yarn: the slices.
-  double SelfShadow(int yarn, Vec3 p, Vec3 w, double own_radius) const;
-  // Whether another yarn's tube blocks the ray from p along w (unit) within max_distance.
+  // Transmittance from a fiber of radius own_radius at x (on its axis) toward the light in direction w,
+  // within its yarn: the slices.
+  double SelfShadow(const CrossSectionPoint& x, Vec3 w, double own_radius) const;
+  // Whether another yarn's tube blocks the ray from p (in yarn `yarn`) along w within max_distance.
   bool OtherYarnsBlock(int yarn, Vec3 p, Vec3 w, double max_distance) const;
-  // Mean visibility at p within its yarn: the occlusion texture or its radial mean (kTraced: 1).
-  double Occlusion(int yarn, Vec3 p, OcclusionMethod method) const;
+  // Mean visibility at x within its yarn: the occlusion texture or its radial mean (kTraced: 1).
+  double Occlusion(const CrossSectionPoint& x, OcclusionMethod method) const;
 
   const YarnCrossSection& cross_section() const { return *cross_section_; }
   int yarns() const { return static_cast<int>(centres_.size()); }

@@ -733,8 +733,11 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
                             model->name() + "'" + (request->material().has_transmission() ? " with a layer" : "")));
     ChooseFiberDetail(*request, fiber_job.get(), &detail);
   }
+  // A woven patch's centre polylines twice: the layout while its fibers are generated, and the copies the
+  // visibility approximations keep for the render (the centre curves and the other yarns' tubes).
+  const size_t layout_bytes = fiber_job ? 2 * fiber_job->layout_bytes : 0;
   Admission admission;
-  if (grpc::Status s = Admit(deps.memory, deps.long_calls, RenderBytes(*request), &admission); !s.ok())
+  if (grpc::Status s = Admit(deps.memory, deps.long_calls, RenderBytes(*request) + layout_bytes, &admission); !s.ok())
     return reject(s);
   return new RenderCall(deps, context, *request, std::move(material), std::move(fiber_job), std::move(detail),
                         std::move(admission), received);

@@ -128,13 +128,13 @@ double Median(std::vector<double> v) {
 std::string KnobText(double v) { return Format("%g", v); }
 
 // The fiber object's total pilot radiance (R + G + B over every pilot pixel and repeat) with the given
-// visibility methods: each pixel centre traced kFiberPilotRepeats times (own random streams: the light and
+// visibility methods: each pilot pixel centre traced kFiberPilotRepeats times (own random streams: the light and
 // occlusion directions), shaded on the host.
 double FiberPilotTotal(RenderSetup setup, yarn::ShadowMethod shadows, yarn::OcclusionMethod occlusion,
                        const std::vector<Evaluator>& evaluators, const ObjectShading& shading, int* hits) {
   setup.fiber_shadows = shadows;
   setup.fiber_occlusion = occlusion;
-  const int nx = std::min(kPilotGrid, setup.width), ny = std::min(kPilotGrid, setup.height);
+  const int nx = std::min(kFiberPilotGrid, setup.width), ny = std::min(kFiberPilotGrid, setup.height);
   std::vector<QueryBucket> buckets(evaluators.size());
   ShadingPoint point;
   double total = 0;

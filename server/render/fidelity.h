@@ -10,8 +10,8 @@
 // - fiber scenes' shadows and ambient occlusion: rays traced through the fibers, or the yarn cross-section's
 //   approximations (Wu and Yuksel Sec. 4.1-4.2) when the pilot's radiance with them is within the target of
 //   the traced one. The approximations are statistical (a fiber gets the mean visibility at its place in the
-//   cross-section, not its own), so the error is that of the pilot's total radiance, averaged over
-//   kFiberPilotRepeats samples per pilot pixel.
+//   cross-section, not its own), so the error is that of the pilot's total radiance over a finer grid of its
+//   own (kFiberPilotGrid, kFiberPilotRepeats samples per pixel: the fibers' positions vary more than the rays).
 // Models are told apart by their properties (spatially_varying(), transmission()) and parameter names,
 // never by model name.
 #pragma once
@@ -26,7 +26,8 @@ namespace loomlight::render {
 
 constexpr double kDefaultErrorTarget = 0.02;  // when a request gives none
 constexpr int kPilotGrid = 24;                // pilot rays: 24 x 24 pixel centres
-constexpr int kFiberPilotRepeats = 8;         // samples per pilot pixel for the fiber visibility choice
+constexpr int kFiberPilotGrid = 64;           // the fiber visibility choice's pilot: 64 x 64 pixels,
+constexpr int kFiberPilotRepeats = 2;         // 2 samples each
 
 struct FidelityChoice {
   std::string aspect;  // "path", an accuracy parameter's name, "transmission"

@@ -305,6 +305,35 @@ TEST_F(RenderTest, CancelledRenderStopsEarly) {
   EXPECT_TRUE(Render(*stub_, Request("velvet", v1::SCENE_SPHERE, 8, 8, 1)).status.ok());
 }
 
+// A fiber scene's deadline stops its yarn's generation and BVH build, not only the tracing: a heavy woven
+// patch (14,400 fibers, about 1.4 million control points) asked with a 30 ms deadline ends well before its set-up
+// alone would, without a single query, and the server keeps serving.
+TEST_F(RenderTest, FiberSceneDeadlineStopsGenerationAndTheBuild) {
+  RenderRequest heavy = Request("cotton", v1::SCENE_WOVEN_PATCH, 16, 16, 1);
+  heavy.set_fiber_detail(v1::FIBER_DETAIL_FULL);
+  v1::Param* fibers = heavy.mutable_yarn()->add_params();
+  fibers->set_name("fibers_per_ply");
+  fibers->add_values(400);
+  const Rendered whole = Render(*stub_, heavy);
+  ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
+  const double setup = whole.last().setup_seconds();
+  std::printf("heavy fiber scene: set-up %.3f s\n", setup);
+  ASSERT_GT(setup, 0.2);  // the generation and the build are what the deadline must cut short
+
+  const uint64_t before = server_->metrics().rendered_queries();
+  const Rendered late = Render(*stub_, heavy, std::chrono::milliseconds(30));
+  EXPECT_EQ(late.status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << late.status.error_message();
+  // Right after, a small fiber scene: its set-up waits for the geometry worker, which would still be busy with
+  // the heavy yarn had the deadline not stopped it.
+  const Rendered next = Render(*stub_, Request("cotton", v1::SCENE_YARN, 8, 8, 1));
+  ASSERT_TRUE(next.status.ok()) << next.status.error_message();
+  std::printf("after the deadline: the next fiber scene's set-up %.3f s\n", next.last().setup_seconds());
+  EXPECT_LT(next.last().setup_seconds(), 0.5 * setup);
+  // And the heavy scene never traced a ray: the only queries since are the small one's.
+  std::this_thread::sleep_for(std::chrono::duration<double>(std::max(0.3, 2 * whole.last().total_seconds())));
+  EXPECT_EQ(server_->metrics().rendered_queries() - before, next.last().queries());
+}
+
 TEST_F(RenderTest, EvaluateIsServedWhileARenderRuns) {
   std::atomic<bool> stop{false};
   auto render = std::async(std::launch::async, [&] {

@@ -83,6 +83,22 @@ class Pilot {
   std::vector<std::vector<ShadingPoint>> by_object_;
 };
 
+// Adds each query's weight x f (R + G + B), evaluated on the host, to (*radiance)[its tag].
+void AddHostRadiance(const std::vector<Evaluator>& evaluators, const std::vector<QueryBucket>& buckets,
+                     std::vector<double>* radiance) {
+  std::vector<double> f;
+  for (size_t e = 0; e < evaluators.size(); ++e) {
+    const QueryBucket& b = buckets[e];
+    if (b.size() == 0) continue;
+    EvaluateOnHost(evaluators[e], b, &f);
+    for (size_t q = 0; q < b.size(); ++q)
+      for (int c = 0; c < 3; ++c) {
+        const double value = double(b.weight[3 * q + c]) * f[3 * q + c];
+        if (std::isfinite(value)) (*radiance)[b.tag[q]] += value;
+      }
+  }
+}
+
 // Radiance (R + G + B) of each pilot point of one object under `config`, evaluated on the host.
 bool PilotRadiance(const std::vector<ShadingPoint>& points, const MaterialInfo& m, MaterialVariants& variants,
                    const Knob& knob, const Config& config, std::vector<double>* radiance) {
@@ -95,17 +111,7 @@ bool PilotRadiance(const std::vector<ShadingPoint>& points, const MaterialInfo& 
     const Rgb direct = AppendQueries(points[i], shading, evaluators, static_cast<uint32_t>(i), &buckets);
     (*radiance)[i] = direct.x + direct.y + direct.z;
   }
-  std::vector<double> f;
-  for (size_t e = 0; e < evaluators.size(); ++e) {
-    const QueryBucket& b = buckets[e];
-    if (b.size() == 0) continue;
-    EvaluateOnHost(evaluators[e], b, &f);
-    for (size_t q = 0; q < b.size(); ++q)
-      for (int c = 0; c < 3; ++c) {
-        const double value = double(b.weight[3 * q + c]) * f[3 * q + c];
-        if (std::isfinite(value)) (*radiance)[b.tag[q]] += value;
-      }
-  }
+  AddHostRadiance(evaluators, buckets, radiance);
   return true;
 }
 
@@ -137,7 +143,6 @@ double FiberPilotTotal(RenderSetup setup, yarn::ShadowMethod shadows, yarn::Occl
   const int nx = std::min(kFiberPilotGrid, setup.width), ny = std::min(kFiberPilotGrid, setup.height);
   std::vector<QueryBucket> buckets(evaluators.size());
   ShadingPoint point;
-  double total = 0;
   *hits = 0;
   for (int k = 0; k < kFiberPilotRepeats; ++k)
     for (int j = 0; j < ny; ++j)
@@ -148,17 +153,9 @@ double FiberPilotTotal(RenderSetup setup, yarn::ShadowMethod shadows, yarn::Occl
         ++*hits;
         AppendQueries(point, shading, evaluators, 0, &buckets);
       }
-  std::vector<double> f;
-  for (size_t e = 0; e < evaluators.size(); ++e) {
-    if (buckets[e].size() == 0) continue;
-    EvaluateOnHost(evaluators[e], buckets[e], &f);
-    for (size_t q = 0; q < buckets[e].size(); ++q)
-      for (int c = 0; c < 3; ++c) {
-        const double value = double(buckets[e].weight[3 * q + c]) * f[3 * q + c];
-        if (std::isfinite(value)) total += value;
-      }
-  }
-  return total;
+  std::vector<double> total(1, 0.0);  // every query tagged 0
+  AddHostRadiance(evaluators, buckets, &total);
+  return total[0];
 }
 
 // The fiber scene's shadow and occlusion methods: the request's, or (where it left them to the chooser) the

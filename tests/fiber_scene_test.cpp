@@ -358,25 +358,6 @@ TEST(FiberSceneTest, BentFiberJointHasNoGapAndNoInnerHit) {
   }
 }
 
-// Occluded can leave one yarn out (its fibers stand for themselves some other way): the others still block.
-TEST(FiberSceneTest, OccludedSkipsTheNamedYarnOnly) {
-  const YarnGeometry low = Geometry({Curve({{-1, 0, 0}, {1, 0, 0}}, 0.1)});
-  const YarnGeometry high = Geometry({Curve({{-1, 0, 1}, {1, 0, 1}}, 0.1)});
-  const FiberScene scene = MustBuild({&low, &high});
-  const auto blocked = [&](float z0, int skip) {
-    FiberRay ray{{0, 0, z0}, {0, 0, 1}};
-    uint8_t occluded = 0;
-    EXPECT_EQ(scene.Occluded({&ray, 1}, {&occluded, 1}, skip), "");
-    return occluded != 0;
-  };
-  EXPECT_TRUE(blocked(-1, -1));
-  EXPECT_TRUE(blocked(-1, 0));   // the high yarn still blocks
-  EXPECT_TRUE(blocked(-1, 1));   // the low one does
-  EXPECT_FALSE(blocked(0.5f, 1));  // above the low yarn, the high one skipped: nothing left
-  EXPECT_TRUE(blocked(0.5f, 0));
-  EXPECT_TRUE(blocked(0.5f, 7));   // no such yarn: nothing skipped
-}
-
 TEST(FiberSceneTest, ShadingTangentTurnsSmoothlyThroughAJoint) {
   const double angle = 60 * 3.14159265358979323846 / 180;
   const Vec3 a{0, 0, 0}, b{0, 0, 1}, c = b + Vec3{std::sin(angle), 0, std::cos(angle)};

@@ -10,6 +10,7 @@
 #include <random>
 #include <vector>
 
+#include "server/yarn/fiber_scene.h"
 #include "server/yarn/layout.h"
 
 namespace loomlight::yarn {
@@ -110,6 +111,10 @@ TEST(YarnVisibility, OtherYarnsBlockAsTubesAndTheirOwnDoesNot) {
   EXPECT_FALSE(patch->visibility.OtherYarnsBlock(warp0, above, down, 2.5 * r));
   EXPECT_TRUE(patch->visibility.OtherYarnsBlock(weft0, above, down, 2.5 * r));
   EXPECT_FALSE(patch->visibility.OtherYarnsBlock(warp0, {0.5 * s, 0.5 * s, 1.0}, up, INFINITY));
+  // A fiber of the weft that strays into the warp's tube (they touch at the crossing) is not blocked by it on
+  // the way out: a tube blocks where a ray enters it.
+  EXPECT_FALSE(patch->visibility.OtherYarnsBlock(weft0, {0.5 * s, 0.5 * s, h}, up, INFINITY));
+  EXPECT_FALSE(patch->visibility.OtherYarnsBlock(weft0, {0.5 * s, 0.5 * s, h}, {0.6, 0.8, 0}, 0.9 * r));
 }
 
 // The reference: a patch seen from above, each hit fiber's light and ambient visibility traced through the

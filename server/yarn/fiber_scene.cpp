@@ -17,20 +17,9 @@ namespace {
 // fiber's neighbours overlap it: a ply's fibers together cover about its whole cross-section, so they
 // overlap) and leaves it is not blocked by that tube; Intersect still reports such exits (FiberHit.entering).
 // For round curves Ng is the outward normal, so entering is dot(Ng, direction) <= 0.
-// Occluded's context: Embree hands the filter the context it was given, so it can carry the yarn to skip.
-struct OccludedContext {
-  RTCIntersectContext base;  // first, so a pointer to it is one to the whole
-  int skip_yarn = -1;
-};
-
 void OnlyEnteringBlocks(const RTCFilterFunctionNArguments* args) {
-  const int skip = reinterpret_cast<const OccludedContext*>(args->context)->skip_yarn;
   for (unsigned i = 0; i < args->N; ++i) {
     if (args->valid[i] != -1) continue;
-    if (skip >= 0 && RTCHitN_geomID(args->hit, args->N, i) == unsigned(skip)) {
-      args->valid[i] = 0;
-      continue;
-    }
     const float along = RTCHitN_Ng_x(args->hit, args->N, i) * RTCRayN_dir_x(args->ray, args->N, i) +
                         RTCHitN_Ng_y(args->hit, args->N, i) * RTCRayN_dir_y(args->ray, args->N, i) +
                         RTCHitN_Ng_z(args->hit, args->N, i) * RTCRayN_dir_z(args->ray, args->N, i);
@@ -428,7 +417,6 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
     table.indices = indices;
     rtcSetGeometryBuildQuality(geom, ToEmbree(options.quality));
     rtcSetGeometryOccludedFilterFunction(geom, OnlyEnteringBlocks);
-    rtcSetGeometryMask(geom, 1u << (y % 32));  // Occluded skips a yarn by its bit (where no other shares it)
     rtcCommitGeometry(geom);
     rtcAttachGeometryByID(scene.scene_, geom, static_cast<unsigned>(y));
     rtcReleaseGeometry(geom);  // the scene holds it now
@@ -548,14 +536,13 @@ std::string FiberScene::Intersect(std::span<const FiberRay> rays, std::span<Fibe
   return "";
 }
 
-std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded, int skip_yarn) const {
+std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded) const {
   if (occluded.size() != rays.size()) {
     return "occluded: has " + std::to_string(occluded.size()) + " entries for " + std::to_string(rays.size()) +
            " rays";
   }
-  OccludedContext context;
-  rtcInitIntersectContext(&context.base);
-  context.skip_yarn = skip_yarn;
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
   for (size_t i = 0; i < rays.size(); ++i) {
     const FiberRay& r = rays[i];
     occluded[i] = 0;
@@ -570,12 +557,10 @@ std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8
     ray.dir_z = r.direction.z;
     ray.time = 0;
     ray.tfar = r.tfar;
-    // Skipping a yarn by its mask bit spares intersecting its segments at all (the filter alone would reject
-    // each hit); with more than 32 yarns bits are shared, so the filter does it.
-    ray.mask = skip_yarn >= 0 && skip_yarn < 32 && tables_.size() <= 32 ? ~(1u << skip_yarn) : ~0u;
+    ray.mask = ~0u;
     ray.id = 0;
     ray.flags = 0;
-    rtcOccluded1(scene_, &context.base, &ray);
+    rtcOccluded1(scene_, &context, &ray);
     // Embree marks an occluded ray by setting tfar to -inf.
     occluded[i] = ray.tfar < 0 ? 1 : 0;
   }

@@ -174,9 +174,7 @@ class FiberScene {
   std::string Intersect(std::span<const FiberRay> rays, std::span<FiberHit> hits) const;
   // Any fiber the ray enters in [tnear, tfar]: occluded[i] = 1 or 0 (a tube the ray starts inside and leaves
   // does not block it: a shadow ray from inside overlapping fibers). occluded.size() must equal rays.size().
-  // skip_yarn >= 0: that yarn's fibers block nothing (a yarn's thick tube when its own fibers' shadow is
-  // approximated otherwise).
-  std::string Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded, int skip_yarn = -1) const;
+  std::string Occluded(std::span<const FiberRay> rays, std::span<uint8_t> occluded) const;
 
  private:
   struct Monitor;

@@ -1,7 +1,7 @@
 // How much light reaches a point inside a yarn, the cheap way (Wu and Yuksel Sec. 4.1-4.2): the yarn's own
 // fibers by its cross-section density (YarnCrossSection's self-shadow slices and occlusion textures), other
-// yarns as thick opaque tubes along their centre curves (Sec. 4.1's shadow-map geometry, here traced: a few
-// tubes are cheap to trace). The reference it approximates is rays traced through the fibers themselves
+// yarns as thick opaque tubes along their centre curves (Sec. 4.1's shadow-map geometry, here traced: eight-sided
+// prisms of the tube's cross-section area, a triangle mesh in Embree). The reference it approximates is rays traced through the fibers themselves
 // (FiberScene::Occluded); a renderer chooses between the two per request.
 //
 // Readings (ours):
@@ -20,9 +20,10 @@
 
 #include "server/yarn/cross_section.h"
 #include "server/yarn/curve.h"
-#include "server/yarn/fiber_scene.h"
 
 namespace loomlight::yarn {
+
+class TubeMesh;
 
 // Light toward a fiber from a light: rays through the fibers, or the self-shadow slices (Sec. 4.1).
 enum class ShadowMethod { kTraced, kSlices };
@@ -65,7 +66,7 @@ class YarnVisibility {
  private:
   std::shared_ptr<const YarnCrossSection> cross_section_;
   std::vector<std::shared_ptr<const YarnCurve>> centres_;
-  std::shared_ptr<const FiberScene> tubes_;  // null with one yarn (nothing else to block)
+  std::shared_ptr<const TubeMesh> tubes_;  // null with one yarn (nothing else to block)
   double alpha_yarn_ = 1;
 };
 

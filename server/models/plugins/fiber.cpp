@@ -166,12 +166,14 @@ Frame FrameOf(const double* axis) {
   const double len = std::sqrt(Dot3(axis, axis));
   const double t[3] = {axis[0] / len, axis[1] / len, axis[2] / len};
   double u[3] = {-t[2] * t[0], -t[2] * t[1], 1.0 - t[2] * t[2]};
-  if (std::hypot(u[0], u[1], u[2]) < 1e-6) {
+  // |u| <= 1 (t is unit), so a plain square root cannot overflow; 3-argument hypot costs several times more,
+  // and this runs per query when each query carries its own fiber axis.
+  if (Dot3(u, u) < 1e-12) {
     u[0] = 1.0 - t[0] * t[0];
     u[1] = -t[0] * t[1];
     u[2] = -t[0] * t[2];
   }
-  const double ul = std::hypot(u[0], u[1], u[2]);
+  const double ul = std::sqrt(Dot3(u, u));
   for (double& x : u) x /= ul;
   const double v[3] = {t[1] * u[2] - t[2] * u[1], t[2] * u[0] - t[0] * u[2], t[0] * u[1] - t[1] * u[0]};
   Frame f;

@@ -651,6 +651,49 @@ TEST_F(RenderTest, FiberAmbientTermIsBoundedByTheAmbientFactor) {
 // sample weighs cos(theta_i) = sqrt(1 - (wi.t)^2) about the axis (SPEC.md section 5) and is never shadowed by
 // the fiber itself, and the shaded f (per-query axis, through the material plan) equals the fiber model's f of
 // the world-space pair about the world axis.
+// A core fiber stands for a bundle of fibers, a thick opaque cylinder: lit where its surface faces the light
+// and in its own shadow on the far side (a regular fiber, a line to its far-field model, is lit all round: the
+// test below).
+TEST(FiberShading, CoreFiberShadowsItsOwnFarSide) {
+  using render::Vec3;
+  constexpr double r = 0.01;
+  yarn::YarnGeometry geometry;
+  yarn::FiberCurve& curve = geometry.fibers.emplace_back();
+  curve.type = yarn::FiberType::kCore;
+  curve.width = 2 * r;
+  curve.points = {{0, 0, -1}, {0, 0, 1}};
+  const yarn::YarnGeometry* yarns[] = {&geometry};
+  auto fibers = std::make_shared<yarn::FiberScene>();
+  ASSERT_EQ(yarn::FiberScene::Build(yarns, {}, fibers.get()), "");
+  render::RenderSetup setup;
+  setup.scene = render::MakeScene(render::SceneKind::kYarn);
+  setup.scene.fibers = fibers;
+  setup.width = setup.height = 48;
+  setup.camera = render::PinholeCamera({{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8}, 48, 48);
+  const Vec3 light = render::Normalize({0.3, 0.8, -0.5});
+  setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}}};
+  int lit = 0, dark = 0;
+  for (int j = 0; j < 48; ++j)
+    for (int i = 0; i < 48; ++i) {
+      render::ShadingPoint point;
+      render::TraceSample(setup, i + 0.5, j + 0.5, render::CounterRng(1, j * 48 + i), &point);
+      if (point.object < 0) continue;
+      const double facing = point.lights.empty() ? 0 : 1;
+      // The hit's normal toward the light, from the camera ray (the frame's z is the normal).
+      const Vec3 o = setup.camera.position(), d = setup.camera.Direction(i + 0.5, j + 0.5);
+      const double a = d.x * d.x + d.y * d.y, b = o.x * d.x + o.y * d.y, c = o.x * o.x + o.y * o.y - r * r;
+      const double disc = b * b - a * c;
+      if (disc < 1e-3 * b * b) continue;
+      const Vec3 p = o + ((-b - std::sqrt(disc)) / a) * d, n{p.x / r, p.y / r, 0};
+      const double cosine = render::Dot(n, light);
+      if (std::fabs(cosine) < 0.02) continue;  // at the terminator
+      EXPECT_EQ(facing, cosine > 0 ? 1 : 0) << i << "," << j << " cos " << cosine;
+      (cosine > 0 ? lit : dark)++;
+    }
+  EXPECT_GT(lit, 50);
+  EXPECT_GT(dark, 50);
+}
+
 TEST(FiberShading, StraightFiberShadesLikeAnAnalyticCylinder) {
   using render::Vec3;
   constexpr double r = 0.01;

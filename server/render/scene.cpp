@@ -145,6 +145,7 @@ bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double m
       hit->fiber_axis = ToVec(h.shading_tangent);
       hit->fiber_radius = 0.5 * h.width;
       hit->fiber_yarn = h.yarn;
+      hit->fiber_core = h.type == yarn::FiberType::kCore;
       // The axis made perpendicular to the normal (they are perpendicular on a straight fiber's side).
       Vec3 along = hit->fiber_axis - Dot(hit->fiber_axis, hit->normal) * hit->normal;
       if (Length(along) < 1e-9) along = Cross(hit->normal, Length(Cross(hit->normal, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});

@@ -79,6 +79,7 @@ struct Hit {
   Vec3 fiber_axis;
   double fiber_radius = 0;
   int fiber_yarn = -1;  // the yarn the fiber belongs to (the fiber scene's yarn index)
+  bool fiber_core = false;  // a ply's core fiber (standing for its inner fibers)
 };
 
 struct Scene {

@@ -78,7 +78,13 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
   point->wo.z = std::max(point->wo.z, 0.0);  // the normal faces the ray
   point->axis = frame.ToLocal(hit.fiber_axis);
   point->u = point->v = 0;
-  const FiberRayStart start{hit.position - hit.fiber_radius * hit.normal, hit.fiber_axis, hit.fiber_radius};
+  // A core fiber stands for a bundle of fibers (Sec. 3.2), a thick opaque cylinder rather than a line: its side
+  // away from a direction is in its own shadow (decided by the normal: Embree misses the near-tangent chords of a
+  // ray started on the surface), and its rays start on its surface.
+  const bool core = hit.fiber_core;
+  const FiberRayStart start = core ? FiberRayStart{hit.position + (1e-4 * hit.fiber_radius) * hit.normal, hit.fiber_axis, 0}
+                                   : FiberRayStart{hit.position - hit.fiber_radius * hit.normal, hit.fiber_axis, hit.fiber_radius};
+  const auto behind_core = [&](Vec3 w) { return core && Dot(w, hit.normal) <= 0; };
   // The approximations stand for the fibers only (a fiber scene has no other shapes to block light).
   const yarn::YarnVisibility* approximate = setup.scene.fiber_visibility.get();
   const bool slices = approximate && setup.fiber_shadows == yarn::ShadowMethod::kSlices;
@@ -90,7 +96,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
     const Vec3 wi = frame.ToLocal(wi_world);
     const double along = Dot(wi, point->axis);
     const double cos_theta = std::sqrt(std::max(0.0, 1.0 - along * along));  // SPEC.md section 5's cos(theta_i)
-    if (cos_theta < kMinCosine) return;
+    if (cos_theta < kMinCosine || behind_core(wi_world)) return;
     double transmittance = 1;
     if (slices) {
       if (approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(wi_world), max_distance)) return;
@@ -108,7 +114,9 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
     const double r = std::sqrt(std::max(0.0, 1 - z * z));
     const Vec3 w{r * std::cos(phi), r * std::sin(phi), z};
     double visibility = 0;
-    if (occlusion) {
+    if (behind_core(w)) {
+      visibility = 0;
+    } else if (occlusion) {
       if (!approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(w), INFINITY))
         visibility = approximate->Occlusion(in_yarn, setup.fiber_occlusion);
     } else if (!setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w))) {

@@ -651,27 +651,33 @@ TEST_F(RenderTest, FiberAmbientTermIsBoundedByTheAmbientFactor) {
 // sample weighs cos(theta_i) = sqrt(1 - (wi.t)^2) about the axis (SPEC.md section 5) and is never shadowed by
 // the fiber itself, and the shaded f (per-query axis, through the material plan) equals the fiber model's f of
 // the world-space pair about the world axis.
+// One straight fiber of radius r along z (from -1 to 1), seen close up at 48 x 48, lit by one directional light.
+render::RenderSetup OneFiberSetup(yarn::FiberType type, double r, render::Vec3 light) {
+  yarn::YarnGeometry geometry;
+  yarn::FiberCurve& curve = geometry.fibers.emplace_back();
+  curve.type = type;
+  curve.width = 2 * r;
+  curve.points = {{0, 0, -1}, {0, 0, 1}};
+  const yarn::YarnGeometry* yarns[] = {&geometry};
+  auto fibers = std::make_shared<yarn::FiberScene>();
+  EXPECT_EQ(yarn::FiberScene::Build(yarns, {}, fibers.get()), "");
+  render::RenderSetup setup;
+  setup.scene = render::MakeScene(render::SceneKind::kYarn);
+  setup.scene.fibers = fibers;
+  setup.width = setup.height = 48;
+  setup.camera = render::PinholeCamera({{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8}, 48, 48);
+  setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}}};
+  return setup;
+}
+
 // A core fiber stands for a bundle of fibers, a thick opaque cylinder: lit where its surface faces the light
 // and in its own shadow on the far side (a regular fiber, a line to its far-field model, is lit all round: the
 // test below).
 TEST(FiberShading, CoreFiberShadowsItsOwnFarSide) {
   using render::Vec3;
   constexpr double r = 0.01;
-  yarn::YarnGeometry geometry;
-  yarn::FiberCurve& curve = geometry.fibers.emplace_back();
-  curve.type = yarn::FiberType::kCore;
-  curve.width = 2 * r;
-  curve.points = {{0, 0, -1}, {0, 0, 1}};
-  const yarn::YarnGeometry* yarns[] = {&geometry};
-  auto fibers = std::make_shared<yarn::FiberScene>();
-  ASSERT_EQ(yarn::FiberScene::Build(yarns, {}, fibers.get()), "");
-  render::RenderSetup setup;
-  setup.scene = render::MakeScene(render::SceneKind::kYarn);
-  setup.scene.fibers = fibers;
-  setup.width = setup.height = 48;
-  setup.camera = render::PinholeCamera({{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8}, 48, 48);
   const Vec3 light = render::Normalize({0.3, 0.8, -0.5});
-  setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}}};
+  const render::RenderSetup setup = OneFiberSetup(yarn::FiberType::kCore, r, light);
   int lit = 0, dark = 0;
   for (int j = 0; j < 48; ++j)
     for (int i = 0; i < 48; ++i) {
@@ -697,22 +703,8 @@ TEST(FiberShading, CoreFiberShadowsItsOwnFarSide) {
 TEST(FiberShading, StraightFiberShadesLikeAnAnalyticCylinder) {
   using render::Vec3;
   constexpr double r = 0.01;
-  yarn::YarnGeometry geometry;
-  yarn::FiberCurve& curve = geometry.fibers.emplace_back();
-  curve.width = 2 * r;
-  curve.points = {{0, 0, -1}, {0, 0, 1}};
-  const yarn::YarnGeometry* yarns[] = {&geometry};
-  auto fibers = std::make_shared<yarn::FiberScene>();
-  ASSERT_EQ(yarn::FiberScene::Build(yarns, {}, fibers.get()), "");
-
-  render::RenderSetup setup;
-  setup.scene = render::MakeScene(render::SceneKind::kYarn);
-  setup.scene.fibers = fibers;
-  setup.width = setup.height = 48;
-  const render::CameraSpec camera{{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8};
-  setup.camera = render::PinholeCamera(camera, 48, 48);
   const Vec3 light = render::Normalize({0.3, 0.8, -0.5});
-  setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}}};
+  const render::RenderSetup setup = OneFiberSetup(yarn::FiberType::kMigration, r, light);
 
   const models::PresetSpec* preset = nullptr;
   const models::Model* model = models::Registry::Global().FindPreset("cotton", &preset);

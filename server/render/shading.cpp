@@ -115,7 +115,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
     const Vec3 w{r * std::cos(phi), r * std::sin(phi), z};
     double visibility = 0;
     if (behind_core(w)) {
-      visibility = 0;
+      // in the core's own shadow
     } else if (occlusion) {
       if (!approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(w), INFINITY))
         visibility = approximate->Occlusion(in_yarn, setup.fiber_occlusion);

@@ -366,6 +366,13 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
     s.fiber_shadows = plan_.fiber_shadows;
     s.fiber_occlusion = plan_.fiber_occlusion;
+    // Surfaces sample their material too (weighed against the environment's samples by MIS); its table is
+    // built on the material's first render and kept with it in the material cache.
+    s.object_samplers.assign(s.scene.objects.size(), nullptr);
+    for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o) {
+      const int e = plan_.objects[o].evaluator;
+      if (e >= 0 && !plan_.evaluators[e].fiber_axis) s.object_samplers[o] = &plan_.evaluators[e].material->Sampler();
+    }
 
     total_pixels_ = uint64_t(s.width) * s.height;
     const size_t per_pixel = std::max<size_t>(1, render::MaxQueriesPerSample(s)) * s.samples_per_pixel;

@@ -21,7 +21,9 @@ void AppendCanonical(const ResolvedMaterial& m, std::string* key) {
 size_t EntryBytes(const MaterialCache::Entry& e) {
   size_t values = 0;
   for (const auto& [name, v] : e.values) values += name.size() + v.size() * sizeof(double) + 64;  // + map node
+  // The importance-sampling table is built on first use; its bytes are reserved from the start.
   return sizeof e + values + e.packed.data.size() * (sizeof(double) + sizeof(float)) +
+         DirectionSampler::TableBytes(*e.model, e.transmission != nullptr) +
          (e.transmission ? EntryBytes(*e.transmission) : 0);
 }
 

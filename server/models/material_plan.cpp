@@ -1,5 +1,6 @@
 #include "server/models/material_plan.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace loomlight::models {
@@ -73,6 +74,26 @@ const float* EvaluationPlan::uv(size_t k) const {
   const Part& part = parts_[k];
   if (!uv_ || !part.material->model->spatially_varying()) return nullptr;
   return part.whole ? uv_ : part.uv.data();
+}
+
+void EvaluateNative(const EvaluationPlan& plan, double* f) {
+  size_t total = 0;
+  for (size_t k = 0; k < plan.parts(); ++k) total += plan.size(k);
+  std::fill(f, f + 3 * total, 0.0);
+  std::vector<float> part;
+  for (size_t k = 0; k < plan.parts(); ++k) {
+    part.assign(3 * plan.size(k), 0.0f);
+    if (plan.quantity() == Quantity::kAmbient)
+      plan.model(k).NativeAmbient(plan.packed(k), plan.wo(k), plan.size(k), part.data());
+    else
+      plan.model(k).NativeEval(plan.packed(k), plan.wi(k), plan.wo(k), plan.uv(k), plan.size(k), part.data());
+    const size_t* slots = plan.slots(k);
+    const double* scale = plan.scale(k);
+    for (size_t i = 0; i < plan.size(k); ++i) {
+      const size_t q = slots ? slots[i] : i;
+      for (int c = 0; c < 3; ++c) f[3 * q + c] = (scale ? scale[q] : 1.0) * part[3 * i + c];
+    }
+  }
 }
 
 }  // namespace loomlight::models

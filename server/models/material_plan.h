@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "loomlight/v1/loomlight.pb.h"
+#include "server/models/direction_sampler.h"
 #include "server/models/material.h"
 #include "server/models/registry.h"
 
@@ -34,9 +35,17 @@ struct PreparedMaterial {
     return knob_errors_;
   }
 
+  // The material's importance-sampling table, built on first use (tens to hundreds of milliseconds) and kept.
+  const DirectionSampler& Sampler() const {
+    std::call_once(sampler_once_, [this] { sampler_ = std::make_unique<DirectionSampler>(*this); });
+    return *sampler_;
+  }
+
  private:
   mutable std::once_flag knob_errors_once_;
   mutable std::vector<double> knob_errors_;
+  mutable std::once_flag sampler_once_;
+  mutable std::unique_ptr<const DirectionSampler> sampler_;
 };
 
 // Resolves a material and its curtain layer, checking the composition (a layer only behind a reflection
@@ -91,5 +100,10 @@ class EvaluationPlan {
   std::vector<double> transmittance_;
   std::vector<double> scale_;  // curtains: the reflection scale per query
 };
+
+// f (3 per request query) of a plan's queries from each part's native host build (float, -O3: the same kernel
+// source), combined as the kernels' results are. For host-side work that needs f at once (the fidelity
+// pilot, importance-sampling tables).
+void EvaluateNative(const EvaluationPlan& plan, double* f);
 
 }  // namespace loomlight::models

@@ -63,8 +63,9 @@ Environment Environment::Builtin() {
 
 size_t Environment::DecodeBytes(long long width, long long height, int channels) {
   const size_t pixels = size_t(width) * size_t(height);
+  const size_t bright = size_t(double(pixels) * kMaxBrightFraction) + 1;
   return pixels * (3 * sizeof(float) + sizeof(double) + std::min(channels, 3) * sizeof(float)) +
-         size_t(height) * 2 * sizeof(double);
+         size_t(height) * 2 * sizeof(double) + bright * (sizeof(uint32_t) + sizeof(double));
 }
 
 std::string Environment::Decode(std::string_view bytes, const std::function<bool()>& stop,
@@ -128,7 +129,8 @@ std::string Environment::Decode(std::string_view bytes, const std::function<bool
 
 size_t Environment::bytes() const {
   if (!map_) return 0;
-  return map_->rgb.size() * sizeof(float) + (map_->row_cdf.size() + map_->column_cdf.size()) * sizeof(double);
+  return map_->rgb.size() * sizeof(float) + map_->bright_pixels.size() * sizeof(uint32_t) +
+         (map_->row_cdf.size() + map_->column_cdf.size() + map_->bright_cdf.size()) * sizeof(double);
 }
 
 void Environment::SetTransform(double intensity, double rotation_deg) {
@@ -164,51 +166,107 @@ Rgb Environment::Radiance(Vec3 direction) const {
   return Pixel(static_cast<int>(x), static_cast<int>(y));
 }
 
+double Environment::Weight(const float* p, int y, int height) {
+  return Luminance({p[0], p[1], p[2]}) * std::sin((y + 0.5) / height * kPi);
+}
+
 std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int height, std::vector<float> rgb) {
   auto map = std::make_shared<Map>();
   map->width = width;
   map->height = height;
   map->rgb = std::move(rgb);
+  const size_t pixels = size_t(width) * height;
+  double total = 0;
+  for (size_t p = 0; p < pixels; ++p) total += Weight(&map->rgb[3 * p], int(p / width), height);
+  // The bright component: pixels far above the map's mean radiance, unless there are too many of them to be
+  // small lights.
+  std::vector<double> luminance(pixels);
+  for (size_t p = 0; p < pixels; ++p) luminance[p] = Luminance({map->rgb[3 * p], map->rgb[3 * p + 1], map->rgb[3 * p + 2]});
+  const double threshold = kBrightFactor * total / (pixels * 2 / kPi);  // mean luminance: total / sum of sin
+  size_t bright = 0;
+  for (size_t p = 0; p < pixels; ++p) bright += luminance[p] > threshold;
+  if (bright > 0 && double(bright) <= kMaxBrightFraction * double(pixels)) map->bright_luminance = threshold;
+  map->bright_cdf.push_back(0);
   map->row_cdf.assign(height + 1, 0.0);
   map->column_cdf.assign(size_t(height) * (width + 1), 0.0);
   for (int y = 0; y < height; ++y) {
-    const double sin_theta = std::sin((y + 0.5) / height * kPi);
     double* cdf = &map->column_cdf[size_t(y) * (width + 1)];
     for (int x = 0; x < width; ++x) {
-      const float* p = &map->rgb[3 * (size_t(y) * width + x)];
-      cdf[x + 1] = cdf[x] + Luminance({p[0], p[1], p[2]}) * sin_theta;
+      const size_t p = size_t(y) * width + x;
+      const double w = Weight(&map->rgb[3 * p], y, height);
+      const bool is_bright = luminance[p] > map->bright_luminance;
+      cdf[x + 1] = cdf[x] + (is_bright ? 0.0 : w);
+      if (is_bright) {
+        map->bright_pixels.push_back(uint32_t(p));
+        map->bright_cdf.push_back(map->bright_cdf.back() + w);
+      }
     }
     map->row_cdf[y + 1] = map->row_cdf[y] + cdf[width];
   }
-  map->total_weight = map->row_cdf[height];
+  map->total_weight[kRest] = map->row_cdf[height];
+  map->total_weight[kBright] = map->bright_cdf.back();
   return map;
 }
 
-Environment::Sample Environment::Draw(double u1, double u2, double u3) const {
-  Sample sample;
-  if (black() || intensity_ <= 0) return sample;
-  // The row, then the column within it; the remainder of u2 places the point inside the pixel.
-  const Map& map = *map_;
-  const double row_target = u1 * map.total_weight;
-  const int y = std::clamp(
-      int(std::upper_bound(map.row_cdf.begin(), map.row_cdf.end(), row_target) - map.row_cdf.begin()) - 1, 0,
-      height_ - 1);
-  const double* cdf = &map.column_cdf[size_t(y) * (width_ + 1)];
-  const double row_weight = cdf[width_];
-  if (row_weight <= 0) return sample;
-  const double column_target = u2 * row_weight;
-  const int x = std::clamp(int(std::upper_bound(cdf, cdf + width_ + 1, column_target) - cdf) - 1, 0, width_ - 1);
-  const double pixel_weight = cdf[x + 1] - cdf[x];
-  if (pixel_weight <= 0) return sample;
-  const double fx = std::clamp((column_target - cdf[x]) / pixel_weight, 0.0, 1.0);
-  const double py = y + u3;
-  sample.direction = FromImage(x + fx, py);
+bool Environment::Has(Component component) const {
+  return map_ && intensity_ > 0 && map_->total_weight[component] > 0;
+}
+
+double Environment::PixelDensity(double weight, Component component, double py) const {
   const double sin_theta = std::sin(py / height_ * kPi);
-  if (sin_theta < 1e-6) return sample;  // at a pole: the density is singular, drop the sample
+  if (sin_theta < 1e-6) return 0;  // at a pole the density is singular: such samples are dropped
   // pdf(pixel) W H over the pixel's (u, v) area, divided by the Jacobian 2 pi^2 sin(theta) to steradians.
-  const double pdf = pixel_weight / map.total_weight * width_ * height_ / (2 * kPi * kPi * sin_theta);
-  sample.radiance_over_pdf = (1.0 / pdf) * Pixel(x, y);
+  return weight / map_->total_weight[component] * width_ * height_ / (2 * kPi * kPi * sin_theta);
+}
+
+namespace {
+// The cell i with cdf[i] <= target < cdf[i + 1] among n, and the target's remainder within it in [0, 1).
+int Search(const double* cdf, int n, double target, double* remainder) {
+  const int i = std::clamp(int(std::upper_bound(cdf, cdf + n + 1, target) - cdf) - 1, 0, n - 1);
+  const double width = cdf[i + 1] - cdf[i];
+  *remainder = width > 0 ? std::clamp((target - cdf[i]) / width, 0.0, std::nextafter(1.0, 0.0)) : 0.5;
+  return i;
+}
+}  // namespace
+
+Environment::Sample Environment::Draw(Component component, double u1, double u2) const {
+  Sample sample;
+  if (!Has(component)) return sample;
+  const Map& map = *map_;
+  int x, y;
+  double fx, fy;
+  if (component == kBright) {
+    // The pixel from u1 (its remainder places the point across the pixel), u2 down it.
+    const int i = Search(map.bright_cdf.data(), int(map.bright_pixels.size()), u1 * map.total_weight[kBright], &fx);
+    x = int(map.bright_pixels[i] % width_);
+    y = int(map.bright_pixels[i] / width_);
+    fy = u2;
+  } else {
+    // The row from u1, the column within it from u2; their remainders place the point inside the pixel.
+    y = Search(map.row_cdf.data(), height_, u1 * map.total_weight[kRest], &fy);
+    const double* cdf = &map.column_cdf[size_t(y) * (width_ + 1)];
+    if (cdf[width_] <= 0) return sample;
+    x = Search(cdf, width_, u2 * cdf[width_], &fx);
+  }
+  const double weight = Weight(&map.rgb[3 * (size_t(y) * width_ + x)], y, height_);
+  if (weight <= 0) return sample;
+  sample.direction = FromImage(x + fx, y + fy);
+  sample.radiance = Pixel(x, y);
+  sample.pdf = PixelDensity(weight, component, y + fy);
   return sample;
+}
+
+Environment::Found Environment::Lookup(Vec3 direction) const {
+  Found found;
+  if (!map_) return found;
+  double px, py;
+  ToImage(direction, &px, &py);
+  const int x = static_cast<int>(px), y = static_cast<int>(py);
+  const float* p = &map_->rgb[3 * (size_t(y) * width_ + x)];
+  found.radiance = Pixel(x, y);
+  found.component = Luminance({p[0], p[1], p[2]}) > map_->bright_luminance ? kBright : kRest;
+  if (Has(found.component)) found.pdf = PixelDensity(Weight(p, y, height_), found.component, py);
+  return found;
 }
 
 }  // namespace loomlight::render

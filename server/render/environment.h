@@ -5,6 +5,8 @@
 // constant per pixel, so lookups and the sampling density agree exactly.
 #pragma once
 
+#include <cmath>
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <string>
@@ -41,29 +43,57 @@ class Environment {
 
   Rgb Radiance(Vec3 direction) const;
 
+  // The map is sampled as two lights: its small bright regions (the sun; pixels above kBrightFactor times the
+  // map's mean luminance, at most kMaxBrightFraction of its pixels) and the rest. A renderer draws one direction
+  // from each (so the sun never competes with the sky for a sample) and weighs them against material samples
+  // by multiple importance sampling, for which Lookup gives a direction's component and density.
+  static constexpr double kBrightFactor = 64;
+  static constexpr double kMaxBrightFraction = 1.0 / 64;
+  enum Component { kBright = 0, kRest = 1 };
+
   struct Sample {
     Vec3 direction;
-    Rgb radiance_over_pdf;  // L(direction) / pdf(direction), pdf per steradian; 0 for an unusable sample
+    Rgb radiance;     // L(direction)
+    double pdf = 0;   // per steradian, of the component drawn from; 0 for an unusable sample
   };
-  // Draws a direction with probability proportional to the map's luminance (u1, u2, u3 uniform in [0, 1)).
-  Sample Draw(double u1, double u2, double u3) const;
-  bool black() const { return !map_ || map_->total_weight <= 0; }
+  // Draws a direction of `component` with probability proportional to luminance (u1, u2 uniform in [0, 1): one
+  // stratified pair; their remainders place the point inside the pixel).
+  Sample Draw(Component component, double u1, double u2) const;
+  // Whether the map has the component (a map without bright regions has only the rest).
+  bool Has(Component component) const;
+
+  struct Found {
+    Rgb radiance;
+    Component component = kRest;
+    double pdf = 0;  // the density Draw(component, ...) has toward the direction
+  };
+  Found Lookup(Vec3 direction) const;
+
+  bool black() const { return !map_ || map_->total_weight[kBright] + map_->total_weight[kRest] <= 0; }
 
  private:
   // Pixel coordinates (continuous) of a world direction, and back.
   void ToImage(Vec3 direction, double* x, double* y) const;
   Vec3 FromImage(double x, double y) const;
   Rgb Pixel(int x, int y) const;
+  static double Weight(const float* rgb, int y, int height);
 
   // The decoded map and its sampling tables: immutable once built, so copies (each with its own transform)
   // share one, and a cached map costs its bytes once however many renders use it.
   struct Map {
     int width = 0, height = 0;
     std::vector<float> rgb;
+    double bright_luminance = INFINITY;  // pixels above it are the bright component
+    // The rest: rows, then columns within a row (bright pixels weigh 0 here).
     std::vector<double> row_cdf;     // height + 1 values
     std::vector<double> column_cdf;  // height x (width + 1)
-    double total_weight = 0;
+    // The bright component: its pixels (y * width + x) and their CDF.
+    std::vector<uint32_t> bright_pixels;
+    std::vector<double> bright_cdf;  // bright_pixels.size() + 1
+    double total_weight[2] = {0, 0};  // kBright, kRest: luminance x sin(theta) summed
   };
+  // A pixel's sampling weight and density per steradian at image row position py (continuous).
+  double PixelDensity(double weight, Component component, double py) const;
   static std::shared_ptr<const Map> BuildMap(int width, int height, std::vector<float> rgb);
 
   std::shared_ptr<const Map> map_;

@@ -71,9 +71,9 @@ class Pilot {
     ShadingPoint point;
     for (int j = 0; j < ny; ++j)
       for (int i = 0; i < nx; ++i) {
-        // Its own random stream (environment samples), apart from every pixel sample's.
-        const CounterRng rng(setup.seed ^ 0x70696c6f74ull, uint64_t(j) * nx + i);
-        TraceSample(setup, (i + 0.5) * setup.width / nx, (j + 0.5) * setup.height / ny, rng, &point);
+        // Its own points (environment samples), apart from every pixel sample's.
+        const SamplePoints points(setup.seed ^ 0x70696c6f74ull, uint64_t(j) * nx + i, 0);
+        TraceSample(setup, (i + 0.5) * setup.width / nx, (j + 0.5) * setup.height / ny, points, &point);
         if (point.object >= 0) by_object_[point.object].push_back(point);
       }
   }
@@ -147,8 +147,8 @@ double FiberPilotTotal(RenderSetup setup, yarn::ShadowMethod shadows, yarn::Occl
   for (int k = 0; k < kFiberPilotRepeats; ++k)
     for (int j = 0; j < ny; ++j)
       for (int i = 0; i < nx; ++i) {
-        const CounterRng rng(setup.seed ^ 0x66696265725full, (uint64_t(k) * ny + j) * nx + i);
-        TraceSample(setup, (i + 0.5) * setup.width / nx, (j + 0.5) * setup.height / ny, rng, &point);
+        const SamplePoints points(setup.seed ^ 0x66696265725full, uint64_t(j) * nx + i, k);
+        TraceSample(setup, (i + 0.5) * setup.width / nx, (j + 0.5) * setup.height / ny, points, &point);
         if (point.object != setup.scene.fiber_object) continue;
         ++*hits;
         AppendQueries(point, shading, evaluators, 0, &buckets);

@@ -14,6 +14,8 @@ constexpr double kDegree = std::numbers::pi / 180;
 constexpr double kRayOffset = 1e-6;
 // Light samples this close to the surface plane carry no light (f is 0 there for every model).
 constexpr double kMinCosine = 1e-6;
+// SamplePoints' dimension pairs: the pixel position, then one per sampling strategy.
+enum Pair : uint32_t { kPixelPair, kBrightPair, kRestPair, kMaterialPair, kMaterialChoicePair, kAmbientPair };
 
 struct Frame {
   Vec3 x, y, n;
@@ -35,10 +37,18 @@ double SeeThrough(const models::PreparedMaterial& m, const Vec3& w) {
   return std::isfinite(t) ? std::clamp(t, 0.0, 1.0) : 0.0;
 }
 
-// Calls add(direction toward the light, distance to it, incident radiance over pdf) for every light and one
-// environment sample (rng dimensions 2..4) as seen from `position`.
-template <class Add>
-void ForEachLight(const RenderSetup& setup, Vec3 position, const CounterRng& rng, Add add) {
+// Veach's power heuristic (beta = 2): the weight of a strategy whose density is `a` against one whose is `b`.
+double PowerHeuristic(double a, double b) {
+  if (!(a > 0)) return 0;
+  return b > 0 ? 1 / (1 + (b / a) * (b / a)) : 1;  // as a ratio: no overflow for the sun's large densities
+}
+
+// Calls add(direction toward the light, distance to it, incident radiance over pdf times the MIS weight) for
+// every light, and one direction from each component of the environment (its bright regions, the rest) as
+// seen from `position`. material_pdf(direction) is the density the material sampling strategy has toward a
+// direction (0 where there is none), against which the environment's samples are weighed.
+template <class MaterialPdf, class Add>
+void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& points, MaterialPdf material_pdf, Add add) {
   for (const Light& light : setup.lights) {
     if (light.type == Light::Type::kDirectional) {
       add(light.direction, INFINITY, light.rgb);
@@ -50,10 +60,14 @@ void ForEachLight(const RenderSetup& setup, Vec3 position, const CounterRng& rng
       add((1.0 / d) * to_light, d, (1.0 / d2) * light.rgb);
     }
   }
-  if (setup.environment) {
-    const Environment::Sample sample = setup.environment->Draw(rng.Uniform(2), rng.Uniform(3), rng.Uniform(4));
-    if (sample.radiance_over_pdf.x > 0 || sample.radiance_over_pdf.y > 0 || sample.radiance_over_pdf.z > 0)
-      add(sample.direction, INFINITY, sample.radiance_over_pdf);
+  if (!setup.environment) return;
+  for (const Environment::Component component : {Environment::kBright, Environment::kRest}) {
+    if (!setup.environment->Has(component)) continue;
+    const std::array<double, 2> u = points.Get2D(component == Environment::kBright ? kBrightPair : kRestPair);
+    const Environment::Sample sample = setup.environment->Draw(component, u[0], u[1]);
+    if (sample.pdf <= 0) continue;
+    const double weight = PowerHeuristic(sample.pdf, material_pdf(sample.direction)) / sample.pdf;
+    if (weight > 0) add(sample.direction, INFINITY, weight * sample.radiance);
   }
 }
 
@@ -72,7 +86,7 @@ struct FiberRayStart {
   }
 };
 
-void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const CounterRng& rng, ShadingPoint* point) {
+void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const SamplePoints& points, ShadingPoint* point) {
   const Frame frame{hit.tangent_s, hit.tangent_t, hit.normal};
   point->wo = frame.ToLocal(-direction);
   point->wo.z = std::max(point->wo.z, 0.0);  // the normal faces the ray
@@ -92,7 +106,9 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
   const auto to_yarn = [&](Vec3 v) { return yarn::Vec3{v.x, v.y, v.z}; };
   const yarn::CrossSectionPoint in_yarn =
       slices || occlusion ? approximate->Locate(hit.fiber_yarn, to_yarn(start.origin)) : yarn::CrossSectionPoint{};
-  ForEachLight(setup, hit.position, rng, [&](Vec3 wi_world, double max_distance, Rgb incident) {
+  // A fiber's light comes from light sampling alone (its scattering is not sampled: the weights stay 1).
+  const auto no_material_pdf = [](Vec3) { return 0.0; };
+  ForEachLight(setup, hit.position, points, no_material_pdf, [&](Vec3 wi_world, double max_distance, Rgb incident) {
     const Vec3 wi = frame.ToLocal(wi_world);
     const double along = Dot(wi, point->axis);
     const double cos_theta = std::sqrt(std::max(0.0, 1.0 - along * along));  // SPEC.md section 5's cos(theta_i)
@@ -108,9 +124,10 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
   });
   point->ambient = {};
   if (setup.ambient > 0) {
-    // Ambient visibility: one uniformly distributed direction on the sphere per sample (rng dimensions 5, 6),
-    // traced through the fibers, or through the other yarns' tubes times the yarn's own occlusion.
-    const double z = 1 - 2 * rng.Uniform(5), phi = 2 * std::numbers::pi * rng.Uniform(6);
+    // Ambient visibility: one uniformly distributed direction on the sphere per sample, traced through the
+    // fibers, or through the other yarns' tubes times the yarn's own occlusion.
+    const std::array<double, 2> u = points.Get2D(kAmbientPair);
+    const double z = 1 - 2 * u[0], phi = 2 * std::numbers::pi * u[1];
     const double r = std::sqrt(std::max(0.0, 1 - z * z));
     const Vec3 w{r * std::cos(phi), r * std::sin(phi), z};
     double visibility = 0;
@@ -128,7 +145,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
 
 }  // namespace
 
-void TraceSample(const RenderSetup& setup, double px, double py, const CounterRng& rng, ShadingPoint* point) {
+void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoints& points, ShadingPoint* point) {
   point->object = -1;
   point->background = {};
   point->lights.clear();
@@ -144,7 +161,7 @@ void TraceSample(const RenderSetup& setup, double px, double py, const CounterRn
   point->object = hit.object;
   point->fiber = hit.fiber;
   point->footprint = hit.distance * setup.camera.pixel_angle();
-  if (hit.fiber) return ShadeFiber(setup, hit, direction, rng, point);
+  if (hit.fiber) return ShadeFiber(setup, hit, direction, points, point);
   const SceneObject& object = setup.scene.objects[hit.object];
   const double angle = (object.thread_angle_deg + setup.texture_rotation_deg) * kDegree;
   const double c = std::cos(angle), s = std::sin(angle);
@@ -165,20 +182,47 @@ void TraceSample(const RenderSetup& setup, double px, double py, const CounterRn
       point->background = setup.environment->Radiance(direction);
   }
 
-  ForEachLight(setup, hit.position, rng, [&](Vec3 wi_world, double max_distance, Rgb incident) {
+  const auto to_local = [&](Vec3 w) {
+    Vec3 l = frame.ToLocal(w);
+    l.z *= mirror;
+    return l;
+  };
+  const auto add = [&](Vec3 wi_world, double max_distance, Rgb incident) {
     const double side = Dot(wi_world, hit.normal) >= 0 ? 1.0 : -1.0;
-    Vec3 wi = frame.ToLocal(wi_world);
-    wi.z *= mirror;
+    const Vec3 wi = to_local(wi_world);
     if (std::fabs(wi.z) < kMinCosine) return;
     if (setup.scene.Occluded(hit.position + (side * kRayOffset) * hit.normal, wi_world, max_distance)) return;
     point->lights.push_back({wi, std::fabs(wi.z) * incident});
-  });
+  };
+  // The material's own sampling strategy (when the object has one and there is an environment to find).
+  const models::DirectionSampler* sampler =
+      setup.environment && hit.object < static_cast<int>(setup.object_samplers.size()) ? setup.object_samplers[hit.object] : nullptr;
+  const models::DirectionSampler::Dir wo_dir{wo.x, wo.y, wo.z};
+  const auto material_pdf = [&](Vec3 wi_world) {
+    if (!sampler) return 0.0;
+    const Vec3 wi = to_local(wi_world);
+    return sampler->Pdf(wo_dir, {wi.x, wi.y, wi.z});
+  };
+  ForEachLight(setup, hit.position, points, material_pdf, add);
+  if (sampler) {
+    const std::array<double, 2> u = points.Get2D(kMaterialPair);
+    const models::DirectionSampler::Sample sample = sampler->Draw(wo_dir, points.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
+    if (sample.pdf > 0) {
+      const Vec3 local{sample.wi[0], sample.wi[1], mirror * sample.wi[2]};
+      const Vec3 wi_world = local.x * frame.x + local.y * frame.y + local.z * frame.n;
+      const Environment::Found light = setup.environment->Lookup(wi_world);
+      const double weight = PowerHeuristic(sample.pdf, light.pdf) / sample.pdf;
+      if (weight > 0 && (light.radiance.x > 0 || light.radiance.y > 0 || light.radiance.z > 0))
+        add(wi_world, INFINITY, weight * light.radiance);
+    }
+  }
 }
 
 void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample, ShadingPoint* point) {
-  const CounterRng rng(setup.seed, pixel * setup.samples_per_pixel + sample);
+  const SamplePoints points(setup.seed, pixel, sample);
+  const std::array<double, 2> u = points.Get2D(kPixelPair);
   const double x = static_cast<double>(pixel % setup.width), y = static_cast<double>(pixel / setup.width);
-  TraceSample(setup, x + rng.Uniform(0), y + rng.Uniform(1), rng, point);
+  TraceSample(setup, x + u[0], y + u[1], points, point);
 }
 
 void QueryBucket::Clear() {
@@ -232,25 +276,14 @@ std::unique_ptr<models::EvaluationPlan> PlanOf(const Evaluator& evaluator, const
 
 void EvaluateOnHost(const Evaluator& evaluator, const QueryBucket& bucket, std::vector<double>* f) {
   f->assign(3 * bucket.size(), 0.0);
-  const std::unique_ptr<models::EvaluationPlan> plan = PlanOf(evaluator, bucket);
-  std::vector<float> part;
-  for (size_t k = 0; k < plan->parts(); ++k) {
-    part.assign(3 * plan->size(k), 0.0f);
-    if (plan->quantity() == models::Quantity::kAmbient)
-      plan->model(k).NativeAmbient(plan->packed(k), plan->wo(k), plan->size(k), part.data());
-    else
-      plan->model(k).NativeEval(plan->packed(k), plan->wi(k), plan->wo(k), plan->uv(k), plan->size(k), part.data());
-    const size_t* slots = plan->slots(k);
-    const double* scale = plan->scale(k);
-    for (size_t i = 0; i < plan->size(k); ++i) {
-      const size_t q = slots ? slots[i] : i;
-      for (int c = 0; c < 3; ++c) (*f)[3 * q + c] = (scale ? scale[q] : 1.0) * part[3 * i + c];
-    }
-  }
+  models::EvaluateNative(*PlanOf(evaluator, bucket), f->data());
 }
 
 size_t MaxQueriesPerSample(const RenderSetup& setup) {
-  return setup.lights.size() + (setup.environment ? 1 : 0) + (setup.scene.fibers ? 1 : 0);
+  bool material_sampling = false;
+  for (const models::DirectionSampler* sampler : setup.object_samplers) material_sampling |= sampler != nullptr;
+  // Two environment components, and a material sample when an object has a sampler.
+  return setup.lights.size() + (setup.environment ? 2 + (material_sampling ? 1 : 0) : 0) + (setup.scene.fibers ? 1 : 0);
 }
 
 }  // namespace loomlight::render

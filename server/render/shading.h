@@ -15,7 +15,7 @@
 #include "server/models/material_plan.h"
 #include "server/models/registry.h"
 #include "server/render/environment.h"
-#include "server/render/rng.h"
+#include "server/render/sample_points.h"
 #include "server/render/scene.h"
 #include "server/yarn/visibility.h"
 
@@ -28,6 +28,9 @@ struct RenderSetup {
   std::vector<Light> lights;
   std::shared_ptr<const Environment> environment;  // null: no environment (black background)
   std::vector<bool> object_transmits;              // per object: light can pass through its cloth
+  // Per object: its material's importance sampler, combined with the environment's by multiple importance
+  // sampling; null (or missing): environment light is sampled from the map alone.
+  std::vector<const models::DirectionSampler*> object_samplers;
   double texture_scale = 1;                        // pattern repeats per unit
   double texture_rotation_deg = 0;
   uint64_t seed = 0;
@@ -68,12 +71,13 @@ struct ShadingPoint {
   Rgb ambient;
 };
 
-// Casts the ray through image position (px, py) and samples the lights; `rng` supplies the environment
-// sample (dimensions 2..4).
-void TraceSample(const RenderSetup& setup, double px, double py, const CounterRng& rng, ShadingPoint* point);
+// Casts the ray through image position (px, py) and samples the lights: point and directional lights, one
+// direction from each of the environment's components and one from the hit's material (setup.object_samplers),
+// weighed by multiple importance sampling; `points` supplies the sample's random numbers (its pairs 1 and up).
+void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoints& points, ShadingPoint* point);
 
-// The pixel sample `sample` of pixel `pixel` (index y * width + x): jittered position and its own random
-// stream, a pure function of (seed, pixel, sample).
+// The pixel sample `sample` of pixel `pixel` (index y * width + x): its position in the pixel and its points
+// (Owen-scrambled Sobol), a pure function of (seed, pixel, sample).
 void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample, ShadingPoint* point);
 
 // One kernel path: a prepared material (with a curtain's layer), evaluated with texture coordinates (its BTF)
@@ -116,7 +120,8 @@ std::unique_ptr<models::EvaluationPlan> PlanOf(const Evaluator& evaluator, const
 // f (3 per query) of one evaluator's bucket on the host (the native build; the fidelity pilot).
 void EvaluateOnHost(const Evaluator& evaluator, const QueryBucket& bucket, std::vector<double>* f);
 
-// The most queries one pixel sample can produce: one per light and one for the environment.
+// The most queries one pixel sample can produce: one per light, two for the environment, one for the
+// material sample, one for a fiber's ambient term.
 size_t MaxQueriesPerSample(const RenderSetup& setup);
 
 }  // namespace loomlight::render

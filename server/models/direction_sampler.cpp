@@ -1,0 +1,259 @@
+#include "server/models/direction_sampler.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "server/models/material_plan.h"
+
+namespace loomlight::models {
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+using Dir = DirectionSampler::Dir;
+
+double Dot(const Dir& a, const Dir& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+Dir FromZPhi(double z, double phi) {
+  const double r = std::sqrt(std::max(0.0, 1 - z * z));
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+
+// phi in [0, 2 pi).
+double PhiOf(const Dir& w) {
+  const double phi = std::atan2(w[1], w[0]);
+  return phi < 0 ? phi + 2 * kPi : phi;
+}
+
+// The index i with cdf[i] <= target < cdf[i + 1] among n cells whose weight is non-zero, and the remainder of
+// the target within that cell in [0, 1).
+int Search(const double* cdf, int n, double target, double* remainder) {
+  const int i = std::clamp(int(std::upper_bound(cdf, cdf + n + 1, target) - cdf) - 1, 0, n - 1);
+  const double width = cdf[i + 1] - cdf[i];
+  *remainder = width > 0 ? std::clamp((target - cdf[i]) / width, 0.0, std::nextafter(1.0, 0.0)) : 0.5;
+  return i;
+}
+
+}  // namespace
+
+bool DirectionSampler::Fiber(const Model& model) { return !model.fiber_axis_param().empty(); }
+
+bool DirectionSampler::Sphere(const Model& model, bool layered) {
+  return Fiber(model) || model.transmission() || layered;
+}
+
+size_t DirectionSampler::TableBytes(const Model& model, bool layered) {
+  const Resolution r;
+  const size_t rows = Sphere(model, layered) ? 2 * r.wi_z : r.wi_z;
+  return sizeof(DirectionSampler) + size_t(r.wo_z) * r.wo_phi * (rows + 1 + rows * (r.wi_phi + 1)) * sizeof(double);
+}
+
+DirectionSampler::DirectionSampler(const PreparedMaterial& material) : DirectionSampler(material, Resolution()) {}
+
+DirectionSampler::DirectionSampler(const PreparedMaterial& material, Resolution resolution) : res_(resolution) {
+  const Model& model = *material.model;
+  fiber_ = Fiber(model);
+  sphere_ = Sphere(model, material.transmission != nullptr);
+  wo_sphere_ = fiber_;
+  wi_rows_ = sphere_ ? 2 * res_.wi_z : res_.wi_z;
+  z_min_ = sphere_ ? -1 : 0;
+  if (fiber_) {
+    const std::vector<double>& a = material.values.at(model.fiber_axis_param());
+    const double length = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    if (length > 0) axis_ = {a[0] / length, a[1] / length, a[2] / length};
+    // Any frame about the axis: f is tabulated in it, and only the density depends on the choice.
+    const Dir helper = std::fabs(axis_[0]) < 0.9 ? Dir{1, 0, 0} : Dir{0, 1, 0};
+    const double d = Dot(helper, axis_);
+    t_ = {helper[0] - d * axis_[0], helper[1] - d * axis_[1], helper[2] - d * axis_[2]};
+    const double tl = std::sqrt(Dot(t_, t_));
+    for (double& c : t_) c /= tl;
+    b_ = {axis_[1] * t_[2] - axis_[2] * t_[1], axis_[2] * t_[0] - axis_[0] * t_[2], axis_[0] * t_[1] - axis_[1] * t_[0]};
+  }
+  const bool with_uv = model.spatially_varying() || (material.transmission && material.transmission->model->spatially_varying());
+  const int uv_points = with_uv ? res_.uv * res_.uv : 1;
+  const int cells = wi_rows_ * res_.wi_phi;
+  const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
+  const double wo_z_min = wo_sphere_ ? -1 : 0, wo_dz = (1 - wo_z_min) / res_.wo_z;
+
+  // One node's queries at a time: its cells' centres x the tile's points.
+  const size_t n = size_t(cells) * uv_points;
+  std::vector<float> wi(3 * n), wo(3 * n), uv(with_uv ? 2 * n : 0);
+  std::vector<double> cosine(cells), f(3 * n);
+  for (int r = 0; r < wi_rows_; ++r)
+    for (int c = 0; c < res_.wi_phi; ++c) {
+      const Dir w = FromTable(FromZPhi(z_min_ + (r + 0.5) * dz, (c + 0.5) * dphi));
+      cosine[r * res_.wi_phi + c] = Cosine(w);
+      for (int k = 0; k < uv_points; ++k) {
+        const size_t q = size_t(r * res_.wi_phi + c) * uv_points + k;
+        for (int i = 0; i < 3; ++i) wi[3 * q + i] = float(w[i]);
+        if (with_uv) {
+          uv[2 * q] = float((k % res_.uv + 0.5) / res_.uv);
+          uv[2 * q + 1] = float((k / res_.uv + 0.5) / res_.uv);
+        }
+      }
+    }
+  nodes_.resize(size_t(res_.wo_z) * res_.wo_phi);
+  for (int i = 0; i < res_.wo_z; ++i)
+    for (int j = 0; j < res_.wo_phi; ++j) {
+      const Dir o = FromTable(FromZPhi(wo_z_min + (i + 0.5) * wo_dz, (j + 0.5) * 2 * kPi / res_.wo_phi));
+      for (size_t q = 0; q < n; ++q)
+        for (int k = 0; k < 3; ++k) wo[3 * q + k] = float(o[k]);
+      EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
+      Node& node = nodes_[size_t(i) * res_.wo_phi + j];
+      node.row_cdf.assign(wi_rows_ + 1, 0.0);
+      node.column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0);
+      for (int r = 0; r < wi_rows_; ++r) {
+        double* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+        for (int c = 0; c < res_.wi_phi; ++c) {
+          double sum = 0;
+          for (int k = 0; k < uv_points; ++k)
+            for (int ch = 0; ch < 3; ++ch) {
+              const double v = f[3 * (size_t(r * res_.wi_phi + c) * uv_points + k) + ch];
+              if (std::isfinite(v) && v > 0) sum += v;
+            }
+          column[c + 1] = column[c] + sum * cosine[r * res_.wi_phi + c];
+        }
+        node.row_cdf[r + 1] = node.row_cdf[r] + column[res_.wi_phi];
+      }
+    }
+}
+
+size_t DirectionSampler::bytes() const {
+  size_t total = sizeof(*this);
+  for (const Node& node : nodes_) total += (node.row_cdf.size() + node.column_cdf.size()) * sizeof(double);
+  return total;
+}
+
+Dir DirectionSampler::ToTable(const Dir& w) const {
+  if (!fiber_) return w;
+  return {Dot(w, t_), Dot(w, b_), Dot(w, axis_)};
+}
+
+Dir DirectionSampler::FromTable(const Dir& w) const {
+  if (!fiber_) return w;
+  Dir out;
+  for (int i = 0; i < 3; ++i) out[i] = w[0] * t_[i] + w[1] * b_[i] + w[2] * axis_[i];
+  return out;
+}
+
+double DirectionSampler::Cosine(const Dir& wi) const {
+  if (!fiber_) return std::fabs(wi[2]);
+  const double along = Dot(wi, axis_);
+  return std::sqrt(std::max(0.0, 1 - along * along));
+}
+
+void DirectionSampler::Nodes(const Dir& wo, int index[4], double weight[4]) const {
+  const double wo_z_min = wo_sphere_ ? -1 : 0;
+  const double fz = std::clamp((wo[2] - wo_z_min) / (1 - wo_z_min) * res_.wo_z - 0.5, 0.0, res_.wo_z - 1.0);
+  const int i0 = std::min(int(fz), res_.wo_z - 1), i1 = std::min(i0 + 1, res_.wo_z - 1);
+  const double tz = fz - i0;
+  const double fp = PhiOf(wo) / (2 * kPi) * res_.wo_phi - 0.5;  // nodes at cell centres; phi wraps around
+  const double floor_p = std::floor(fp);
+  const int j0 = (int(floor_p) % res_.wo_phi + res_.wo_phi) % res_.wo_phi, j1 = (j0 + 1) % res_.wo_phi;
+  const double tp = fp - floor_p;
+  index[0] = i0 * res_.wo_phi + j0;
+  index[1] = i0 * res_.wo_phi + j1;
+  index[2] = i1 * res_.wo_phi + j0;
+  index[3] = i1 * res_.wo_phi + j1;
+  weight[0] = (1 - tz) * (1 - tp);
+  weight[1] = (1 - tz) * tp;
+  weight[2] = tz * (1 - tp);
+  weight[3] = tz * tp;
+}
+
+// Surfaces: cos theta / pi over the hemisphere (|cos| / 2 pi over the sphere); fibers: uniform on the sphere
+// (the density of sin(angle to the axis) has no closed-form inverse).
+double DirectionSampler::CosinePdf(const Dir& w) const {
+  if (fiber_) return 1 / (4 * kPi);
+  if (!sphere_ && w[2] < 0) return 0;
+  return std::fabs(w[2]) / (sphere_ ? 2 * kPi : kPi);
+}
+
+Dir DirectionSampler::DrawCosine(double u1, double u2) const {
+  if (fiber_) return FromZPhi(1 - 2 * u1, 2 * kPi * u2);
+  double sign = 1;
+  if (sphere_) {  // the side from u1's top bit, keeping the remainder uniform
+    sign = u1 < 0.5 ? 1 : -1;
+    u1 = u1 < 0.5 ? 2 * u1 : 2 * u1 - 1;
+  }
+  Dir w = FromZPhi(std::sqrt(u1), 2 * kPi * u2);  // z^2 uniform: density z / pi
+  w[2] *= sign;
+  return w;
+}
+
+double DirectionSampler::NodePdf(int node, const Dir& w) const {
+  const Node& n = nodes_[node];
+  const double total = n.row_cdf.back();
+  if (!(total > 0)) return -1;
+  if (w[2] < z_min_) return 0;
+  const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
+  const int r = std::clamp(int((w[2] - z_min_) / dz), 0, wi_rows_ - 1);
+  const int c = std::clamp(int(PhiOf(w) / dphi), 0, res_.wi_phi - 1);
+  const double* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+  return (column[c + 1] - column[c]) / total / (dz * dphi);  // dz dphi is the cell's solid angle
+}
+
+Dir DirectionSampler::DrawNode(int node, double u1, double u2) const {
+  const Node& n = nodes_[node];
+  const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
+  double fz, fp;
+  const int r = Search(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
+  const double* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+  const int c = Search(column, res_.wi_phi, u2 * column[res_.wi_phi], &fp);
+  return FromZPhi(z_min_ + (r + fz) * dz, (c + fp) * dphi);
+}
+
+DirectionSampler::Sample DirectionSampler::Draw(const Dir& wo_in, double u0, double u1, double u2) const {
+  Sample sample;
+  Dir wo = ToTable(wo_in);
+  const double mirror = !wo_sphere_ && wo[2] < 0 ? -1 : 1;  // two-sided cloth: sample for the mirrored wo
+  wo[2] *= mirror;
+  int index[4];
+  double weight[4];
+  Nodes(wo, index, weight);
+  Dir wi;
+  if (u0 < kCosineFraction) {
+    wi = DrawCosine(u1, u2);
+  } else {
+    // The node by its bilinear weight (u0's remainder); an empty node falls back to the cosine density.
+    double target = (u0 - kCosineFraction) / (1 - kCosineFraction), sum = 0;
+    int k = 3;
+    for (int i = 0; i < 4; ++i) {
+      sum += weight[i];
+      if (target < sum) {
+        k = i;
+        break;
+      }
+    }
+    wi = nodes_[index[k]].row_cdf.back() > 0 ? DrawNode(index[k], u1, u2) : DrawCosine(u1, u2);
+  }
+  sample.pdf = Pdf(wo, wi, index, weight);
+  wi[2] *= mirror;
+  sample.wi = FromTable(wi);
+  return sample;
+}
+
+double DirectionSampler::Pdf(const Dir& wo_in, const Dir& wi_in) const {
+  Dir wo = ToTable(wo_in), wi = ToTable(wi_in);
+  if (!wo_sphere_ && wo[2] < 0) {
+    wo[2] = -wo[2];
+    wi[2] = -wi[2];
+  }
+  int index[4];
+  double weight[4];
+  Nodes(wo, index, weight);
+  return Pdf(wo, wi, index, weight);
+}
+
+double DirectionSampler::Pdf(const Dir&, const Dir& wi, const int index[4], const double weight[4]) const {
+  const double cosine = CosinePdf(wi);
+  double table = 0;
+  for (int i = 0; i < 4; ++i) {
+    if (weight[i] <= 0) continue;
+    const double p = NodePdf(index[i], wi);
+    table += weight[i] * (p < 0 ? cosine : p);
+  }
+  return kCosineFraction * cosine + (1 - kCosineFraction) * table;
+}
+
+}  // namespace loomlight::models

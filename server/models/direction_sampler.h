@@ -1,0 +1,86 @@
+// Importance sampling of any material: draws wi given wo with a density that is known exactly, so a renderer
+// (or a client, through the Sample RPC) can weigh f |cos| / pdf and combine it with light sampling (MIS).
+//
+// The density is a tabulated one built from the material itself: at a grid of wo nodes, f(wi, wo) |cos theta_i|
+// (averaged over the pattern's tile for spatially varying models) at the centres of equal-area cells of wi
+// (uniform in cos theta and phi); between nodes the node densities are blended bilinearly (a mixture, so its
+// density is the same blend), and a fraction kCosineFraction of a cosine density is mixed in, so every
+// direction where f may be non-zero has a non-zero density even where the table's cell centres missed it.
+// Piecewise constant within a cell, so pdf() is exactly the density Draw() samples, whatever the table's error;
+// the table only decides how much variance is left. Surface models: wo and wi about the normal (z), wi over the
+// hemisphere of wo or, for materials that let light through, the whole sphere; the cloth is two-sided, so a wo
+// below the surface is mirrored, sampled and mirrored back. Fiber models: about the material's own axis
+// (SPEC.md section 5's cos theta_i), wo and wi over the sphere.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace loomlight::models {
+
+struct PreparedMaterial;
+class Model;
+
+class DirectionSampler {
+ public:
+  using Dir = std::array<double, 3>;
+  static constexpr double kCosineFraction = 0.1;
+
+  static bool Fiber(const Model& model);
+  static bool Sphere(const Model& model, bool layered);  // wi over the whole sphere
+
+  struct Resolution {
+    int wo_z = 6, wo_phi = 12;     // wo nodes (cos theta_o, phi_o); fibers: over the sphere
+    int wi_z = 24, wi_phi = 48;    // wi cells per hemisphere in cos theta; phi cells
+    int uv = 3;                    // uv points per axis averaged over the tile (spatially varying models)
+  };
+
+  // The table for `material`, from its native (float, -O3) host build of the kernel source (the same
+  // source as the kernels; ~80,000 evaluations per texel point). Never fails: a material that is zero
+  // everywhere samples the cosine density alone.
+  explicit DirectionSampler(const PreparedMaterial& material);
+  DirectionSampler(const PreparedMaterial& material, Resolution resolution);
+
+  struct Sample {
+    Dir wi{0, 0, 0};
+    double pdf = 0;  // per steradian; 0 only for an unusable wo
+  };
+  // u0 chooses the mixture component, (u1, u2) the direction within it (keep them one stratified pair).
+  Sample Draw(const Dir& wo, double u0, double u1, double u2) const;
+  double Pdf(const Dir& wo, const Dir& wi) const;
+
+  // The cosine weight of wi that f is multiplied by: |wi.z| for surfaces, sin(angle to the axis) for fibers.
+  double Cosine(const Dir& wi) const;
+  bool sphere() const { return sphere_; }  // wi over the whole sphere (else wo's hemisphere)
+  size_t bytes() const;
+  // bytes() of a table for `model` (with a curtain layer or not) at the default resolution, before it is built.
+  static size_t TableBytes(const Model& model, bool layered);
+
+ private:
+  struct Node {
+    std::vector<double> row_cdf;     // wi_rows + 1, unnormalised
+    std::vector<double> column_cdf;  // wi_rows x (wi_phi + 1), unnormalised
+  };
+  // The frame wi and wo are tabulated in: the surface's (z = normal) or the fiber's (z = axis).
+  Dir ToTable(const Dir& w) const;
+  Dir FromTable(const Dir& w) const;
+  // The four wo nodes around wo (table frame, sign already mirrored) and their bilinear weights.
+  void Nodes(const Dir& wo, int index[4], double weight[4]) const;
+  double CosinePdf(const Dir& wi_table) const;
+  double NodePdf(int node, const Dir& wi_table) const;
+  // The density in the table frame (wo mirrored to its side), given wo's nodes.
+  double Pdf(const Dir& wo_table, const Dir& wi_table, const int index[4], const double weight[4]) const;  // < 0: the node is empty (use the cosine density)
+  Dir DrawNode(int node, double u1, double u2) const;
+  Dir DrawCosine(double u1, double u2) const;
+
+  Resolution res_;
+  bool fiber_ = false, sphere_ = false, wo_sphere_ = false;
+  int wi_rows_ = 0;  // wi_z, or 2 wi_z over the sphere
+  double z_min_ = 0;  // -1 over the sphere
+  Dir axis_{0, 0, 1}, t_{1, 0, 0}, b_{0, 1, 0};  // fibers: the material's axis and a frame about it
+  std::vector<Node> nodes_;
+};
+
+}  // namespace loomlight::models

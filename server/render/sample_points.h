@@ -1,0 +1,73 @@
+// Low-discrepancy sample points for a pixel: Owen-scrambled 2D Sobol points, their index shuffled per pixel and
+// per dimension pair (Burley 2020, "Practical Hash-based Owen Scrambling"; pbrt-v4's padded Sobol sampler).
+// Each dimension pair (pixel position, a light, the material) gets its own scramble, so the pairs are
+// independent of one another while each pair's n = 2^k samples of a pixel form a (0, k, 2)-net: one point in
+// every elementary interval of area 1/n (e.g. each cell of a 4 x 4 grid for 16 samples). A pure function of
+// (seed, pixel, sample, pair): any sample is drawn in any order, on any thread, and the same request gives the
+// same image.
+#pragma once
+
+#include <array>
+#include <cstdint>
+
+#include "server/render/rng.h"
+
+namespace loomlight::render {
+
+namespace sobol {
+
+inline uint32_t ReverseBits(uint32_t x) {
+  x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
+  x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
+  x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
+  x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);
+  return (x >> 16) | (x << 16);
+}
+
+// Laine and Karras' hash: a permutation in which every bit depends only on the bits below it, so applied to
+// bit-reversed numbers it is a nested uniform (Owen) scramble.
+inline uint32_t LaineKarras(uint32_t x, uint32_t seed) {
+  x += seed;
+  x ^= x * 0x6c50b47cu;
+  x ^= x * 0xb82f1e52u;
+  x ^= x * 0xc7afe638u;
+  x ^= x * 0x8d22f6e6u;
+  return x;
+}
+
+inline uint32_t OwenScramble(uint32_t x, uint32_t seed) { return ReverseBits(LaineKarras(ReverseBits(x), seed)); }
+
+// Sobol's first two dimensions: the van der Corput sequence (bit reversal) and the one from the Pascal
+// matrix mod 2 (direction numbers v_0 = 2^31, v_k = v_{k-1} ^ (v_{k-1} >> 1)).
+inline std::array<uint32_t, 2> Sobol2D(uint32_t index) {
+  const uint32_t x = ReverseBits(index);
+  uint32_t y = 0;
+  for (uint32_t v = 0x80000000u; index != 0; index >>= 1, v ^= v >> 1)
+    if (index & 1) y ^= v;
+  return {x, y};
+}
+
+}  // namespace sobol
+
+class SamplePoints {
+ public:
+  SamplePoints(uint64_t seed, uint64_t pixel, uint32_t sample) : key_(Mix64(seed ^ Mix64(pixel))), sample_(sample) {}
+
+  // The sample's point in dimension pair `pair`, both coordinates in [0, 1).
+  std::array<double, 2> Get2D(uint32_t pair) const {
+    const uint64_t h = Mix64(key_ + 0x9e3779b97f4a7c15ull * (pair + 1));
+    // The shuffled index: samples 0..2^k-1 of the pixel become one aligned block of 2^k Sobol indices.
+    const uint32_t index = sobol::OwenScramble(sample_, static_cast<uint32_t>(h));
+    const std::array<uint32_t, 2> p = sobol::Sobol2D(index);
+    const uint32_t x = sobol::OwenScramble(p[0], static_cast<uint32_t>(h >> 32));
+    const uint32_t y = sobol::OwenScramble(p[1], static_cast<uint32_t>(Mix64(h)));
+    // 32 bits each, so always < 1.
+    return {x * 0x1p-32, y * 0x1p-32};
+  }
+
+ private:
+  uint64_t key_;
+  uint32_t sample_;
+};
+
+}  // namespace loomlight::render

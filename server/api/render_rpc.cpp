@@ -409,11 +409,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     for (render::QueryBucket& b : chunk.buckets) b.Clear();
     chunk.direct.assign(chunk.pixels, Rgb{});
     chunk.queries = 0;
-    // Fiber scenes spend their time casting rays (camera, shadow and occlusion rays through the BVH), so their
-    // chunks are traced on kFiberTraceThreads threads, each a contiguous run of pixels into its own buckets,
-    // appended in pixel order: every pixel's queries stay in sample order and the image does not depend on
-    // the split.
-    const uint64_t threads = setup_.scene.fibers ? std::clamp<uint64_t>(chunk.pixels, 1, kFiberTraceThreads) : 1;
+    // Chunks are traced on kTraceThreads threads (casting rays and sampling lights and materials is the host's
+    // share of a render), each a contiguous run of pixels into its own buckets, appended in pixel order: every
+    // pixel's queries stay in sample order and the image does not depend on the split.
+    const uint64_t threads = std::clamp<uint64_t>(chunk.pixels, 1, kTraceThreads);
     std::vector<std::vector<render::QueryBucket>> parts(threads > 1 ? threads - 1 : 0,
                                                         std::vector<render::QueryBucket>(plan_.evaluators.size()));
     std::vector<std::thread> workers;

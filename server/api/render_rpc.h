@@ -34,8 +34,8 @@ constexpr size_t kRenderChunkQueries = kMaxQueriesPerCall / 4;
 // twill patch of cotton1 at full detail); their BVH is bounded by the memory budget as it is built.
 constexpr uint64_t kMaxRenderFibers = 100'000;
 constexpr uint64_t kMaxRenderFiberPoints = 2'000'000;
-// Threads a fiber scene's chunk is traced on (its cost is ray casting; other scenes trace on the host worker).
-constexpr uint64_t kFiberTraceThreads = 2;
+// Threads a chunk is traced on (ray casting, light and material sampling: the host's share of a render).
+constexpr uint64_t kTraceThreads = 2;
 
 using RenderDeps = ServiceDeps;
 

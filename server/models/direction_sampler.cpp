@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numbers>
 
+#include "server/models/cdf.h"
 #include "server/models/material_plan.h"
 
 namespace loomlight::models {
@@ -23,15 +24,6 @@ Dir FromZPhi(double z, double phi) {
 double PhiOf(const Dir& w) {
   const double phi = std::atan2(w[1], w[0]);
   return phi < 0 ? phi + 2 * kPi : phi;
-}
-
-// The index i with cdf[i] <= target < cdf[i + 1] among n cells whose weight is non-zero, and the remainder of
-// the target within that cell in [0, 1).
-int Search(const double* cdf, int n, double target, double* remainder) {
-  const int i = std::clamp(int(std::upper_bound(cdf, cdf + n + 1, target) - cdf) - 1, 0, n - 1);
-  const double width = cdf[i + 1] - cdf[i];
-  *remainder = width > 0 ? std::clamp((target - cdf[i]) / width, 0.0, std::nextafter(1.0, 0.0)) : 0.5;
-  return i;
 }
 
 }  // namespace
@@ -197,9 +189,9 @@ Dir DirectionSampler::DrawNode(int node, double u1, double u2) const {
   const Node& n = nodes_[node];
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
   double fz, fp;
-  const int r = Search(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
+  const int r = SearchCdf(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
   const double* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
-  const int c = Search(column, res_.wi_phi, u2 * column[res_.wi_phi], &fp);
+  const int c = SearchCdf(column, res_.wi_phi, u2 * column[res_.wi_phi], &fp);
   return FromZPhi(z_min_ + (r + fz) * dz, (c + fp) * dphi);
 }
 

@@ -7,6 +7,8 @@
 #include <cmath>
 #include <numbers>
 
+#include "server/models/cdf.h"
+
 namespace loomlight::render {
 namespace {
 
@@ -219,15 +221,6 @@ double Environment::PixelDensity(double weight, Component component, double py) 
   return weight / map_->total_weight[component] * width_ * height_ / (2 * kPi * kPi * sin_theta);
 }
 
-namespace {
-// The cell i with cdf[i] <= target < cdf[i + 1] among n, and the target's remainder within it in [0, 1).
-int Search(const double* cdf, int n, double target, double* remainder) {
-  const int i = std::clamp(int(std::upper_bound(cdf, cdf + n + 1, target) - cdf) - 1, 0, n - 1);
-  const double width = cdf[i + 1] - cdf[i];
-  *remainder = width > 0 ? std::clamp((target - cdf[i]) / width, 0.0, std::nextafter(1.0, 0.0)) : 0.5;
-  return i;
-}
-}  // namespace
 
 Environment::Sample Environment::Draw(Component component, double u1, double u2) const {
   Sample sample;
@@ -237,16 +230,16 @@ Environment::Sample Environment::Draw(Component component, double u1, double u2)
   double fx, fy;
   if (component == kBright) {
     // The pixel from u1 (its remainder places the point across the pixel), u2 down it.
-    const int i = Search(map.bright_cdf.data(), int(map.bright_pixels.size()), u1 * map.total_weight[kBright], &fx);
+    const int i = models::SearchCdf(map.bright_cdf.data(), int(map.bright_pixels.size()), u1 * map.total_weight[kBright], &fx);
     x = int(map.bright_pixels[i] % width_);
     y = int(map.bright_pixels[i] / width_);
     fy = u2;
   } else {
     // The row from u1, the column within it from u2; their remainders place the point inside the pixel.
-    y = Search(map.row_cdf.data(), height_, u1 * map.total_weight[kRest], &fy);
+    y = models::SearchCdf(map.row_cdf.data(), height_, u1 * map.total_weight[kRest], &fy);
     const double* cdf = &map.column_cdf[size_t(y) * (width_ + 1)];
     if (cdf[width_] <= 0) return sample;
-    x = Search(cdf, width_, u2 * cdf[width_], &fx);
+    x = models::SearchCdf(cdf, width_, u2 * cdf[width_], &fx);
   }
   const double weight = Weight(&map.rgb[3 * (size_t(y) * width_ + x)], y, height_);
   if (weight <= 0) return sample;

@@ -38,13 +38,29 @@ inline uint32_t LaineKarras(uint32_t x, uint32_t seed) {
 inline uint32_t OwenScramble(uint32_t x, uint32_t seed) { return ReverseBits(LaineKarras(ReverseBits(x), seed)); }
 
 // Sobol's first two dimensions: the van der Corput sequence (bit reversal) and the one from the Pascal
-// matrix mod 2 (direction numbers v_0 = 2^31, v_k = v_{k-1} ^ (v_{k-1} >> 1)).
+// matrix mod 2 (direction numbers v_0 = 2^31, v_k = v_{k-1} ^ (v_{k-1} >> 1)), the latter by bytes of the index
+// (a linear map over GF(2): the XOR of each byte's table entry; the shuffled indices use all 32 bits).
+struct PascalTables {
+  uint32_t byte[4][256];
+  PascalTables() {
+    uint32_t v[32];
+    v[0] = 0x80000000u;
+    for (int k = 1; k < 32; ++k) v[k] = v[k - 1] ^ (v[k - 1] >> 1);
+    for (int b = 0; b < 4; ++b)
+      for (uint32_t x = 0; x < 256; ++x) {
+        uint32_t y = 0;
+        for (int k = 0; k < 8; ++k)
+          if (x >> k & 1) y ^= v[8 * b + k];
+        byte[b][x] = y;
+      }
+  }
+};
+
 inline std::array<uint32_t, 2> Sobol2D(uint32_t index) {
-  const uint32_t x = ReverseBits(index);
-  uint32_t y = 0;
-  for (uint32_t v = 0x80000000u; index != 0; index >>= 1, v ^= v >> 1)
-    if (index & 1) y ^= v;
-  return {x, y};
+  static const PascalTables tables;
+  const uint32_t y = tables.byte[0][index & 0xff] ^ tables.byte[1][(index >> 8) & 0xff] ^
+                     tables.byte[2][(index >> 16) & 0xff] ^ tables.byte[3][index >> 24];
+  return {ReverseBits(index), y};
 }
 
 }  // namespace sobol

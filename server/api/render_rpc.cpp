@@ -366,14 +366,36 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
     s.fiber_shadows = plan_.fiber_shadows;
     s.fiber_occlusion = plan_.fiber_occlusion;
-    // Surfaces sample their material too (weighed against the environment's samples by MIS); its table is
-    // built on the material's first render and kept with it in the material cache.
-    s.object_samplers.assign(s.scene.objects.size(), nullptr);
-    for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o) {
-      const int e = plan_.objects[o].evaluator;
-      if (e >= 0 && !plan_.evaluators[e].fiber_axis) s.object_samplers[o] = &plan_.evaluators[e].material->Sampler();
-    }
+    // Surfaces sample their material too (weighed against the environment's samples by MIS). A material's table
+    // is built on its first render, on the asset loader (not on the host worker every streaming call shares),
+    // and kept with it in the material cache.
+    std::vector<const models::PreparedMaterial*> unbuilt;
+    for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
+      if (const models::PreparedMaterial* m = SampledMaterial(o); m && !m->SamplerBuilt()) unbuilt.push_back(m);
+    if (unbuilt.empty()) return StartRendering();
+    loading_ = true;
+    deps_.loader->Post([this, unbuilt] {
+      for (const models::PreparedMaterial* m : unbuilt) m->Sampler();
+      deps_.worker->Post([this] {
+        loading_ = false;
+        StartRendering();
+        Pump();
+      });
+    });
+  }
 
+  // The material whose sampler object o's hits draw from (null: it samples lights only, as fibers do).
+  const models::PreparedMaterial* SampledMaterial(size_t o) const {
+    const int e = plan_.objects[o].evaluator;
+    return e >= 0 && !plan_.evaluators[e].fiber_axis ? plan_.evaluators[e].material : nullptr;
+  }
+
+  // Once every sampler is built: the chunk size and the first chunks.
+  void StartRendering() {
+    render::RenderSetup& s = setup_;
+    s.object_samplers.assign(s.scene.objects.size(), nullptr);
+    for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
+      if (const models::PreparedMaterial* m = SampledMaterial(o)) s.object_samplers[o] = &m->Sampler();
     total_pixels_ = uint64_t(s.width) * s.height;
     const size_t per_pixel = std::max<size_t>(1, render::MaxQueriesPerSample(s)) * s.samples_per_pixel;
     chunk_pixels_ = std::max<uint64_t>(1, kRenderChunkQueries / per_pixel);

@@ -8,6 +8,7 @@
 // lets straight through cannot be reflected (symmetric, so the curtain stays reciprocal).
 #pragma once
 
+#include <atomic>
 #include <cstddef>
 #include <memory>
 #include <mutex>
@@ -35,17 +36,24 @@ struct PreparedMaterial {
     return knob_errors_;
   }
 
-  // The material's importance-sampling table, built on first use (tens to hundreds of milliseconds) and kept.
+  // The material's importance-sampling table, built on first use (0.1-0.3 s: a worker's job, not a gRPC or
+  // host-worker thread's) and kept.
   const DirectionSampler& Sampler() const {
-    std::call_once(sampler_once_, [this] { sampler_ = std::make_unique<DirectionSampler>(*this); });
+    std::call_once(sampler_once_, [this] {
+      sampler_ = std::make_unique<DirectionSampler>(*this);
+      sampler_built_.store(true, std::memory_order_release);
+    });
     return *sampler_;
   }
+  // Whether Sampler() returns at once.
+  bool SamplerBuilt() const { return sampler_built_.load(std::memory_order_acquire); }
 
  private:
   mutable std::once_flag knob_errors_once_;
   mutable std::vector<double> knob_errors_;
   mutable std::once_flag sampler_once_;
   mutable std::unique_ptr<const DirectionSampler> sampler_;
+  mutable std::atomic<bool> sampler_built_{false};
 };
 
 // Resolves a material and its curtain layer, checking the composition (a layer only behind a reflection

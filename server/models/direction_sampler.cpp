@@ -195,55 +195,56 @@ Dir DirectionSampler::DrawNode(int node, double u1, double u2) const {
   return FromZPhi(z_min_ + (r + fz) * dz, (c + fp) * dphi);
 }
 
-DirectionSampler::Sample DirectionSampler::Draw(const Dir& wo_in, double u0, double u1, double u2) const {
-  Sample sample;
+DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in) const {
+  Conditional c;
+  c.sampler_ = this;
   Dir wo = ToTable(wo_in);
-  const double mirror = !wo_sphere_ && wo[2] < 0 ? -1 : 1;  // two-sided cloth: sample for the mirrored wo
-  wo[2] *= mirror;
-  int index[4];
-  double weight[4];
-  Nodes(wo, index, weight);
+  c.mirror_ = !wo_sphere_ && wo[2] < 0 ? -1 : 1;  // two-sided cloth: sample for the mirrored wo
+  wo[2] *= c.mirror_;
+  Nodes(wo, c.index_, c.weight_);
+  return c;
+}
+
+DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u1, double u2) const {
+  const DirectionSampler& s = *sampler_;
   Dir wi;
   if (u0 < kCosineFraction) {
-    wi = DrawCosine(u1, u2);
+    wi = s.DrawCosine(u1, u2);
   } else {
     // The node by its bilinear weight (u0's remainder); an empty node falls back to the cosine density.
-    double target = (u0 - kCosineFraction) / (1 - kCosineFraction), sum = 0;
+    const double target = (u0 - kCosineFraction) / (1 - kCosineFraction);
+    double sum = 0;
     int k = 3;
     for (int i = 0; i < 4; ++i) {
-      sum += weight[i];
+      sum += weight_[i];
       if (target < sum) {
         k = i;
         break;
       }
     }
-    wi = nodes_[index[k]].row_cdf.back() > 0 ? DrawNode(index[k], u1, u2) : DrawCosine(u1, u2);
+    wi = s.nodes_[index_[k]].row_cdf.back() > 0 ? s.DrawNode(index_[k], u1, u2) : s.DrawCosine(u1, u2);
   }
-  sample.pdf = Pdf(wo, wi, index, weight);
-  wi[2] *= mirror;
-  sample.wi = FromTable(wi);
+  Sample sample;
+  sample.pdf = TablePdf(wi);
+  wi[2] *= mirror_;
+  sample.wi = s.FromTable(wi);
   return sample;
 }
 
-double DirectionSampler::Pdf(const Dir& wo_in, const Dir& wi_in) const {
-  Dir wo = ToTable(wo_in), wi = ToTable(wi_in);
-  if (!wo_sphere_ && wo[2] < 0) {
-    wo[2] = -wo[2];
-    wi[2] = -wi[2];
-  }
-  int index[4];
-  double weight[4];
-  Nodes(wo, index, weight);
-  return Pdf(wo, wi, index, weight);
+double DirectionSampler::Conditional::Pdf(const Dir& wi_in) const {
+  Dir wi = sampler_->ToTable(wi_in);
+  wi[2] *= mirror_;
+  return TablePdf(wi);
 }
 
-double DirectionSampler::Pdf(const Dir&, const Dir& wi, const int index[4], const double weight[4]) const {
-  const double cosine = CosinePdf(wi);
+double DirectionSampler::Conditional::TablePdf(const Dir& wi) const {
+  const DirectionSampler& s = *sampler_;
+  const double cosine = s.CosinePdf(wi);
   double table = 0;
   for (int i = 0; i < 4; ++i) {
-    if (weight[i] <= 0) continue;
-    const double p = NodePdf(index[i], wi);
-    table += weight[i] * (p < 0 ? cosine : p);
+    if (weight_[i] <= 0) continue;
+    const double p = s.NodePdf(index_[i], wi);
+    table += weight_[i] * (p < 0 ? cosine : p);
   }
   return kCosineFraction * cosine + (1 - kCosineFraction) * table;
 }

@@ -45,11 +45,26 @@ class DirectionSampler {
 
   struct Sample {
     Dir wi{0, 0, 0};
-    double pdf = 0;  // per steradian; 0 only for an unusable wo
+    double pdf = 0;  // per steradian
   };
-  // u0 chooses the mixture component, (u1, u2) the direction within it (keep them one stratified pair).
-  Sample Draw(const Dir& wo, double u0, double u1, double u2) const;
-  double Pdf(const Dir& wo, const Dir& wi) const;
+  // The density for one wo (its table nodes found once), for a draw and the densities MIS asks for.
+  class Conditional {
+   public:
+    // u0 chooses the mixture component, (u1, u2) the direction within it (keep them one stratified pair).
+    Sample Draw(double u0, double u1, double u2) const;
+    double Pdf(const Dir& wi) const;
+
+   private:
+    friend class DirectionSampler;
+    double TablePdf(const Dir& wi_table) const;  // wi in the table frame, mirrored with wo
+    const DirectionSampler* sampler_ = nullptr;
+    double mirror_ = 1;
+    int index_[4] = {0, 0, 0, 0};
+    double weight_[4] = {1, 0, 0, 0};
+  };
+  Conditional At(const Dir& wo) const;
+  Sample Draw(const Dir& wo, double u0, double u1, double u2) const { return At(wo).Draw(u0, u1, u2); }
+  double Pdf(const Dir& wo, const Dir& wi) const { return At(wo).Pdf(wi); }
 
   // The cosine weight of wi that f is multiplied by: |wi.z| for surfaces, sin(angle to the axis) for fibers.
   double Cosine(const Dir& wi) const;

@@ -197,16 +197,17 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
   // The material's own sampling strategy (when the object has one and there is an environment to find).
   const models::DirectionSampler* sampler =
       setup.environment && hit.object < static_cast<int>(setup.object_samplers.size()) ? setup.object_samplers[hit.object] : nullptr;
-  const models::DirectionSampler::Dir wo_dir{wo.x, wo.y, wo.z};
+  models::DirectionSampler::Conditional material;
+  if (sampler) material = sampler->At({wo.x, wo.y, wo.z});
   const auto material_pdf = [&](Vec3 wi_world) {
     if (!sampler) return 0.0;
     const Vec3 wi = to_local(wi_world);
-    return sampler->Pdf(wo_dir, {wi.x, wi.y, wi.z});
+    return material.Pdf({wi.x, wi.y, wi.z});
   };
   ForEachLight(setup, hit.position, points, material_pdf, add);
   if (sampler) {
     const std::array<double, 2> u = points.Get2D(kMaterialPair);
-    const models::DirectionSampler::Sample sample = sampler->Draw(wo_dir, points.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
+    const models::DirectionSampler::Sample sample = material.Draw(points.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
     if (sample.pdf > 0) {
       const Vec3 local{sample.wi[0], sample.wi[1], mirror * sample.wi[2]};
       const Vec3 wi_world = local.x * frame.x + local.y * frame.y + local.z * frame.n;

@@ -176,7 +176,8 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
   wo.z *= mirror;
   point->wo = wo;
 
-  if (hit.object < static_cast<int>(setup.object_transmits.size()) && setup.object_transmits[hit.object]) {
+  const bool transmits = hit.object < static_cast<int>(setup.object_transmits.size()) && setup.object_transmits[hit.object];
+  if (transmits) {
     Hit behind;  // what the camera sees through the cloth: the environment, or nothing past another object
     if (setup.environment && !setup.scene.Intersect(hit.position + kRayOffset * direction, direction, 0.0, INFINITY, &behind))
       point->background = setup.environment->Radiance(direction);
@@ -190,7 +191,7 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
   const auto add = [&](Vec3 wi_world, double max_distance, Rgb incident) {
     const double side = Dot(wi_world, hit.normal) >= 0 ? 1.0 : -1.0;
     const Vec3 wi = to_local(wi_world);
-    if (std::fabs(wi.z) < kMinCosine) return;
+    if (std::fabs(wi.z) < kMinCosine || (wi.z < 0 && !transmits)) return;  // light behind opaque cloth: no ray
     if (setup.scene.Occluded(hit.position + (side * kRayOffset) * hit.normal, wi_world, max_distance)) return;
     point->lights.push_back({wi, std::fabs(wi.z) * incident});
   };

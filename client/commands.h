@@ -25,5 +25,6 @@ const Command& tab_command();
 const Command& render_command();
 const Command& yarn_command();
 const Command& health_command();
+const Command& sample_command();
 
 }  // namespace loomlight::client

@@ -119,6 +119,19 @@ v1::EvaluateResponse Client::evaluate(const v1::EvaluateRequest& request) {
   return response;
 }
 
+v1::SampleResponse Client::sample(const v1::SampleRequest& request) {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::SampleResponse response;
+  check(stub_->Sample(&context, request, &response));
+  const int queries = request.wo_size() / 3;
+  if (response.wi_size() != 3 * queries || response.pdf_size() != queries || response.weight_size() != 3 * queries ||
+      response.f_size() != 3 * queries)
+    throw std::runtime_error("server returned " + std::to_string(response.pdf_size()) + " samples for " +
+                             std::to_string(queries) + " queries");
+  return response;
+}
+
 v1::TextureSliceResponse Client::texture_slice(const v1::TextureSliceRequest& request) {
   grpc::ClientContext context;
   prepare(context);

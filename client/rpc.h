@@ -43,6 +43,8 @@ class Client {
   v1::ListModelsResponse list_models();
   // Checks that the response holds one RGB triple per query before returning it.
   v1::EvaluateResponse evaluate(const v1::EvaluateRequest& request);
+  // Checks that the response holds wi, pdf, weight and f for every query before returning it.
+  v1::SampleResponse sample(const v1::SampleRequest& request);
   // Checks that an image came back with the size asked for.
   v1::TextureSliceResponse texture_slice(const v1::TextureSliceRequest& request);
   // Streams a table: `on_chunk` sees every chunk in order (its data are consecutive pieces of the file).

@@ -3,9 +3,11 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
 
 #include "server/api/admission.h"
@@ -123,5 +125,33 @@ inline grpc::Status ToStatus(const batching::JobResult& r) {
   }
   return {grpc::StatusCode::INTERNAL, "unknown job status"};
 }
+
+// The outcome of a plan's parts (one batcher job each) as they finish, from any thread: the first failure,
+// the slowest part's timing, the largest launch.
+class PlanOutcome {
+ public:
+  void Expect(size_t parts) { remaining_ = parts; }
+  // Adds a part's result; true for the last one (then result() is complete).
+  bool Add(const batching::JobResult& r) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (r.status != batching::JobStatus::kOk && result_.status == batching::JobStatus::kOk) {
+      result_.status = r.status;
+      result_.message = r.message;
+    }
+    result_.queue_seconds = std::max(result_.queue_seconds, r.queue_seconds);
+    result_.kernel_seconds = std::max(result_.kernel_seconds, r.kernel_seconds);
+    if (r.batch_queries > result_.batch_queries) {
+      result_.batch_queries = r.batch_queries;
+      result_.batch_requests = r.batch_requests;
+    }
+    return --remaining_ == 0;
+  }
+  const batching::JobResult& result() const { return result_; }
+
+ private:
+  std::mutex mutex_;
+  size_t remaining_ = 0;
+  batching::JobResult result_;
+};
 
 }  // namespace loomlight::api

@@ -7,6 +7,7 @@
 #include "server/api/admission.h"
 #include "server/api/job_status.h"
 #include "server/api/render_rpc.h"
+#include "server/api/sample_rpc.h"
 #include "server/api/tabulate.h"
 #include "server/api/texture_slice.h"
 #include "server/api/yarn_rpc.h"
@@ -53,9 +54,7 @@ struct EvaluateCall {
   std::string approximation;  // the knob settings used (EvaluateResponse.approximation)
   bool fp64 = false;
 
-  std::mutex mutex;
-  size_t remaining = 0;
-  batching::JobResult outcome;  // the first failure; the slowest part's timing; the largest launch
+  PlanOutcome outcome;
 
   // `material` may be null (not cached, or an error target to resolve): it is prepared here.
   static void Start(const std::shared_ptr<EvaluateCall>& call) {
@@ -103,7 +102,7 @@ struct EvaluateCall {
         *call->material, request.wi().data(), request.wo().data(), request.uv_size() > 0 ? request.uv().data() : nullptr,
         n, request.fiber_axis_size() > 0 ? request.fiber_axis().data() : nullptr,
         ambient ? models::Quantity::kAmbient : models::Quantity::kScattering);
-    call->remaining = call->plan->parts();
+    call->outcome.Expect(call->plan->parts());
     float* f = call->response->mutable_f()->mutable_data();
     SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
                batching::Priority::kInteractive, CallDeadline(call->context, call->received), call->context,
@@ -114,18 +113,7 @@ struct EvaluateCall {
     if (r.status == batching::JobStatus::kOk && r.batch_queries > 0)
       deps->metrics->Evaluated(plan->model(k).name(), fp64, plan->size(k), r.batch_queries, r.batch_requests,
                                r.queue_seconds, r.kernel_seconds);
-    std::lock_guard<std::mutex> lock(mutex);
-    if (r.status != batching::JobStatus::kOk && outcome.status == batching::JobStatus::kOk) {
-      outcome.status = r.status;
-      outcome.message = r.message;
-    }
-    outcome.queue_seconds = std::max(outcome.queue_seconds, r.queue_seconds);
-    outcome.kernel_seconds = std::max(outcome.kernel_seconds, r.kernel_seconds);
-    if (r.batch_queries > outcome.batch_queries) {
-      outcome.batch_queries = r.batch_queries;
-      outcome.batch_requests = r.batch_requests;
-    }
-    if (--remaining == 0) Finish(ToStatus(outcome));
+    if (outcome.Add(r)) Finish(ToStatus(outcome.result()));
   }
 
   void Finish(const grpc::Status& status) {
@@ -134,10 +122,10 @@ struct EvaluateCall {
       response->set_model(material->model->name());
       response->set_approximation(approximation);
       response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
-      response->set_queue_seconds(outcome.queue_seconds);
-      response->set_kernel_seconds(outcome.kernel_seconds);
-      response->set_batch_queries(static_cast<uint32_t>(outcome.batch_queries));
-      response->set_batch_requests(static_cast<uint32_t>(outcome.batch_requests));
+      response->set_queue_seconds(outcome.result().queue_seconds);
+      response->set_kernel_seconds(outcome.result().kernel_seconds);
+      response->set_batch_queries(static_cast<uint32_t>(outcome.result().batch_queries));
+      response->set_batch_requests(static_cast<uint32_t>(outcome.result().batch_requests));
       response->set_total_seconds(SecondsSince(received));
     } else {
       response->Clear();
@@ -329,6 +317,12 @@ grpc::ServerWriteReactor<v1::YarnGeometryChunk>* LoomlightService::YarnGeometry(
     return new RejectedStream<v1::YarnGeometryChunk>(s);
   }
   return HandleYarnGeometry(deps_, context, request);
+}
+
+grpc::ServerUnaryReactor* LoomlightService::Sample(grpc::CallbackServerContext* context,
+                                                   const v1::SampleRequest* request, v1::SampleResponse* response) {
+  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "Sample", batching::Clock::now(), s);
+  return HandleSample(deps_, &preparer_, context, request, response);
 }
 
 }  // namespace loomlight::api

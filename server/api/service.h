@@ -97,6 +97,9 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // Delegates to HandleYarnGeometry (server/api/yarn_rpc.h).
   grpc::ServerWriteReactor<v1::YarnGeometryChunk>* YarnGeometry(grpc::CallbackServerContext* context,
                                                                const v1::YarnGeometryRequest* request) override;
+  // Delegates to HandleSample (server/api/sample_rpc.h), which works on the preparer.
+  grpc::ServerUnaryReactor* Sample(grpc::CallbackServerContext* context, const v1::SampleRequest* request,
+                                   v1::SampleResponse* response) override;
 
  private:
   // Finishes a call on the default reactor and records it.
@@ -112,7 +115,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // may still use the members above.
   HostWorker worker_;
   HostWorker loader_;
-  HostWorker preparer_;  // Evaluate's material packing and large requests' validation and planning
+  HostWorker preparer_;  // Evaluate's material packing and large requests' validation and planning; Sample's work
   HostWorker geometry_;  // yarn generation
 };
 

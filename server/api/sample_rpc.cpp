@@ -1,0 +1,228 @@
+#include "server/api/sample_rpc.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <mutex>
+
+#include "server/api/admission.h"
+#include "server/api/job_status.h"
+#include "server/models/direction_sampler.h"
+#include "server/models/material_plan.h"
+#include "server/render/rng.h"
+
+namespace loomlight::api {
+namespace {
+
+// Number d of a query's stream from the seed, as the float a client would send: the nearest float to
+// CounterRng's uniform number, at most the largest float below 1.
+float SeedNumber(const render::CounterRng& rng, uint32_t d) {
+  return std::min(static_cast<float>(rng.Uniform(d)), 0x1.fffffep-1f);
+}
+
+// One Sample call. The gRPC thread checks what is cheap and admits the bytes; on the preparer, Start gets the
+// material and checks the rest, Draw draws wi chunk by chunk (the first chunk of a new material builds its
+// sampling table), Submit evaluates f(wi, wo) through the batcher as Evaluate does (the kernels write f straight
+// into the response), and Complete turns f into weights and finishes (on the batcher's thread for small calls,
+// else back on the preparer).
+struct SampleCall {
+  const ServiceDeps* deps = nullptr;
+  HostWorker* preparer = nullptr;
+  grpc::CallbackServerContext* context = nullptr;
+  const v1::SampleRequest* request = nullptr;
+  v1::SampleResponse* response = nullptr;
+  grpc::ServerUnaryReactor* reactor = nullptr;
+  batching::Clock::time_point received, deadline;
+  Admission admission;  // the call's bytes, held until the call object goes
+  std::shared_ptr<const models::PreparedMaterial> material;
+  std::unique_ptr<models::EvaluationPlan> plan;  // refers to the request's wo and uv and the response's wi
+  std::string approximation;
+  bool fp64 = false;
+  size_t n = 0;
+  double sampling_seconds = 0;
+
+  PlanOutcome outcome;
+
+  static void Start(const std::shared_ptr<SampleCall>& call) {
+    const v1::SampleRequest& request = *call->request;
+    if (std::string error = call->deps->materials->GetWithin(request.material(), *call->deps->registry,
+                                                              request.error_target(), &call->material,
+                                                              &call->approximation);
+        !error.empty())
+      return call->Finish(Invalid(error));
+    if (std::string error = ValidateDirections(request.wo(), "wo"); !error.empty())
+      return call->Finish(Invalid(error));
+    if (request.uv_size() > 0) {
+      if (!call->material->model->spatially_varying())
+        return call->Finish(
+            Invalid("uv: model '" + call->material->model->name() + "' is not spatially varying; send no uv"));
+      if (std::string error = ValidateTextureCoordinates(request.uv(), call->n, "uv"); !error.empty())
+        return call->Finish(Invalid(error));
+    }
+    if (std::string error = ValidateSampleRandom(request.random(), call->n); !error.empty())
+      return call->Finish(Invalid(error));
+    const int n = static_cast<int>(call->n);
+    call->response->mutable_wi()->Resize(3 * n, 0.0f);
+    call->response->mutable_pdf()->Resize(n, 0.0f);
+    call->response->mutable_weight()->Resize(3 * n, 0.0f);
+    call->response->mutable_f()->Resize(3 * n, 0.0f);
+    Draw(call, 0);
+  }
+
+  // Draws queries [begin, begin + kSampleDrawChunk), then posts the next chunk or submits f's evaluation.
+  static void Draw(const std::shared_ptr<SampleCall>& call, size_t begin) {
+    if (grpc::Status s = StopStatus(call->context, call->deadline); !s.ok()) return call->Finish(s);
+    const auto started = batching::Clock::now();
+    const bool built = call->material->SamplerBuilt();
+    const models::DirectionSampler& sampler = call->material->Sampler();  // built here on first use
+    if (!built) call->deps->materials->ChargeSampler(*call->material);
+    const v1::SampleRequest& request = *call->request;
+    const bool given = request.random_size() > 0;
+    const float* wo = request.wo().data();
+    const float* random = given ? request.random().data() : nullptr;
+    float* wi = call->response->mutable_wi()->mutable_data();
+    float* pdf = call->response->mutable_pdf()->mutable_data();
+    const size_t end = std::min(call->n, begin + kSampleDrawChunk);
+    for (size_t q = begin; q < end; ++q) {
+      double u[3];
+      if (given) {
+        for (int d = 0; d < 3; ++d) u[d] = random[3 * q + d];
+      } else {  // the numbers a client would send: floats (below 1)
+        const render::CounterRng rng(request.seed(), q);
+        for (int d = 0; d < 3; ++d) u[d] = SeedNumber(rng, d);
+      }
+      const double x = wo[3 * q], y = wo[3 * q + 1], z = wo[3 * q + 2];
+      const double length = std::sqrt(x * x + y * y + z * z);  // unit within kUnitTolerance (validated)
+      const models::DirectionSampler::Sample s = sampler.Draw({x / length, y / length, z / length}, u[0], u[1], u[2]);
+      const double wl = std::sqrt(s.wi[0] * s.wi[0] + s.wi[1] * s.wi[1] + s.wi[2] * s.wi[2]);
+      for (int c = 0; c < 3; ++c) wi[3 * q + c] = wl > 0 ? static_cast<float>(s.wi[c] / wl) : 0.0f;
+      pdf[q] = std::isfinite(s.pdf) && s.pdf > 0 ? static_cast<float>(s.pdf) : 0.0f;
+    }
+    call->sampling_seconds += SecondsSince(started);
+    if (end < call->n) {
+      call->preparer->Post([call, end] { Draw(call, end); });
+      return;
+    }
+    Submit(call);
+  }
+
+  static void Submit(const std::shared_ptr<SampleCall>& call) {
+    const v1::SampleRequest& request = *call->request;
+    call->plan = std::make_unique<models::EvaluationPlan>(*call->material, call->response->wi().data(),
+                                                          request.wo().data(),
+                                                          request.uv_size() > 0 ? request.uv().data() : nullptr, call->n);
+    call->outcome.Expect(call->plan->parts());
+    float* f = call->response->mutable_f()->mutable_data();
+    SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
+               batching::Priority::kInteractive, call->deadline, call->context,
+               [call](size_t k, batching::JobResult r) { call->PartDone(call, k, std::move(r)); });
+  }
+
+  void PartDone(const std::shared_ptr<SampleCall>& self, size_t k, batching::JobResult r) {
+    if (r.status == batching::JobStatus::kOk && r.batch_queries > 0)
+      deps->metrics->Evaluated(plan->model(k).name(), fp64, plan->size(k), r.batch_queries, r.batch_requests,
+                               r.queue_seconds, r.kernel_seconds);
+    if (!outcome.Add(r)) return;
+    if (outcome.result().status != batching::JobStatus::kOk) return Finish(ToStatus(outcome.result()));
+    if (n <= kInlineSampleWeights) return Complete();
+    preparer->Post([self] { self->Complete(); });
+  }
+
+  // weight = f cos / pdf per query (0 where pdf is 0 or the product is not finite), then finishes.
+  void Complete() {
+    const models::DirectionSampler& sampler = material->Sampler();
+    const float* wi = response->wi().data();
+    const float* pdf = response->pdf().data();
+    const float* f = response->f().data();
+    float* weight = response->mutable_weight()->mutable_data();
+    for (size_t q = 0; q < n; ++q) {
+      const double cosine = sampler.Cosine({wi[3 * q], wi[3 * q + 1], wi[3 * q + 2]});
+      for (int c = 0; c < 3; ++c) {
+        const double w = pdf[q] > 0 ? f[3 * q + c] * cosine / pdf[q] : 0.0;
+        weight[3 * q + c] = std::isfinite(w) ? static_cast<float>(w) : 0.0f;
+      }
+    }
+    Finish(grpc::Status::OK);
+  }
+
+  void Finish(const grpc::Status& status) {
+    if (status.ok()) {
+      response->set_model(material->model->name());
+      response->set_approximation(approximation);
+      response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
+      response->set_sampling_seconds(sampling_seconds);
+      response->set_queue_seconds(outcome.result().queue_seconds);
+      response->set_kernel_seconds(outcome.result().kernel_seconds);
+      response->set_batch_queries(static_cast<uint32_t>(outcome.result().batch_queries));
+      response->set_batch_requests(static_cast<uint32_t>(outcome.result().batch_requests));
+      response->set_total_seconds(SecondsSince(received));
+    } else {
+      response->Clear();
+    }
+    deps->metrics->Call("Sample", status.error_code(), SecondsSince(received));
+    reactor->Finish(status);
+  }
+};
+
+std::string FormatNumber(double v) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.9g", v);
+  return text;
+}
+
+}  // namespace
+
+std::string ValidateSampleRandom(const google::protobuf::RepeatedField<float>& random, size_t n) {
+  if (random.empty()) return "";
+  if (static_cast<size_t>(random.size()) != 3 * n)
+    return "random: length " + std::to_string(random.size()) + " is not 3 per query (" + std::to_string(3 * n) +
+           " for " + std::to_string(n) + " queries), or empty to draw them from seed";
+  for (int i = 0; i < random.size(); ++i)
+    if (!(random[i] >= 0.0f && random[i] < 1.0f))  // NaN fails too
+      return "random[" + std::to_string(i) + "]: " + FormatNumber(random[i]) + " is outside [0, 1)";
+  return "";
+}
+
+grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, HostWorker* preparer,
+                                       grpc::CallbackServerContext* context, const v1::SampleRequest* request,
+                                       v1::SampleResponse* response) {
+  const auto received = batching::Clock::now();
+  const auto reject = [&](const grpc::Status& status) {
+    deps.metrics->Call("Sample", status.error_code(), SecondsSince(received));
+    grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+    reactor->Finish(status);
+    return reactor;
+  };
+  if (!v1::Precision_IsValid(request->precision()))
+    return reject(Invalid("precision: unknown value " + std::to_string(request->precision())));
+  const bool fp64 = request->precision() == v1::PRECISION_FP64;
+  if (fp64 && !deps.has_fp64)
+    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+  if (request->wo_size() == 0) return reject(Invalid("wo: no directions; give one xyz triple per sample"));
+  const size_t n = request->wo_size() / 3;
+  if (n > kMaxQueriesPerCall)
+    return reject(Invalid("wo: " + std::to_string(n) + " queries exceed the limit of " +
+                          std::to_string(kMaxQueriesPerCall) + " per call"));
+  if (!std::isfinite(request->error_target()) || request->error_target() < 0)
+    return reject(Invalid("error_target: must be a finite relative error >= 0"));
+
+  auto call = std::make_shared<SampleCall>();
+  if (grpc::Status s = Admit(deps.memory, nullptr, n * kSampleBytesPerQuery, &call->admission); !s.ok())
+    return reject(s);
+  call->deps = &deps;
+  call->preparer = preparer;
+  call->context = context;
+  call->request = request;
+  call->response = response;
+  call->reactor = context->DefaultReactor();
+  call->received = received;
+  call->deadline = CallDeadline(context, received);
+  call->fp64 = fp64;
+  call->n = n;
+  // Resolving or packing the material, building its sampling table and drawing all go to the preparer.
+  preparer->Post([call] { SampleCall::Start(call); });
+  return call->reactor;
+}
+
+}  // namespace loomlight::api

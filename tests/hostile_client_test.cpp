@@ -346,6 +346,40 @@ TEST(BoundedMemory, MaterialCacheIsBoundedInBytesAndKeyedOnTheResolvedMaterial) 
   EXPECT_GT(cache.entries(), 10u);
 }
 
+// A material's sampling table (built on its first render or Sample call) counts in the cache's bytes once, and
+// the cache stays within its bound as tables are built.
+TEST(BoundedMemory, MaterialCacheCountsSamplingTables) {
+  constexpr size_t kCapacity = size_t{4} << 20;
+  models::MaterialCache cache(kCapacity);
+  const models::Registry& registry = models::Registry::Global();
+  std::shared_ptr<const models::PreparedMaterial> entry;
+  v1::Material m;
+  m.set_preset("cotton_twill");
+  ASSERT_EQ(cache.Get(m, registry, &entry), "");
+  const size_t before = cache.bytes();
+  cache.ChargeSampler(*entry);  // not built yet: nothing to count
+  EXPECT_EQ(cache.bytes(), before);
+  const size_t table = entry->Sampler().bytes();
+  EXPECT_GT(table, size_t{100} << 10);
+  cache.ChargeSampler(*entry);
+  cache.ChargeSampler(*entry);  // counted once
+  // The entry and its request-bytes alias both hold the table.
+  EXPECT_GE(cache.bytes(), before + table);
+  EXPECT_LE(cache.bytes(), before + 2 * table);
+  for (int i = 0; i < 12; ++i) {
+    v1::Material other;
+    other.set_preset("cotton_twill");
+    v1::Param* p = other.add_params();
+    p->set_name("eta");
+    p->add_values(1.3 + 0.01 * i);
+    ASSERT_EQ(cache.Get(other, registry, &entry), "");
+    entry->Sampler();
+    cache.ChargeSampler(*entry);
+    ASSERT_LE(cache.bytes(), kCapacity);
+  }
+  EXPECT_LT(cache.entries(), 13u);
+}
+
 v1::TabulateRequest BigTable() {
   v1::TabulateRequest r;
   r.mutable_material()->set_preset("velvet");

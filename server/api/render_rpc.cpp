@@ -375,7 +375,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     if (unbuilt.empty()) return StartRendering();
     loading_ = true;
     deps_.loader->Post([this, unbuilt] {
-      for (const models::PreparedMaterial* m : unbuilt) m->Sampler();
+      for (const models::PreparedMaterial* m : unbuilt) {
+        m->Sampler();
+        deps_.materials->ChargeSampler(*m);
+      }
       deps_.worker->Post([this] {
         loading_ = false;
         StartRendering();

@@ -34,12 +34,6 @@ bool DirectionSampler::Sphere(const Model& model, bool layered) {
   return Fiber(model) || model.transmission() || layered;
 }
 
-size_t DirectionSampler::TableBytes(const Model& model, bool layered) {
-  const Resolution r;
-  const size_t rows = Sphere(model, layered) ? 2 * r.wi_z : r.wi_z;
-  return sizeof(DirectionSampler) + size_t(r.wo_z) * r.wo_phi * (rows + 1 + rows * (r.wi_phi + 1)) * sizeof(double);
-}
-
 DirectionSampler::DirectionSampler(const PreparedMaterial& material) : DirectionSampler(material, Resolution()) {}
 
 DirectionSampler::DirectionSampler(const PreparedMaterial& material, Resolution resolution) : res_(resolution) {

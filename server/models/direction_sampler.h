@@ -70,8 +70,6 @@ class DirectionSampler {
   double Cosine(const Dir& wi) const;
   bool sphere() const { return sphere_; }  // wi over the whole sphere (else wo's hemisphere)
   size_t bytes() const;
-  // bytes() of a table for `model` (with a curtain layer or not) at the default resolution, before it is built.
-  static size_t TableBytes(const Model& model, bool layered);
 
  private:
   struct Node {

@@ -21,9 +21,7 @@ void AppendCanonical(const ResolvedMaterial& m, std::string* key) {
 size_t EntryBytes(const MaterialCache::Entry& e) {
   size_t values = 0;
   for (const auto& [name, v] : e.values) values += name.size() + v.size() * sizeof(double) + 64;  // + map node
-  // The importance-sampling table is built on first use; its bytes are reserved from the start.
   return sizeof e + values + e.packed.data.size() * (sizeof(double) + sizeof(float)) +
-         DirectionSampler::TableBytes(*e.model, e.transmission != nullptr) +
          (e.transmission ? EntryBytes(*e.transmission) : 0);
 }
 
@@ -202,17 +200,37 @@ void MaterialCache::Insert(std::string key, std::shared_ptr<const Entry> entry, 
   const size_t bytes = 2 * key.size() + EntryBytes(*entry);
   std::lock_guard<std::mutex> lock(mutex_);
   if (bytes > capacity_bytes_ || map_.count(key)) return;
-  while (!order_.empty() && bytes_ + bytes > capacity_bytes_) {
+  EvictUntil(bytes);
+  order_.push_front(key);
+  map_.emplace(std::move(key), Slot{std::move(entry), order_.begin(), bytes, alias});
+  bytes_ += bytes;
+  if (!alias) ++entries_;
+}
+
+void MaterialCache::EvictUntil(size_t incoming) {
+  while (!order_.empty() && bytes_ + incoming > capacity_bytes_) {
     auto last = map_.find(order_.back());
     bytes_ -= last->second.bytes;
     if (!last->second.alias) --entries_;
     map_.erase(last);
     order_.pop_back();
   }
-  order_.push_front(key);
-  map_.emplace(std::move(key), Slot{std::move(entry), order_.begin(), bytes, alias});
-  bytes_ += bytes;
-  if (!alias) ++entries_;
+}
+
+void MaterialCache::ChargeSampler(const Entry& entry) {
+  if (!entry.SamplerBuilt()) return;
+  const size_t extra = entry.Sampler().bytes();
+  std::lock_guard<std::mutex> lock(mutex_);
+  size_t added = 0;
+  for (auto& [key, slot] : map_)
+    if (slot.entry.get() == &entry && !slot.sampler_charged) {
+      slot.sampler_charged = true;
+      slot.bytes += extra;
+      added += extra;
+    }
+  // Over the bound now: the least recently used go (possibly this entry; its holders keep it alive).
+  bytes_ += added;
+  EvictUntil(0);
 }
 
 size_t MaterialCache::bytes() const {

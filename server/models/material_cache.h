@@ -41,6 +41,9 @@ class MaterialCache {
   // not at its exact setting, with their estimated errors when a target was given ("" when none is).
   std::string GetWithin(const v1::Material& material, const Registry& registry, double error_target,
                         std::shared_ptr<const Entry>* out, std::string* approximation);
+  // Counts an entry's sampling table (PreparedMaterial::Sampler, built on its first use by a render or a Sample
+  // call, which then call this) in its bytes, evicting the least recently used entries if that passes the bound.
+  void ChargeSampler(const Entry& entry);
   size_t bytes() const;
   size_t entries() const;  // packed materials (not counting the request-bytes aliases of the fast path)
 
@@ -50,7 +53,9 @@ class MaterialCache {
     std::list<std::string>::iterator order;
     size_t bytes;
     bool alias;  // keyed on a request's bytes ("R..."), else on the canonical form ("C...")
+    bool sampler_charged = false;  // bytes include the entry's sampling table
   };
+  void EvictUntil(size_t incoming);  // under the lock: drops entries until `incoming` more bytes fit
   static bool HasUnknownFields(const v1::Material& material);
   static std::string CanonicalKey(const ResolvedMaterial& top, const ResolvedMaterial& layer);
   bool Find(const std::string& key, std::shared_ptr<const Entry>* out);

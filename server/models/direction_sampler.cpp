@@ -40,6 +40,13 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& material, Resolution 
   const Model& model = *material.model;
   fiber_ = Fiber(model);
   sphere_ = Sphere(model, material.transmission != nullptr);
+  if (fiber_) {
+    // A fiber's f depends on the azimuths only through their difference: the table is kept in wo's azimuthal
+    // frame (nodes at phi_o = 0, one per wo elevation), and finer in elevation, where its narrow R cone moves
+    // with wo (theta_i = -theta_o).
+    res_.wo_z = res_.fiber_wo_z;
+    res_.wo_phi = 1;
+  }
   wo_sphere_ = fiber_;
   wi_rows_ = sphere_ ? 2 * res_.wi_z : res_.wi_z;
   z_min_ = sphere_ ? -1 : 0;
@@ -81,7 +88,8 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& material, Resolution 
   nodes_.resize(size_t(res_.wo_z) * res_.wo_phi);
   for (int i = 0; i < res_.wo_z; ++i)
     for (int j = 0; j < res_.wo_phi; ++j) {
-      const Dir o = FromTable(FromZPhi(wo_z_min + (i + 0.5) * wo_dz, (j + 0.5) * 2 * kPi / res_.wo_phi));
+      const double phi_o = fiber_ ? 0.0 : (j + 0.5) * 2 * kPi / res_.wo_phi;
+      const Dir o = FromTable(FromZPhi(wo_z_min + (i + 0.5) * wo_dz, phi_o));
       for (size_t q = 0; q < n; ++q)
         for (int k = 0; k < 3; ++k) wo[3 * q + k] = float(o[k]);
       EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
@@ -196,7 +204,22 @@ DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in) const {
   c.mirror_ = !wo_sphere_ && wo[2] < 0 ? -1 : 1;  // two-sided cloth: sample for the mirrored wo
   wo[2] *= c.mirror_;
   Nodes(wo, c.index_, c.weight_);
+  if (fiber_) {
+    const double r = std::hypot(wo[0], wo[1]);
+    if (r > 0) {
+      c.cos_o_ = wo[0] / r;
+      c.sin_o_ = wo[1] / r;
+    }
+  }
   return c;
+}
+
+DirectionSampler::Dir DirectionSampler::Conditional::ToWoFrame(const Dir& w) const {
+  return {cos_o_ * w[0] + sin_o_ * w[1], -sin_o_ * w[0] + cos_o_ * w[1], w[2]};
+}
+
+DirectionSampler::Dir DirectionSampler::Conditional::FromWoFrame(const Dir& w) const {
+  return {cos_o_ * w[0] - sin_o_ * w[1], sin_o_ * w[0] + cos_o_ * w[1], w[2]};
 }
 
 DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u1, double u2) const {
@@ -218,6 +241,7 @@ DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u
     }
     wi = s.nodes_[index_[k]].row_cdf.back() > 0 ? s.DrawNode(index_[k], u1, u2) : s.DrawCosine(u1, u2);
   }
+  wi = FromWoFrame(wi);
   Sample sample;
   sample.pdf = TablePdf(wi);
   wi[2] *= mirror_;
@@ -231,8 +255,9 @@ double DirectionSampler::Conditional::Pdf(const Dir& wi_in) const {
   return TablePdf(wi);
 }
 
-double DirectionSampler::Conditional::TablePdf(const Dir& wi) const {
+double DirectionSampler::Conditional::TablePdf(const Dir& wi_table) const {
   const DirectionSampler& s = *sampler_;
+  const Dir wi = ToWoFrame(wi_table);
   const double cosine = s.CosinePdf(wi);
   double table = 0;
   for (int i = 0; i < 4; ++i) {

@@ -32,7 +32,8 @@ class DirectionSampler {
   static bool Sphere(const Model& model, bool layered);  // wi over the whole sphere
 
   struct Resolution {
-    int wo_z = 6, wo_phi = 12;     // wo nodes (cos theta_o, phi_o); fibers: over the sphere
+    int wo_z = 6, wo_phi = 12;     // wo nodes (cos theta_o, phi_o)
+    int fiber_wo_z = 32;           // fibers: wo nodes in cos theta_o over the sphere (f depends on phi_i - phi_o)
     int wi_z = 24, wi_phi = 48;    // wi cells per hemisphere in cos theta; phi cells
     int uv = 3;                    // uv points per axis averaged over the tile (spatially varying models)
   };
@@ -57,6 +58,10 @@ class DirectionSampler {
    private:
     friend class DirectionSampler;
     double TablePdf(const Dir& wi_table) const;  // wi in the table frame, mirrored with wo
+    // Fibers: the table frame rotated about its axis so that wo's azimuth is 0 (identity for surfaces).
+    Dir ToWoFrame(const Dir& w) const;
+    Dir FromWoFrame(const Dir& w) const;
+    double cos_o_ = 1, sin_o_ = 0;
     const DirectionSampler* sampler_ = nullptr;
     double mirror_ = 1;
     int index_[4] = {0, 0, 0, 0};

@@ -52,7 +52,7 @@ struct Args {
 
 // Section names for --only, in report order.
 const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "woven",
-                                     "slice", "transmission", "tabulate", "render"};
+                                     "slice", "transmission", "tabulate", "render", "noise"};
 
 bool KnownSection(const std::string& name) {
   for (const char* n : kSectionNames)
@@ -65,7 +65,7 @@ void Usage(const char* argv0, const Args& defaults) {
                "usage: %s [--out FILE] [--quick] [--only SECTIONS]\n  --out FILE  report path (default %s)\n"
                "  --quick     small sizes, a smoke run of a few seconds\n"
                "  --only SECTIONS  comma-separated, of: kernel, sweep, service, service-cpu, woven, slice,\n"
-               "              transmission, tabulate, render (a partial report: give it its own --out)\n",
+               "              transmission, tabulate, render, noise (a partial report: give it its own --out)\n",
                argv0, defaults.out.c_str());
 }
 
@@ -143,6 +143,7 @@ int main(int argc, char** argv) {
   sections += transmission;
   if (want("tabulate")) sections += TabulateSection(sizes);
   if (want("render")) sections += RenderSection(sizes);
+  if (want("noise")) sections += NoiseSection(sizes);
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   std::string only;

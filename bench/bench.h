@@ -54,5 +54,8 @@ std::string SliceSection(const Sizes& sizes);
 std::string TabulateSection(const Sizes& sizes);
 // Render: thumbnail time for the cylinder scene at full and chosen fidelity, error against a reference.
 std::string RenderSection(const Sizes& sizes);
+// Noise against time: thumbnails at 1 to 64 samples per pixel against a converged reference, the time to
+// 30, 35 and 40 dB, and the cylinders in Blender Cycles side by side when `blender` is on PATH.
+std::string NoiseSection(const Sizes& sizes);
 
 }  // namespace loomlight::bench

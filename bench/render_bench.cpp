@@ -1,22 +1,14 @@
 // Render: thumbnails of the cylinder scene (Sadeghi Fig. 12) through an in-process server, at full fidelity
 // and at the fidelity the server chooses, timed, with their relative MSE and PSNR against a many-sample
 // full-fidelity reference.
-#include <grpcpp/grpcpp.h>
-
 #include <algorithm>
-#include <cmath>
 #include <cstdio>
-#include <map>
 
 #include "bench/bench.h"
 #include "bench/in_process.h"
+#include "bench/render_client.h"
 #include "bench/report.h"
 #include "bench/stats.h"
-#include "server/api/render_rpc.h"
-
-// After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
 
 namespace loomlight::bench {
 namespace {
@@ -26,116 +18,16 @@ constexpr const char* kSatin = "polyester_satin_charmeuse_front";
 constexpr const char* kTwill = "cotton_twill";
 constexpr double kTargetSeconds = 1.0;  // 256 x 256 at 16 samples per pixel, chosen fidelity
 
-// A square EXR render of `preset` on `scene`.
-v1::RenderRequest SquareRequest(const char* preset, v1::ScenePreset scene, uint32_t side, uint32_t spp, uint64_t seed) {
-  v1::RenderRequest r;
-  r.mutable_material()->set_preset(preset);
-  r.set_scene(scene);
-  r.set_width(side);
-  r.set_height(side);
-  r.set_samples_per_pixel(spp);
-  r.set_seed(seed);
-  r.set_format(v1::RENDER_FORMAT_EXR);
-  return r;
-}
-
 v1::RenderRequest Request(const char* preset, uint32_t side, uint32_t spp, bool full, uint64_t seed) {
   v1::RenderRequest r = SquareRequest(preset, v1::SCENE_CYLINDERS, side, spp, seed);
   r.set_force_full_fidelity(full);
   return r;
 }
 
-struct Result {
-  double client_seconds = 0;
-  v1::RenderUpdate last;  // the final update (image, fidelity, timings)
-  std::vector<float> image;
-};
-
-std::vector<float> DecodeExr(const std::string& bytes) {
-  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
-  auto in = OIIO::ImageInput::open("render.exr", nullptr, &reader);
-  if (!in) return {};
-  std::vector<float> pixels(size_t(in->spec().width) * in->spec().height * 3);
-  if (!in->read_image(0, 0, 0, 3, OIIO::TypeDesc::FLOAT, pixels.data())) return {};
-  return pixels;
-}
-
-Result RenderOnce(v1::Loomlight::Stub& stub, const v1::RenderRequest& request) {
-  Result result;
-  grpc::ClientContext ctx;
-  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::minutes(30));
-  const Clock::time_point start = Clock::now();
-  auto reader = stub.Render(&ctx, request);
-  v1::RenderUpdate update;
-  while (reader->Read(&update))
-    if (!update.image().empty()) result.last = update;
-  const grpc::Status status = reader->Finish();
-  result.client_seconds = SecondsSince(start);
-  if (!status.ok()) {
-    std::fprintf(stderr, "render bench: call failed: %s\n", status.error_message().c_str());
-    std::exit(1);
-  }
-  result.image = DecodeExr(result.last.image());
-  return result;
-}
-
-// The fastest of `runs` timed renders after one warm-up (all give the same image).
-Result TimeRender(v1::Loomlight::Stub& stub, const v1::RenderRequest& request, int runs) {
-  Result best;
-  best.client_seconds = 1e30;
-  for (int r = 0; r <= runs; ++r) {
-    Result result = RenderOnce(stub, request);
-    if (r > 0 && result.client_seconds < best.client_seconds) best = std::move(result);
-  }
-  return best;
-}
-
-// The mean of full-fidelity renders with different seeds totalling `spp` samples per pixel (one call holds
-// at most kMaxRenderSamples samples).
+// The mean of full-fidelity renders with seeds from 1000 totalling `spp` samples per pixel.
 std::vector<float> Reference(v1::Loomlight::Stub& stub, const char* preset, uint32_t side, uint32_t spp) {
-  const uint32_t per_call = static_cast<uint32_t>(
-      std::min<uint64_t>({spp, api::kMaxRenderSamplesPerPixel, api::kMaxRenderSamples / (uint64_t{side} * side)}));
-  const uint32_t calls = (spp + per_call - 1) / per_call;
-  std::vector<double> sum;
-  for (uint32_t c = 0; c < calls; ++c) {
-    Progress("render: reference %ux%u, call %u of %u (%u samples per pixel)\n", side, side, c + 1, calls, per_call);
-    const Result r = RenderOnce(stub, Request(preset, side, per_call, true, 1000 + c));
-    sum.resize(r.image.size(), 0.0);
-    for (size_t i = 0; i < r.image.size(); ++i) sum[i] += r.image[i];
-  }
-  std::vector<float> mean(sum.size());
-  for (size_t i = 0; i < sum.size(); ++i) mean[i] = static_cast<float>(sum[i] / calls);
-  return mean;
-}
-
-struct ImageError {
-  double relative_mse = 0;  // sum (x - ref)^2 / sum ref^2
-  double psnr_db = 0;       // 10 log10(peak^2 / MSE), peak = the reference's largest value
-};
-
-ImageError Compare(const std::vector<float>& image, const std::vector<float>& reference) {
-  double diff = 0, total = 0, peak = 0;
-  for (size_t i = 0; i < reference.size() && i < image.size(); ++i) {
-    const double d = double(image[i]) - reference[i];
-    diff += d * d;
-    total += double(reference[i]) * reference[i];
-    peak = std::max(peak, double(reference[i]));
-  }
-  const double mse = diff / std::max<size_t>(1, reference.size());
-  return {total > 0 ? diff / total : 0, mse > 0 ? 10 * std::log10(peak * peak / mse) : 0};
-}
-
-// "tangent_samples 32 / 32 / 32" over the three cylinders.
-std::string ChosenSummary(const v1::RenderUpdate& update) {
-  std::map<std::string, std::string> by_aspect;
-  for (const v1::ObjectFidelity& object : update.fidelity())
-    for (const v1::FidelityChoice& c : object.choices()) {
-      std::string& s = by_aspect[c.aspect()];
-      s += (s.empty() ? "" : "/") + c.chosen();
-    }
-  std::string out;
-  for (const auto& [aspect, chosen] : by_aspect) out += (out.empty() ? "" : ", ") + aspect + " " + chosen;
-  return out;
+  Progress("render: reference %s %ux%u at %u samples per pixel\n", preset, side, side, spp);
+  return MeanRender(stub, Request(preset, side, spp, true, 0), spp, 1000);
 }
 
 double MaxEstimatedError(const v1::RenderUpdate& update) {
@@ -207,7 +99,7 @@ std::string FiberRows(v1::Loomlight::Stub& stub, const Sizes& sizes) {
     double full_seconds = 0;
     for (const FiberConfig& config : configs) {
       Progress("render: fibers %s, %s\n", distant ? "distant" : "close-up", config.name);
-      const Result r = TimeRender(stub, FiberRequest(side, spp, config, 1, distant), sizes.timed_runs);
+      const RenderResult r = TimeRender(stub, FiberRequest(side, spp, config, 1, distant), sizes.timed_runs);
       const ImageError e = Compare(r.image, reference);
       const double bias = MeanDifference(r.image, reference);
       if (&config == &configs[0]) full_seconds = r.client_seconds;
@@ -258,7 +150,7 @@ std::string RenderSection(const Sizes& sizes) {
       for (bool full : {true, false}) {
         Progress("render: %s %ux%u, %u samples per pixel, %s fidelity\n", preset, side, side, spp,
                  full ? "full" : "chosen");
-        const Result r = TimeRender(*stub, Request(preset, side, spp, full, 1), sizes.timed_runs);
+        const RenderResult r = TimeRender(*stub, Request(preset, side, spp, full, 1), sizes.timed_runs);
         const ImageError e = Compare(r.image, reference);
         table.Add({preset, std::to_string(side) + "x" + std::to_string(side), std::to_string(spp), full ? "full" : "chosen",
                    ChosenSummary(r.last), Count(r.last.queries()), Millis(r.client_seconds),

@@ -32,7 +32,7 @@ class DirectionSampler {
   static bool Sphere(const Model& model, bool layered);  // wi over the whole sphere
 
   struct Resolution {
-    int wo_z = 6, wo_phi = 12;     // wo nodes (cos theta_o, phi_o)
+    int wo_z = 12, wo_phi = 12;     // wo nodes (cos theta_o, phi_o)
     int fiber_wo_z = 32;           // fibers: wo nodes in cos theta_o over the sphere (f depends on phi_i - phi_o)
     int wi_z = 24, wi_phi = 48;    // wi cells per hemisphere in cos theta; phi cells
     int uv = 3;                    // uv points per axis averaged over the tile (spatially varying models)

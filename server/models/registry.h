@@ -3,6 +3,7 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -76,6 +77,9 @@ struct AccuracyKnob {
   std::string param;              // "" = the model has none
   std::vector<double> settings;   // ascending cost; the last is full fidelity
   std::string error_estimate;     // how a setting's error is measured, for people
+  // A setting that keeps the lobes' shape (NaN: none does): importance-sampling tables, which need the shape and
+  // not its last percent, are built at it when it is cheaper than the material's own.
+  double shape_setting = std::nan("");
 };
 
 class Model {

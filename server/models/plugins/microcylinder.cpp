@@ -118,7 +118,8 @@ class MicrocylinderModel : public Model {
     // Tangent curve samples per thread: 9% at 16 and 1% at 32 against 256 (README).
     return {"tangent_samples", {8, 16, 32, 64, 128, kMaxTangentSamples},
             "Evaluate: relative L1 of the double reference against the last setting over fixed direction pairs "
-            "(accuracy::MeasureKnobErrors); Render: relative L1 of the pilot radiance against the last setting"};
+            "(accuracy::MeasureKnobErrors); Render: relative L1 of the pilot radiance against the last setting",
+            16};
   }
   KernelSpec kernel() const override { return {"models/microcylinder.cl", "microcylinder_eval", ""}; }
 

@@ -194,18 +194,11 @@ grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, HostWorker* prep
     reactor->Finish(status);
     return reactor;
   };
-  if (!v1::Precision_IsValid(request->precision()))
-    return reject(Invalid("precision: unknown value " + std::to_string(request->precision())));
+  if (grpc::Status s = CheckPrecision(request->precision(), deps.has_fp64); !s.ok()) return reject(s);
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
-  if (fp64 && !deps.has_fp64)
-    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
   if (request->wo_size() == 0) return reject(Invalid("wo: no directions; give one xyz triple per sample"));
   const size_t n = request->wo_size() / 3;
-  if (n > kMaxQueriesPerCall)
-    return reject(Invalid("wo: " + std::to_string(n) + " queries exceed the limit of " +
-                          std::to_string(kMaxQueriesPerCall) + " per call"));
-  if (!std::isfinite(request->error_target()) || request->error_target() < 0)
-    return reject(Invalid("error_target: must be a finite relative error >= 0"));
+  if (grpc::Status s = CheckQueriesAndTarget(n, "wo", request->error_target()); !s.ok()) return reject(s);
 
   auto call = std::make_shared<SampleCall>();
   if (grpc::Status s = Admit(deps.memory, nullptr, n * kSampleBytesPerQuery, &call->admission); !s.ok())

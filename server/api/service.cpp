@@ -164,6 +164,22 @@ grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& materi
   return grpc::Status::OK;
 }
 
+grpc::Status CheckPrecision(int precision, bool has_fp64) {
+  if (!v1::Precision_IsValid(precision)) return Invalid("precision: unknown value " + std::to_string(precision));
+  if (precision == v1::PRECISION_FP64 && !has_fp64)
+    return {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"};
+  return grpc::Status::OK;
+}
+
+grpc::Status CheckQueriesAndTarget(size_t n, const std::string& count_field, double error_target) {
+  if (n > kMaxQueriesPerCall)
+    return Invalid(count_field + ": " + std::to_string(n) + " queries exceed the limit of " +
+                   std::to_string(kMaxQueriesPerCall) + " per call");
+  if (!std::isfinite(error_target) || error_target < 0)
+    return Invalid("error_target: must be a finite relative error >= 0");
+  return grpc::Status::OK;
+}
+
 std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field) {
   if (w.size() % 3 != 0)
     return field + ": length " + std::to_string(w.size()) + " is not a multiple of 3 (packed xyz triples)";
@@ -243,11 +259,8 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   const auto received = batching::Clock::now();
   const auto reject = [&](grpc::Status status) { return Reply(context, "Evaluate", received, std::move(status)); };
   if (grpc::Status s = Serving(); !s.ok()) return reject(s);
-  if (!v1::Precision_IsValid(request->precision()))
-    return reject(Invalid("precision: unknown value " + std::to_string(request->precision())));
+  if (grpc::Status s = CheckPrecision(request->precision(), deps_.has_fp64); !s.ok()) return reject(s);
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
-  if (fp64 && !deps_.has_fp64)
-    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
   if (!v1::Quantity_IsValid(request->quantity()))
     return reject(Invalid("quantity: unknown value " + std::to_string(request->quantity())));
   const bool ambient = request->quantity() == v1::QUANTITY_AMBIENT;
@@ -259,11 +272,7 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
     return reject(Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
                           std::to_string(request->wi_size())));
   const size_t n = request->wo_size() / 3;
-  if (n > kMaxQueriesPerCall)
-    return reject(Invalid("wi: " + std::to_string(n) + " queries exceed the limit of " +
-                          std::to_string(kMaxQueriesPerCall) + " per call"));
-  if (!std::isfinite(request->error_target()) || request->error_target() < 0)
-    return reject(Invalid("error_target: must be a finite relative error >= 0"));
+  if (grpc::Status s = CheckQueriesAndTarget(n, "wi", request->error_target()); !s.ok()) return reject(s);
 
   auto call = std::make_shared<EvaluateCall>();
   if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission); !s.ok())

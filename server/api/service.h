@@ -122,6 +122,10 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or
 // "field[i]: reason".
 std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, const std::string& field);
+// Evaluate's and Sample's checks of a call's precision (known, and fp64 only where the device has it), and of its
+// query count (at most kMaxQueriesPerCall, named as `count_field`) and error_target; OK or the status to reply.
+grpc::Status CheckPrecision(int precision, bool has_fp64);
+grpc::Status CheckQueriesAndTarget(size_t n, const std::string& count_field, double error_target);
 // Checks texture coordinates: 2 per query, finite, within kMaxTextureCoordinate. Returns "" or "field[i]: reason".
 std::string ValidateTextureCoordinates(const google::protobuf::RepeatedField<float>& uv, size_t n,
                                        const std::string& field);

@@ -154,4 +154,14 @@ class PlanOutcome {
   batching::JobResult result_;
 };
 
+// The launch a unary call's parts rode in, into its response (EvaluateResponse, SampleResponse): the slowest
+// part's queue and kernel time, the largest launch's queries and requests.
+template <class Response>
+void SetLaunchFields(const batching::JobResult& r, Response* response) {
+  response->set_queue_seconds(r.queue_seconds);
+  response->set_kernel_seconds(r.kernel_seconds);
+  response->set_batch_queries(static_cast<uint32_t>(r.batch_queries));
+  response->set_batch_requests(static_cast<uint32_t>(r.batch_requests));
+}
+
 }  // namespace loomlight::api

@@ -152,10 +152,7 @@ struct SampleCall {
       response->set_approximation(approximation);
       response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
       response->set_sampling_seconds(sampling_seconds);
-      response->set_queue_seconds(outcome.result().queue_seconds);
-      response->set_kernel_seconds(outcome.result().kernel_seconds);
-      response->set_batch_queries(static_cast<uint32_t>(outcome.result().batch_queries));
-      response->set_batch_requests(static_cast<uint32_t>(outcome.result().batch_requests));
+      SetLaunchFields(outcome.result(), response);
       response->set_total_seconds(SecondsSince(received));
     } else {
       response->Clear();

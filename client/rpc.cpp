@@ -1,8 +1,16 @@
 #include "client/rpc.h"
 
+#include <arpa/inet.h>
+#include <netdb.h>
+#include <netinet/in.h>
+
+#include <cctype>
 #include <cmath>
 #include <cstdlib>
+#include <fstream>
 #include <ostream>
+#include <sstream>
+#include <vector>
 
 namespace loomlight::client {
 namespace {
@@ -25,11 +33,108 @@ std::chrono::milliseconds call_timeout(const ParsedOptions& options) {
   return std::chrono::milliseconds(static_cast<long long>(std::llround(seconds * 1000.0)));
 }
 
-std::shared_ptr<grpc::Channel> make_channel(const std::string& target) {
+std::string read_text_file(const std::string& path, std::string_view what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw UsageError(std::string(what) + ": cannot read '" + path + "'");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+// "h1:p1,h2:p2" splits into its targets; one target stays one.
+std::vector<std::string> split_targets(const std::string& target) {
+  std::vector<std::string> parts;
+  size_t begin = 0;
+  while (true) {
+    const size_t comma = target.find(',', begin);
+    std::string part = target.substr(begin, comma == std::string::npos ? std::string::npos : comma - begin);
+    if (part.empty()) throw UsageError("--server: empty target in '" + target + "'");
+    parts.push_back(std::move(part));
+    if (comma == std::string::npos) return parts;
+    begin = comma + 1;
+  }
+}
+
+// Several "HOST:PORT" targets become one gRPC "ipv4:"/"ipv6:" address list (gRPC's own resolvers), each host
+// name resolved here once: a replica that goes away is then skipped by round_robin without a new resolution.
+std::string address_list_target(const std::vector<std::string>& targets) {
+  std::vector<std::string> v4, v6;
+  for (const std::string& target : targets) {
+    const size_t colon = target.rfind(':');
+    if (colon == std::string::npos || colon == 0 || colon + 1 == target.size())
+      throw UsageError("--server: '" + target + "' in a list must be HOST:PORT");
+    std::string host = target.substr(0, colon);
+    const std::string port = target.substr(colon + 1);
+    if (host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+    addrinfo hints{};
+    hints.ai_socktype = SOCK_STREAM;
+    addrinfo* found = nullptr;
+    if (getaddrinfo(host.c_str(), port.c_str(), &hints, &found) != 0 || found == nullptr)
+      throw UsageError("--server: cannot resolve '" + target + "'");
+    for (const addrinfo* a = found; a != nullptr; a = a->ai_next) {
+      char text[INET6_ADDRSTRLEN] = {};
+      if (a->ai_family == AF_INET) {
+        inet_ntop(AF_INET, &reinterpret_cast<const sockaddr_in*>(a->ai_addr)->sin_addr, text, sizeof text);
+        v4.push_back(std::string(text) + ":" + port);
+      } else if (a->ai_family == AF_INET6) {
+        inet_ntop(AF_INET6, &reinterpret_cast<const sockaddr_in6*>(a->ai_addr)->sin6_addr, text, sizeof text);
+        v6.push_back("[" + std::string(text) + "]:" + port);
+      }
+    }
+    freeaddrinfo(found);
+  }
+  // gRPC's address-list schemes take one family; IPv4 is what loopback replicas and most clusters use.
+  const std::vector<std::string>& chosen = v4.empty() ? v6 : v4;
+  std::string joined = v4.empty() ? "ipv6:" : "ipv4:";
+  for (size_t i = 0; i < chosen.size(); ++i) joined += (i ? "," : "") + chosen[i];
+  return joined;
+}
+
+// The channel's credentials: plaintext by default; TLS when a CA (or "system") is given, with the client's own
+// certificate for mutual TLS and a bearer token, which gRPC sends only over TLS.
+std::shared_ptr<grpc::ChannelCredentials> channel_credentials(const ParsedOptions& options) {
+  std::string token;
+  if (auto file = options.last("token-file")) {
+    token = read_text_file(*file, "--token-file");
+    while (!token.empty() && std::isspace(static_cast<unsigned char>(token.back()))) token.pop_back();
+  } else if (const char* env = std::getenv("LOOMLIGHT_TOKEN"); env != nullptr && *env != '\0') {
+    token = env;
+  }
+  const auto ca = options.last("tls-ca");
+  if (!ca) {
+    if (!token.empty()) throw UsageError("a token is sent only over TLS: give --tls-ca (a CA file, or 'system')");
+    if (options.has("tls-cert") || options.has("tls-key")) throw UsageError("--tls-cert and --tls-key need --tls-ca");
+    return grpc::InsecureChannelCredentials();
+  }
+  grpc::SslCredentialsOptions ssl;
+  if (*ca != "system") ssl.pem_root_certs = read_text_file(*ca, "--tls-ca");
+  if (options.has("tls-cert") != options.has("tls-key")) throw UsageError("--tls-cert and --tls-key go together");
+  if (auto cert = options.last("tls-cert")) {
+    ssl.pem_cert_chain = read_text_file(*cert, "--tls-cert");
+    ssl.pem_private_key = read_text_file(*options.last("tls-key"), "--tls-key");
+  }
+  auto credentials = grpc::SslCredentials(ssl);
+  if (token.empty()) return credentials;
+  return grpc::CompositeChannelCredentials(credentials, grpc::AccessTokenCredentials(token));
+}
+
+std::shared_ptr<grpc::Channel> make_channel(const ParsedOptions& options) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(kMaxMessageBytes);
   args.SetMaxSendMessageSize(kMaxMessageBytes);
-  return grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), args);
+  std::string target = server_target(options);
+  const std::vector<std::string> targets = split_targets(target);
+  // Several replicas (a list, or a DNS name with several addresses): gRPC's round_robin spreads calls over every
+  // ready one and skips those that fail.
+  if (targets.size() > 1) target = address_list_target(targets);
+  if (targets.size() > 1 || target.rfind("dns:", 0) == 0) args.SetLoadBalancingPolicyName("round_robin");
+  if (auto name = options.last("tls-server-name")) {
+    args.SetSslTargetNameOverride(*name);
+  } else if (targets.size() > 1 && options.has("tls-ca")) {
+    // An address list has no host name to check the certificate against: the first target's stands for all.
+    args.SetSslTargetNameOverride(targets.front().substr(0, targets.front().rfind(':')));
+  }
+  return grpc::CreateCustomChannel(target, channel_credentials(options), args);
 }
 
 void check(const grpc::Status& status) {
@@ -71,14 +176,19 @@ const char* status_code_name(grpc::StatusCode code) {
 
 const OptionList& connection_options() {
   static const OptionList options = {
-      {"server", "HOST:PORT", "server address (default $LOOMLIGHT_SERVER, else 127.0.0.1:50051)"},
+      {"server", "TARGET", "HOST:PORT, several as H1:P1,H2:P2, or dns:///NAME:PORT; several replicas are used round-robin (default $LOOMLIGHT_SERVER, else 127.0.0.1:50051)"},
+      {"tls-ca", "FILE", "connect with TLS, trusting the CA certificates in FILE ('system': the system's)"},
+      {"tls-cert", "FILE", "the client's certificate chain, for servers that require one (mutual TLS)"},
+      {"tls-key", "FILE", "the private key of --tls-cert"},
+      {"tls-server-name", "NAME", "the name the server's certificate must carry (default: the target's host)"},
+      {"token-file", "FILE", "send the bearer token in FILE (default $LOOMLIGHT_TOKEN); needs TLS"},
       {"timeout", "SECONDS", "deadline of each call (default 60; 0 = none)"},
   };
   return options;
 }
 
 Client::Client(const ParsedOptions& options)
-    : channel_(make_channel(server_target(options))), stub_(v1::Loomlight::NewStub(channel_)),
+    : channel_(make_channel(options)), stub_(v1::Loomlight::NewStub(channel_)),
       timeout_(call_timeout(options)) {}
 
 void Client::prepare(grpc::ClientContext& context) const {

@@ -14,6 +14,12 @@ void Usage() {
   std::fprintf(stderr,
                "usage: loomlight-server [options]\n"
                "  --address HOST:PORT        listen address (default 127.0.0.1:50051)\n"
+               "  --tls-cert FILE            serve TLS with this PEM certificate chain (and --tls-key)\n"
+               "  --tls-key FILE             the certificate's PEM private key\n"
+               "  --tls-client-ca FILE       mutual TLS: clients must present a certificate this CA signed\n"
+               "  --tokens FILE              every call but health needs a bearer token listed in FILE\n"
+               "                             (lines 'TOKEN CLIENT CALLS'; reloaded on SIGHUP; needs TLS)\n"
+               "  --allow-plaintext-remote   allow plaintext on an address other than loopback\n"
                "  --platform NAME            OpenCL platform substring (env LOOMLIGHT_PLATFORM; default PoCL)\n"
                "  --device NAME              OpenCL device substring (env LOOMLIGHT_DEVICE; default first CPU)\n"
                "  --cache-dir DIR            PoCL kernel cache (POCL_CACHE_DIR; default ~/.cache/loomlight/pocl)\n"
@@ -36,6 +42,7 @@ void Usage() {
 }
 
 volatile std::sig_atomic_t g_stop = 0;
+volatile std::sig_atomic_t g_reload = 0;
 
 }  // namespace
 
@@ -77,6 +84,11 @@ int main(int argc, char** argv) {
       return static_cast<size_t>(n) << 20;
     };
     if (arg == "--address") options.address = value();
+    else if (arg == "--tls-cert") options.access.tls_cert = value();
+    else if (arg == "--tls-key") options.access.tls_key = value();
+    else if (arg == "--tls-client-ca") options.access.tls_client_ca = value();
+    else if (arg == "--tokens") options.access.tokens_file = value();
+    else if (arg == "--allow-plaintext-remote") options.access.allow_plaintext_remote = true;
     else if (arg == "--platform") options.runtime.platform = value();
     else if (arg == "--device") options.runtime.device = value();
     else if (arg == "--cache-dir") options.runtime.cache_dir = value();
@@ -104,14 +116,24 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "loomlight-server: %s\n", error.c_str());
     return 1;
   }
-  std::fprintf(stderr, "loomlight-server: serving on port %d (OpenCL: %s / %s, float vector width %d, fp64 %s)\n",
+  std::fprintf(stderr, "loomlight-server: serving %s on port %d (OpenCL: %s / %s, float vector width %d, fp64 %s)\n",
+               options.access.tls_cert.empty() ? "plaintext" : (options.access.tokens_file.empty() ? "TLS" : "TLS with tokens"),
                server->port(), server->runtime().platform_name().c_str(), server->runtime().device_name().c_str(),
                server->runtime().vector_width(), server->runtime().has_fp64() ? "yes" : "no");
   if (server->metrics_port() > 0)
     std::fprintf(stderr, "loomlight-server: metrics on port %d (/metrics)\n", server->metrics_port());
   std::signal(SIGINT, [](int) { g_stop = 1; });
   std::signal(SIGTERM, [](int) { g_stop = 1; });
-  while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  std::signal(SIGHUP, [](int) { g_reload = 1; });
+  while (!g_stop) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (g_reload) {
+      g_reload = 0;
+      const std::string reload_error = server->ReloadTokens();
+      std::fprintf(stderr, "loomlight-server: SIGHUP: %s\n",
+                   reload_error.empty() ? "tokens reloaded" : ("tokens kept: " + reload_error).c_str());
+    }
+  }
   std::fprintf(stderr, "loomlight-server: shutting down (in-flight calls get %lld s)\n",
                static_cast<long long>(options.shutdown_grace.count() / 1000));
   server->Shutdown();

@@ -38,8 +38,9 @@ std::unique_ptr<v1::Loomlight::Stub> Connect(int port);  // 127.0.0.1:port
 int RunClient(const std::string& address, const std::string& args, std::string* output);
 int RunClient(int port, const std::string& args, std::string* output);  // 127.0.0.1:port
 
-// GET http://127.0.0.1:port/path (e.g. the metrics endpoint); the body, or "" on failure.
-std::string HttpGet(int port, const std::string& path);
+// GET http://127.0.0.1:port/path (e.g. the metrics endpoint) with extra header lines ("Name: value\r\n" each);
+// the body, or "" on failure.
+std::string HttpGet(int port, const std::string& path, const std::string& headers = "");
 
 // An image decoded with OpenImageIO: channels as float, whatever the file's type (8-bit PNG: 0..1).
 struct DecodedImage {

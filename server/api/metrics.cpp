@@ -74,16 +74,84 @@ Metrics::Metrics()
                      .Name("loomlight_resource")
                      .Help("Admission resources, sampled every half second: memory budget bytes and long-running "
                            "call slots (in use and limit), material cache bytes, serving (1) or not (0)")
-                     .Register(*registry_)) {}
+                     .Register(*registry_)),
+      client_calls_(prometheus::BuildCounter()
+                        .Name("loomlight_client_calls_total")
+                        .Help("Finished calls by client (token's client, certificate name or anonymous), call "
+                              "and status code")
+                        .Register(*registry_)) {}
 
-std::string Metrics::Serve(const std::string& address) {
+namespace {
+
+// One call seen by the interceptor: its client and method are known at the start, its status at the end.
+class ClientCallInterceptor : public grpc::experimental::Interceptor {
+ public:
+  ClientCallInterceptor(Metrics* metrics, grpc::experimental::ServerRpcInfo* info) : metrics_(metrics), info_(info) {}
+  void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override {
+    if (methods->QueryInterceptionHookPoint(grpc::experimental::InterceptionHookPoints::PRE_SEND_STATUS))
+      metrics_->ClientCall(ClientName(*info_->server_context()), CallName(info_->method()),
+                           methods->GetSendStatus().error_code());
+    methods->Proceed();
+  }
+
+ private:
+  Metrics* metrics_;
+  grpc::experimental::ServerRpcInfo* info_;
+};
+
+class ClientCallInterceptorFactory : public grpc::experimental::ServerInterceptorFactoryInterface {
+ public:
+  explicit ClientCallInterceptorFactory(Metrics* metrics) : metrics_(metrics) {}
+  grpc::experimental::Interceptor* CreateServerInterceptor(grpc::experimental::ServerRpcInfo* info) override {
+    return new ClientCallInterceptor(metrics_, info);
+  }
+
+ private:
+  Metrics* metrics_;
+};
+
+}  // namespace
+
+std::string Metrics::Serve(const std::string& address, const AccessOptions& access,
+                           std::shared_ptr<TokenAuthProcessor> tokens) {
+  // Plaintext HTTP always: bookworm's civetweb 1.15 crashes serving HTTPS with OpenSSL 3 (it looks up
+  // SSL_get_peer_certificate, a macro since 3.0, and calls the null pointer). So /metrics is kept to loopback
+  // (a local scraper or agent) unless the operator allows otherwise, and with tokens needs one.
+  if (!access.allow_plaintext_remote && !IsLoopbackAddress(address))
+    return "refusing plaintext metrics on " + address +
+           ", which is not a loopback address (metrics are served over plaintext HTTP only): use a loopback "
+           "address, or --allow-plaintext-remote";
   try {
     exposer_ = std::make_unique<prometheus::Exposer>(address, 1);
   } catch (const std::exception& e) {
     return "cannot serve metrics on " + address + ": " + e.what();
   }
   exposer_->RegisterCollectable(registry_);
+  metrics_tokens_ = std::move(tokens);
+  if (metrics_tokens_)
+    exposer_->RegisterAuth(
+        [this](const std::string& user, const std::string& password) {
+          const TokenTable::Entry* entry = metrics_tokens_->table()->Find(password);
+          return entry != nullptr && entry->client == user && entry->Allows("metrics");
+        },
+        "loomlight metrics");
   return "";
+}
+
+std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> Metrics::ClientCallCounter() {
+  return std::make_unique<ClientCallInterceptorFactory>(this);
+}
+
+void Metrics::ClientCall(const std::string& client, const std::string& call, grpc::StatusCode code) {
+  prometheus::Counter* counter;
+  {
+    std::lock_guard<std::mutex> lock(children_mutex_);
+    const std::string code_name = CodeName(code);
+    prometheus::Counter*& c = client_call_counters_[client + '\0' + call + '\0' + code_name];
+    if (!c) c = &client_calls_.Add({{"client", client}, {"call", call}, {"code", code_name}});
+    counter = c;
+  }
+  counter->Increment();
 }
 
 int Metrics::port() const {

@@ -8,6 +8,7 @@
 #include <prometheus/registry.h>
 
 #include <grpcpp/grpcpp.h>
+#include <grpcpp/support/server_interceptor.h>
 
 #include <atomic>
 #include <cstdint>
@@ -15,6 +16,8 @@
 #include <mutex>
 #include <string>
 #include <unordered_map>
+
+#include "server/api/access.h"
 
 namespace loomlight::api {
 
@@ -28,8 +31,11 @@ struct ResourceSample {
 class Metrics {
  public:
   Metrics();
-  // Starts the HTTP endpoint ("host:port", port 0 picks one); "" on success, else the reason.
-  std::string Serve(const std::string& address);
+  // Starts the HTTP endpoint ("host:port", port 0 picks one); "" on success, else the reason. Only on loopback
+  // unless plaintext on other addresses is allowed; with tokens a scraper authenticates by HTTP basic auth
+  // (user: a client, password: its token, which must allow `metrics`).
+  std::string Serve(const std::string& address, const AccessOptions& access,
+                    std::shared_ptr<TokenAuthProcessor> tokens);
   int port() const;
 
   // One finished call of an RPC, with its status and time in the server.
@@ -43,6 +49,10 @@ class Metrics {
   uint64_t tabulated_cells() const { return tabulated_cells_total_.load(); }
   // The admission resources now (the server's watchdog samples them).
   void Resources(const ResourceSample& sample);
+  // Counts every finished call by client name, method and status (loomlight_client_calls_total), whichever
+  // service it went to (reflection, health): installed on the gRPC server as an interceptor.
+  std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> ClientCallCounter();
+  void ClientCall(const std::string& client, const std::string& call, grpc::StatusCode code);
   // Kernel queries a Render call finished evaluating.
   void Rendered(uint64_t queries);
   // Every rendered query since start: the work renders did (tests compare it).
@@ -62,11 +72,14 @@ class Metrics {
   prometheus::Histogram& queue_seconds_;
   prometheus::Histogram& kernel_seconds_;
   prometheus::Family<prometheus::Gauge>& resources_;
+  prometheus::Family<prometheus::Counter>& client_calls_;
+  std::shared_ptr<TokenAuthProcessor> metrics_tokens_;  // basic auth of /metrics (null: none)
   std::unique_ptr<prometheus::Exposer> exposer_;
   // The per-call metrics' children by their label values, found once (Family::Add builds and hashes a label
-  // map on every call): "rpc\0code" -> calls_, rpc -> call_seconds_, "model\0precision" -> queries_.
+  // map on every call): "rpc\0code" -> calls_, rpc -> call_seconds_, "model\0precision" -> queries_,
+  // "client\0call\0code" -> client_calls_.
   std::mutex children_mutex_;
-  std::unordered_map<std::string, prometheus::Counter*> call_counters_, query_counters_;
+  std::unordered_map<std::string, prometheus::Counter*> call_counters_, query_counters_, client_call_counters_;
   std::unordered_map<std::string, prometheus::Histogram*> call_histograms_;
 };
 

@@ -14,16 +14,16 @@ const char* kServiceName = "loomlight.v1.Loomlight";
 std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& options, std::string* error) {
   auto s = std::unique_ptr<LoomlightServer>(new LoomlightServer);
   s->options_ = options;
+  // Credentials first: a missing certificate or a refused plaintext address fails before the kernels build.
+  std::shared_ptr<grpc::ServerCredentials> credentials;
+  *error = MakeServerCredentials(options.access, options.address, &credentials, &s->tokens_);
+  if (!error->empty()) return nullptr;
   s->runtime_ = runtime::ClRuntime::Create(options.runtime, error);
   if (!s->runtime_) return nullptr;
   const models::Registry& registry = models::Registry::Global();
   if (!s->runtime_->BuildPrograms(registry, error)) return nullptr;
 
   s->metrics_ = std::make_unique<Metrics>();
-  if (!options.metrics_address.empty()) {
-    *error = s->metrics_->Serve(options.metrics_address);
-    if (!error->empty()) return nullptr;
-  }
   s->memory_ = std::make_unique<batching::Budget>(options.limits.memory_budget_bytes);
   s->long_calls_ = std::make_unique<batching::Budget>(options.limits.max_long_running_calls);
   s->environments_ = assets::EnvironmentMaps::Open(options.environment_dir, options.environment_cache_bytes,
@@ -39,10 +39,17 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   deps.long_calls = s->long_calls_.get();
   deps.environments = s->environments_.get();
   s->service_ = std::make_unique<LoomlightService>(deps, options.limits);
+  if (!options.metrics_address.empty()) {
+    *error = s->metrics_->Serve(options.metrics_address, options.access, s->tokens_);
+    if (!error->empty()) return nullptr;
+  }
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  builder.AddListeningPort(options.address, grpc::InsecureServerCredentials(), &s->port_);
+  builder.AddListeningPort(options.address, credentials, &s->port_);
+  std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> interceptors;
+  interceptors.push_back(s->metrics_->ClientCallCounter());
+  builder.experimental().SetInterceptorCreators(std::move(interceptors));
   builder.RegisterService(s->service_.get());
   builder.SetMaxReceiveMessageSize(kMaxMessageBytes);
   builder.SetMaxSendMessageSize(kMaxMessageBytes);
@@ -68,6 +75,15 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   s->UpdateServing();
   s->watchdog_ = std::thread([server = s.get()] { server->Watch(); });
   return s;
+}
+
+std::string LoomlightServer::ReloadTokens() {
+  if (!tokens_) return "no tokens file is in use (--tokens)";
+  std::string error;
+  auto table = TokenTable::Load(options_.access.tokens_file, &error);
+  if (!table) return error;
+  tokens_->Replace(std::move(table));
+  return "";
 }
 
 void LoomlightServer::UpdateServing() {

@@ -11,6 +11,7 @@
 #include <string>
 #include <thread>
 
+#include "server/api/access.h"
 #include "server/api/service.h"
 #include "server/batching/batcher.h"
 #include "server/runtime/cl_runtime.h"
@@ -19,6 +20,7 @@ namespace loomlight::api {
 
 struct ServerOptions {
   std::string address = "127.0.0.1:50051";  // port 0 picks a free port (see LoomlightServer::port)
+  AccessOptions access;                     // TLS and tokens; plaintext only on loopback unless allowed
   runtime::RuntimeOptions runtime;
   batching::BatcherOptions batcher;
   std::string metrics_address;  // "host:port" for Prometheus' /metrics ("" = none; port 0 picks one)
@@ -41,6 +43,8 @@ class LoomlightServer {
   void Wait() { server_->Wait(); }
   // Health NOT_SERVING, no new calls; in-flight calls get the shutdown grace to finish, then are cancelled.
   void Shutdown();
+  // Reads the tokens file again (SIGHUP); "" on success, else why the old tokens stay.
+  std::string ReloadTokens();
   int port() const { return port_; }
   int metrics_port() const { return metrics_->port(); }
   const Metrics& metrics() const { return *metrics_; }
@@ -60,6 +64,7 @@ class LoomlightServer {
   std::unique_ptr<assets::EnvironmentMaps> environments_;
   std::unique_ptr<LoomlightService> service_;
   std::unique_ptr<grpc::Server> server_;
+  std::shared_ptr<TokenAuthProcessor> tokens_;  // null when tokens are off
   int port_ = 0;
   std::mutex mutex_;  // guards the serving state below and the watchdog's wake-up
   std::condition_variable wake_;

@@ -52,7 +52,8 @@ struct Args {
 
 // Section names for --only, in report order.
 const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "woven",
-                                     "slice", "transmission", "tabulate", "render", "noise"};
+                                     "slice", "transmission", "tabulate", "render", "noise",
+                                     "fair-share"};
 
 bool KnownSection(const std::string& name) {
   for (const char* n : kSectionNames)
@@ -144,6 +145,7 @@ int main(int argc, char** argv) {
   if (want("tabulate")) sections += TabulateSection(sizes);
   if (want("render")) sections += RenderSection(sizes);
   if (want("noise")) sections += NoiseSection(sizes);
+  if (want("fair-share")) sections += FairShareSection(sizes);
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   std::string only;

@@ -57,5 +57,7 @@ std::string RenderSection(const Sizes& sizes);
 // Noise against time: thumbnails at 1 to 64 samples per pixel against a converged reference, the time to
 // 30, 35 and 40 dB, and the cylinders in Blender Cycles side by side when `blender` is on PATH.
 std::string NoiseSection(const Sizes& sizes);
+// Section 10: an interactive client's latency beside another's bulk work (fair share), TLS against plaintext.
+std::string FairShareSection(const Sizes& sizes);
 
 }  // namespace loomlight::bench

@@ -2,6 +2,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <algorithm>
 #include <cstring>
 #include <string>
 #include <thread>
@@ -27,18 +28,52 @@ void Usage() {
                "  --small-launch-queries N   launches of at most N queries run on PoCL's single-threaded basic device,\n"
                "                             on the launching thread (default 256; 0: every launch on the main device)\n"
                "  --max-batch-queries N      queries per coalesced launch (default 1048576)\n"
-               "  --max-queue-delay-us N     wait this long for a batch to fill (default 0)\n"
-               "  --max-queued-queries N     queued queries before RESOURCE_EXHAUSTED (default 8388608)\n"
+               "  --max-queue-delay-us N     wait this long for a batch to fill (default 0; both priorities)\n"
+               "  --max-queued-queries N     queued queries per priority before RESOURCE_EXHAUSTED (default 8388608)\n"
+               "  --queue-policy PRIORITY:KEY=VALUE[,KEY=VALUE...]\n"
+               "                             one priority's queue (interactive: Evaluate, Sample, TextureSlice;\n"
+               "                             bulk: Tabulate, Render); keys: max_queue_delay_us, max_queued_queries,\n"
+               "                             max_client_queued_queries (default 4194304), timeout_ms (queued longer:\n"
+               "                             RESOURCE_EXHAUSTED; default 0, none)\n"
                "  --no-batching              one request per launch\n"
                "  --metrics-address HOST:PORT  serve Prometheus metrics at http://HOST:PORT/metrics (default: off)\n"
                "  --environment-dir DIR      environment maps clients may name (EXR/HDR files; default: none)\n"
                "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
                "  --max-long-calls N         TextureSlice, Tabulate and Render calls at once (default 16)\n"
+               "  --max-long-calls-per-client N  of them, one client's (its token's name, else its connection;\n"
+               "                             default 8)\n"
                "  --material-cache-mb N      packed materials kept, in MiB (default 64)\n"
                "  --environment-cache-mb N   decoded environment maps kept, in MiB (default 256)\n"
                "  --grpc-memory-mb N         gRPC's own buffers, in MiB (default 512)\n"
                "  --stall-seconds N          health NOT_SERVING while one task runs longer (default 20)\n"
                "  --shutdown-grace SECONDS   on SIGTERM, in-flight calls may finish this long (default 30)\n");
+}
+
+// "bulk:timeout_ms=60000,max_queued_queries=4194304" into the priority's policy; "" or what is wrong.
+std::string ParseQueuePolicy(const std::string& text, loomlight::batching::BatcherOptions* options) {
+  const size_t colon = text.find(':');
+  const std::string priority = text.substr(0, colon);
+  loomlight::batching::QueuePolicy* policy = priority == "interactive" ? &options->interactive
+                                             : priority == "bulk"      ? &options->bulk
+                                                                       : nullptr;
+  if (!policy || colon == std::string::npos) return "expected interactive:KEY=VALUE,... or bulk:KEY=VALUE,...";
+  size_t begin = colon + 1;
+  while (begin <= text.size()) {
+    const size_t comma = std::min(text.find(',', begin), text.size());
+    const std::string item = text.substr(begin, comma - begin);
+    const size_t equals = item.find('=');
+    char* end = nullptr;
+    const unsigned long long n = equals == std::string::npos ? 0 : std::strtoull(item.c_str() + equals + 1, &end, 10);
+    if (equals == std::string::npos || equals + 1 == item.size() || *end) return "'" + item + "' is not KEY=NUMBER";
+    const std::string key = item.substr(0, equals);
+    if (key == "max_queue_delay_us") policy->max_queue_delay = std::chrono::microseconds(n);
+    else if (key == "max_queued_queries") policy->max_queued_queries = n;
+    else if (key == "max_client_queued_queries") policy->max_client_queued_queries = n;
+    else if (key == "timeout_ms") policy->timeout = std::chrono::milliseconds(n);
+    else return "unknown key '" + key + "'";
+    begin = comma + 1;
+  }
+  return "";
 }
 
 volatile std::sig_atomic_t g_stop = 0;
@@ -95,13 +130,23 @@ int main(int argc, char** argv) {
     else if (arg == "--vector-width") options.runtime.vector_width = static_cast<int>(number());
     else if (arg == "--small-launch-queries") options.runtime.small_launch_queries = static_cast<size_t>(number());
     else if (arg == "--max-batch-queries") options.batcher.max_batch_queries = number();
-    else if (arg == "--max-queue-delay-us") options.batcher.max_queue_delay = std::chrono::microseconds(number());
-    else if (arg == "--max-queued-queries") options.batcher.max_queued_queries = number();
+    else if (arg == "--max-queue-delay-us")
+      options.batcher.interactive.max_queue_delay = options.batcher.bulk.max_queue_delay =
+          std::chrono::microseconds(number());
+    else if (arg == "--max-queued-queries")
+      options.batcher.interactive.max_queued_queries = options.batcher.bulk.max_queued_queries = number();
+    else if (arg == "--queue-policy") {
+      if (std::string error = ParseQueuePolicy(value(), &options.batcher); !error.empty()) {
+        std::fprintf(stderr, "error: --queue-policy: %s\n", error.c_str());
+        return 2;
+      }
+    }
     else if (arg == "--no-batching") options.batcher.coalesce = false;
     else if (arg == "--metrics-address") options.metrics_address = value();
     else if (arg == "--environment-dir") options.environment_dir = value();
     else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
     else if (arg == "--max-long-calls") options.limits.max_long_running_calls = positive();
+    else if (arg == "--max-long-calls-per-client") options.limits.max_long_calls_per_client = positive();
     else if (arg == "--material-cache-mb") options.limits.material_cache_bytes = mebibytes();
     else if (arg == "--environment-cache-mb") options.environment_cache_bytes = mebibytes();
     else if (arg == "--grpc-memory-mb") options.grpc_memory_bytes = mebibytes();
@@ -116,9 +161,10 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "loomlight-server: %s\n", error.c_str());
     return 1;
   }
-  std::fprintf(stderr, "loomlight-server: serving %s on port %d (OpenCL: %s / %s, float vector width %d, fp64 %s)\n",
-               options.access.tls_cert.empty() ? "plaintext" : (options.access.tokens_file.empty() ? "TLS" : "TLS with tokens"),
-               server->port(), server->runtime().platform_name().c_str(), server->runtime().device_name().c_str(),
+  // Tests and scripts wait for "serving on port N".
+  std::fprintf(stderr, "loomlight-server: serving on port %d (%s; OpenCL: %s / %s, float vector width %d, fp64 %s)\n",
+               server->port(),
+               options.access.tls_cert.empty() ? "plaintext" : (options.access.tokens_file.empty() ? "TLS" : "TLS with tokens"), server->runtime().platform_name().c_str(), server->runtime().device_name().c_str(),
                server->runtime().vector_width(), server->runtime().has_fp64() ? "yes" : "no");
   if (server->metrics_port() > 0)
     std::fprintf(stderr, "loomlight-server: metrics on port %d (/metrics)\n", server->metrics_port());

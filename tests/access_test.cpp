@@ -151,6 +151,18 @@ TEST(Access, TokensDecideWhoMayCallWhat) {
   EXPECT_NE(denied.error_message().find("Evaluate"), std::string::npos) << denied.error_message();
   EXPECT_EQ(Reflection(pipeline), grpc::StatusCode::PERMISSION_DENIED);
 
+  // One connection is one client: a second client's token on it is refused, the first's still works.
+  auto shared = TlsChannel(port);
+  auto call_as = [&](const std::string& token) {
+    grpc::ClientContext context;
+    context.set_credentials(grpc::AccessTokenCredentials(token));
+    v1::ListModelsResponse response;
+    return v1::Loomlight::NewStub(shared)->ListModels(&context, v1::ListModelsRequest(), &response);
+  };
+  EXPECT_TRUE(call_as(kEditorToken).ok());
+  EXPECT_EQ(call_as(kPipelineToken).error_code(), grpc::StatusCode::PERMISSION_DENIED);
+  EXPECT_TRUE(call_as(kEditorToken).ok());
+
   // Metrics: basic auth with a client's token that allows `metrics`; calls counted by client name.
   const int metrics = server->metrics_port();
   EXPECT_EQ(Metrics(metrics, "", "").find("loomlight_"), std::string::npos);
@@ -160,6 +172,8 @@ TEST(Access, TokensDecideWhoMayCallWhat) {
             std::string::npos)
       << text.substr(0, 2000);
   EXPECT_NE(text.find(R"(loomlight_client_calls_total{call="Evaluate",client="alice-editor",code="OK"} 1)"),
+            std::string::npos);
+  EXPECT_NE(text.find(R"(loomlight_client_calls_total{call="ListModels",client="alice-editor",code="OK"} 3)"),
             std::string::npos);
 }
 

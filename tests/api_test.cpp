@@ -762,7 +762,7 @@ std::thread StartBlockingCall(v1::Loomlight::Stub& stub, std::atomic<bool>* done
 
 TEST(Batching, FullQueueAnswersResourceExhausted) {
   batching::BatcherOptions options;
-  options.max_queued_queries = 1000;
+  options.interactive.max_queued_queries = options.bulk.max_queued_queries = 1000;
   auto server = StartServer(options);
   auto stub = testing::Connect(server->port());
   // While a long request occupies the device, the first small one queues and the rest overflow. Rounds of

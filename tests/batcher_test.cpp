@@ -5,6 +5,8 @@
 #include <algorithm>
 
 #include <future>
+#include <mutex>
+#include <string>
 
 #include "server/batching/batcher.h"
 #include "tests/testing.h"
@@ -63,15 +65,16 @@ TEST(Batcher, CoalescesSameKernelAndKeepsOtherKernelsApart) {
   auto blocker = Blocker();  // occupies the device while the rest queue
   ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  auto a = MakeJob("linen_plain", 100), b = MakeJob("silk_shot", 200), c = MakeJob("velvet", 300);
-  auto other = MakeJob("velvet", 50, 16);  // different tangent sample count: its own launch
+  // Larger than a small launch (which would run at once on the small-launch device, beside the blocker).
+  auto a = MakeJob("linen_plain", 300), b = MakeJob("silk_shot", 400), c = MakeJob("velvet", 500);
+  auto other = MakeJob("velvet", 350, 16);  // different tangent sample count: its own launch
   for (auto* s : {a.get(), b.get(), other.get(), c.get()}) ASSERT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
   for (auto* s : {a.get(), b.get(), c.get()}) {
     const JobResult r = s->result.get();
     ASSERT_EQ(r.status, JobStatus::kOk);
     EXPECT_EQ(r.batch_requests, 3u);
-    EXPECT_EQ(r.batch_queries, 600u);
+    EXPECT_EQ(r.batch_queries, 1200u);
     // Each job's slice of the launch is its own material's answer.
     const auto direct = testing::RunKernel(*s->job->model, s->material, false, s->wi, s->wo);
     EXPECT_EQ(s->f, direct);
@@ -99,7 +102,7 @@ TEST(Batcher, DropsExpiredAndCancelledJobsBeforeLaunch) {
 
 TEST(Batcher, RefusesBeyondTheQueueBoundButAlwaysTakesOneRequest) {
   batching::BatcherOptions options;
-  options.max_queued_queries = 500;
+  options.interactive.max_queued_queries = options.bulk.max_queued_queries = 500;
   batching::Batcher batcher(&testing::SharedRuntime(), options);
   auto blocker = Blocker();
   ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);  // larger than the bound, but the queue was empty
@@ -113,7 +116,7 @@ TEST(Batcher, RefusesBeyondTheQueueBoundButAlwaysTakesOneRequest) {
 
 TEST(Batcher, QueueDelayLetsABatchFill) {
   batching::BatcherOptions options;
-  options.max_queue_delay = std::chrono::milliseconds(200);
+  options.interactive.max_queue_delay = std::chrono::milliseconds(200);
   batching::Batcher batcher(&testing::SharedRuntime(), options);
   auto a = MakeJob("velvet", 100);
   ASSERT_EQ(batcher.Submit(a->job), Batcher::Refusal::kNone);
@@ -129,7 +132,7 @@ TEST(Batcher, StopFailsQueuedJobsAsUnavailable) {
   auto blocker = Blocker();
   ASSERT_EQ(batcher->Submit(blocker->job), Batcher::Refusal::kNone);
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  auto queued = MakeJob("velvet", 100);
+  auto queued = MakeJob("velvet", 1000);
   ASSERT_EQ(batcher->Submit(queued->job), Batcher::Refusal::kNone);
   batcher->Stop();
   EXPECT_EQ(queued->result.get().status, JobStatus::kUnavailable);
@@ -159,7 +162,7 @@ TEST(Batcher, InteractiveJobsLaunchBeforeQueuedBulkJobs) {
 
 TEST(Batcher, BulkWorkCannotFillTheInteractiveQueue) {
   batching::BatcherOptions options;
-  options.max_queued_queries = 500;
+  options.interactive.max_queued_queries = options.bulk.max_queued_queries = 500;
   batching::Batcher batcher(&testing::SharedRuntime(), options);
   auto blocker = Blocker();
   ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
@@ -171,6 +174,93 @@ TEST(Batcher, BulkWorkCannotFillTheInteractiveQueue) {
   EXPECT_EQ(batcher.Submit(interactive->job), Batcher::Refusal::kNone);  // its own queue has room
   EXPECT_EQ(interactive->result.get().status, JobStatus::kOk);
   EXPECT_EQ(bulk->result.get().status, JobStatus::kOk);
+}
+
+TEST(Batcher, SmallInteractiveJobsRunBesideALongLaunch) {
+  if (!testing::SharedRuntime().RunsApart(64)) GTEST_SKIP() << "no small-launch device";
+  batching::Batcher batcher(&testing::SharedRuntime(), {});
+  auto blocker = Blocker();
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  auto small = MakeJob("linen_plain", 64);
+  ASSERT_EQ(batcher.Submit(small->job), Batcher::Refusal::kNone);
+  // Answered while the blocker still runs (it takes about a second).
+  ASSERT_EQ(small->result.wait_for(std::chrono::milliseconds(0)), std::future_status::ready);
+  EXPECT_EQ(blocker->result.wait_for(std::chrono::milliseconds(0)), std::future_status::timeout);
+  const JobResult r = small->result.get();
+  EXPECT_EQ(r.status, JobStatus::kOk);
+  EXPECT_EQ(small->f, testing::RunKernel(*small->job->model, small->material, false, small->wi, small->wo));
+  EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
+}
+
+TEST(Batcher, ClientsShareTheDeviceFairly) {
+  batching::BatcherOptions options;
+  options.max_batch_queries = 2000;  // one job per launch, so the launch order shows the schedule
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  auto blocker = Blocker();
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  std::mutex mutex;
+  std::vector<std::string> order;
+  auto submit = [&](const std::string& client) {
+    auto s = MakeJob("velvet", 2000);
+    s->job->priority = batching::Priority::kBulk;
+    s->job->client = client;
+    auto done = s->job->done;
+    s->job->done = [&, client, done](JobResult r) {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        order.push_back(client);
+      }
+      done(std::move(r));
+    };
+    EXPECT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
+    return s;
+  };
+  std::vector<std::unique_ptr<Submitted>> jobs;
+  for (int i = 0; i < 6; ++i) jobs.push_back(submit("many"));
+  jobs.push_back(submit("one"));  // queued last
+  for (auto& j : jobs) EXPECT_EQ(j->result.get().status, JobStatus::kOk);
+  // First come, first served would run it seventh; fair share, second (after the first of the six, which
+  // queued first with the same service).
+  ASSERT_EQ(order.size(), 7u);
+  EXPECT_EQ(std::find(order.begin(), order.end(), "one") - order.begin(), 1);
+  EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
+}
+
+TEST(Batcher, OneClientCannotTakeTheWholeQueue) {
+  batching::BatcherOptions options;
+  options.interactive.max_client_queued_queries = 1000;
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  auto blocker = Blocker();
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  auto first = MakeJob("velvet", 600), second = MakeJob("velvet", 600), other = MakeJob("velvet", 600);
+  first->job->client = second->job->client = "greedy";
+  other->job->client = "modest";
+  EXPECT_EQ(batcher.Submit(first->job), Batcher::Refusal::kNone);
+  EXPECT_EQ(batcher.Submit(second->job), Batcher::Refusal::kClientQueueFull);  // 1200 > its 1000
+  EXPECT_EQ(batcher.Submit(other->job), Batcher::Refusal::kNone);
+  EXPECT_EQ(first->result.get().status, JobStatus::kOk);
+  EXPECT_EQ(other->result.get().status, JobStatus::kOk);
+}
+
+TEST(Batcher, JobsQueuedPastTheTimeoutAreRejected) {
+  batching::BatcherOptions options;
+  options.bulk.timeout = std::chrono::milliseconds(100);
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  auto blocker = Blocker();  // about a second
+  ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  auto bulk = MakeJob("velvet", 1000), interactive = MakeJob("velvet", 1000);
+  bulk->job->priority = batching::Priority::kBulk;
+  ASSERT_EQ(batcher.Submit(bulk->job), Batcher::Refusal::kNone);
+  ASSERT_EQ(batcher.Submit(interactive->job), Batcher::Refusal::kNone);  // its queue has no timeout
+  const JobResult rb = bulk->result.get();
+  EXPECT_EQ(rb.status, JobStatus::kResourceExhausted);
+  EXPECT_NE(rb.message.find("bulk queue's timeout of 100 ms"), std::string::npos) << rb.message;
+  EXPECT_EQ(interactive->result.get().status, JobStatus::kOk);
+  EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
 }
 
 TEST(Batcher, SubmitAfterStopSaysStopping) {

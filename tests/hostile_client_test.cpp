@@ -418,11 +418,22 @@ TEST(BoundedMemory, UnreadStreamsAreAdmittedUpToTheLimitAndHoldLittle) {
   struct Stream {
     grpc::ClientContext context;
     std::unique_ptr<grpc::ClientReader<v1::TabulateChunk>> reader;
+    int client = 0;
   };
+  // Three clients (each its own connection: without tokens a connection is a client), 40 streams each.
+  std::vector<std::unique_ptr<v1::Loomlight::Stub>> clients;
+  for (int c = 0; c < 3; ++c) {
+    grpc::ChannelArguments args;
+    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+    args.SetInt("loomlight.test.client", c);
+    clients.push_back(v1::Loomlight::NewStub(grpc::CreateCustomChannel(
+        "127.0.0.1:" + std::to_string(server.port()), grpc::InsecureChannelCredentials(), args)));
+  }
   std::vector<std::unique_ptr<Stream>> streams;
   for (int i = 0; i < 120; ++i) {
     auto s = std::make_unique<Stream>();
-    s->reader = stub->Tabulate(&s->context, BigTable());
+    s->client = i % 3;
+    s->reader = clients[static_cast<size_t>(s->client)]->Tabulate(&s->context, BigTable());
     streams.push_back(std::move(s));
   }
   std::this_thread::sleep_for(std::chrono::seconds(8));  // the admitted ones fill their buffers and stall
@@ -430,11 +441,12 @@ TEST(BoundedMemory, UnreadStreamsAreAdmittedUpToTheLimitAndHoldLittle) {
   int failures = 0;
   const auto [p50, p99] = EvaluateLatency(*stub, 50, &failures);
   // Read one message of each: the refused ones end at once with RESOURCE_EXHAUSTED.
-  int refused = 0, admitted = 0;
+  int refused = 0, admitted = 0, admitted_per_client[3] = {0, 0, 0};
   for (auto& s : streams) {
     v1::TabulateChunk chunk;
     if (s->reader->Read(&chunk)) {
       ++admitted;
+      ++admitted_per_client[s->client];
       s->context.TryCancel();
     } else {
       const grpc::Status status = s->reader->Finish();
@@ -447,6 +459,7 @@ TEST(BoundedMemory, UnreadStreamsAreAdmittedUpToTheLimitAndHoldLittle) {
               admitted, refused, before / 1e6, loaded / 1e6, p50 * 1e3, p99 * 1e3, failures);
   EXPECT_EQ(admitted, 16);  // --max-long-calls' default
   EXPECT_EQ(refused, 104);
+  for (int c = 0; c < 3; ++c) EXPECT_LE(admitted_per_client[c], 8) << c;  // --max-long-calls-per-client's default
   EXPECT_LT(loaded, before + (size_t{1} << 30));  // was 4.3 GB for 120 streams
   EXPECT_EQ(failures, 0);
   EXPECT_LT(p99, 1.0);

@@ -110,8 +110,18 @@ grpc::Status TokenAuthProcessor::Process(const InputMetadata& auth_metadata, grp
   if (call.empty() || !entry->Allows(call))
     return {grpc::StatusCode::PERMISSION_DENIED,
             "client '" + entry->client + "' may not call " + (call.empty() ? "this method" : call)};
-  // The context is the connection's: a later call on it with another token must not keep this name.
-  context->AddProperty(kClientProperty, entry->client);
+  // The context is the connection's (gRPC hands the processor the channel's auth context): it names its
+  // client once, and a connection that authenticated as one client cannot call as another.
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const std::vector<grpc::string_ref> named = context->FindPropertyValues(kClientProperty);
+    if (named.empty())
+      context->AddProperty(kClientProperty, entry->client);
+    else if (named.front() != entry->client)
+      return {grpc::StatusCode::PERMISSION_DENIED,
+              "this connection is client '" + std::string(named.front().data(), named.front().size()) +
+                  "'; another client's token needs its own connection"};
+  }
   // Handlers never see the token.
   consumed_auth_metadata->insert({"authorization", value});
   return grpc::Status::OK;
@@ -173,14 +183,18 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
 std::string ClientName(const grpc::ServerContextBase& context) {
   const std::shared_ptr<const grpc::AuthContext> auth = context.auth_context();
   if (auth) {
-    // The last value is this call's: the connection's context accumulates one per authenticated call.
-    std::string name;
-    for (const grpc::string_ref& value : auth->FindPropertyValues(kClientProperty)) name.assign(value.data(), value.size());
-    if (!name.empty()) return name;
+    // One value at most: the processor names a connection's client once.
+    for (const grpc::string_ref& value : auth->FindPropertyValues(kClientProperty))
+      return std::string(value.data(), value.size());
     for (const grpc::string_ref& value : auth->FindPropertyValues(GRPC_X509_CN_PROPERTY_NAME))
       return std::string(value.data(), value.size());
   }
   return "anonymous";
+}
+
+std::string FairShareKey(const grpc::ServerContextBase& context) {
+  std::string name = ClientName(context);
+  return name != "anonymous" ? "client:" + name : "peer:" + context.peer();
 }
 
 }  // namespace loomlight::api

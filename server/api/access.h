@@ -51,7 +51,8 @@ std::string CallName(const std::string& path);
 
 // Checks each call's bearer token against the current table (swapped whole by Reload, so calls never see half
 // a file); answers UNAUTHENTICATED without a known token, PERMISSION_DENIED for a call the token does not
-// allow. Health checks need no token: load balancers and probes carry none.
+// allow. Health checks need no token: load balancers and probes carry none. A connection is one client: the
+// first token it authenticates with names it, and another client's token on it is PERMISSION_DENIED.
 class TokenAuthProcessor : public grpc::AuthMetadataProcessor {
  public:
   explicit TokenAuthProcessor(std::shared_ptr<const TokenTable> table) : table_(std::move(table)) {}
@@ -78,6 +79,10 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
 
 // The caller's name: its token's client, else its certificate's common name, else "anonymous".
 std::string ClientName(const grpc::ServerContextBase& context);
+
+// Whom fair share and per-client limits count a call against: its client's name when the caller is known
+// (token or certificate), else its connection (peer address and port).
+std::string FairShareKey(const grpc::ServerContextBase& context);
 
 // Reads a whole file; false with *error when it cannot.
 bool ReadFile(const std::string& path, std::string* text, std::string* error);

@@ -7,15 +7,68 @@
 #include <grpcpp/grpcpp.h>
 
 #include <memory>
+#include <mutex>
 #include <string>
+#include <unordered_map>
 
 #include "server/batching/batcher.h"
 #include "server/batching/budget.h"
 
 namespace loomlight::api {
 
+// Long-running calls per client: one client's streams cannot take every slot of the server's limit.
+class ClientSlots {
+ public:
+  explicit ClientSlots(size_t per_client) : per_client_(per_client) {}
+  // A client's slot until destroyed; move-only.
+  class Hold {
+   public:
+    Hold() = default;
+    Hold(Hold&& other) noexcept : owner_(other.owner_), client_(std::move(other.client_)) { other.owner_ = nullptr; }
+    Hold& operator=(Hold&& other) noexcept {
+      if (this != &other) {
+        Release();
+        owner_ = other.owner_;
+        client_ = std::move(other.client_);
+        other.owner_ = nullptr;
+      }
+      return *this;
+    }
+    ~Hold() { Release(); }
+    void Release() {
+      if (owner_) owner_->Give(client_);
+      owner_ = nullptr;
+    }
+
+   private:
+    friend class ClientSlots;
+    ClientSlots* owner_ = nullptr;
+    std::string client_;
+  };
+  bool TryTake(const std::string& client, Hold* out) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    size_t& held = held_[client];
+    if (held >= per_client_) return false;
+    ++held;
+    out->owner_ = this;
+    out->client_ = client;
+    return true;
+  }
+  size_t per_client() const { return per_client_; }
+
+ private:
+  void Give(const std::string& client) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (auto it = held_.find(client); it != held_.end() && --it->second == 0) held_.erase(it);
+  }
+  const size_t per_client_;
+  std::mutex mutex_;
+  std::unordered_map<std::string, size_t> held_;
+};
+
 // What an admitted call holds; released when the call object holding it is destroyed.
 struct Admission {
+  ClientSlots::Hold client_slot;        // long-running calls only
   batching::Budget::Reservation slot;   // long-running calls only
   batching::Budget::Reservation bytes;  // the call's buffers (may grow, e.g. by a decoded environment map)
 };
@@ -23,12 +76,15 @@ struct Admission {
 // Reserves `bytes` (and a slot from `slots` when not null). Returns OK or RESOURCE_EXHAUSTED saying which
 // limit was reached.
 inline grpc::Status Admit(batching::Budget* memory, batching::Budget* slots, size_t bytes, Admission* out) {
-  if (slots && !slots->TryReserve(1, &out->slot))
+  if (slots && !slots->TryReserve(1, &out->slot)) {
+    out->client_slot.Release();
     return {grpc::StatusCode::RESOURCE_EXHAUSTED, "the server is running its limit of " +
                                                       std::to_string(slots->limit()) +
                                                       " long-running calls (TextureSlice, Tabulate, Render, YarnGeometry); retry later"};
+  }
   if (!memory->TryReserve(bytes, &out->bytes)) {
     out->slot.Release();
+    out->client_slot.Release();
     return {grpc::StatusCode::RESOURCE_EXHAUSTED,
             "the call needs " + std::to_string(bytes >> 20) + " MiB of buffers and the server's memory budget (" +
                 std::to_string(memory->limit() >> 20) + " MiB) is in use; retry later"};
@@ -42,6 +98,9 @@ inline grpc::Status SubmitJob(batching::Batcher* batcher, std::shared_ptr<batchi
     case batching::Batcher::Refusal::kNone: return grpc::Status::OK;
     case batching::Batcher::Refusal::kQueueFull:
       return {grpc::StatusCode::RESOURCE_EXHAUSTED, "evaluation queue is full; retry later"};
+    case batching::Batcher::Refusal::kClientQueueFull:
+      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+              "this client's share of the evaluation queue is full; retry when its queued calls finish"};
     case batching::Batcher::Refusal::kStopping: return {grpc::StatusCode::UNAVAILABLE, "server is shutting down"};
   }
   return {grpc::StatusCode::INTERNAL, "unknown batcher refusal"};

@@ -11,10 +11,12 @@ HostWorker::~HostWorker() {
   thread_.join();
 }
 
-void HostWorker::Post(std::function<void()> task) {
+void HostWorker::Post(std::function<void()> task, const std::string& client) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    tasks_.push_back(std::move(task));
+    auto& queue = tasks_[client];
+    if (queue.empty()) turn_.push_back(client);
+    queue.push_back(std::move(task));
   }
   wake_.notify_one();
 }
@@ -24,8 +26,14 @@ void HostWorker::Run() {
   while (true) {
     wake_.wait(lock, [this] { return stopping_ || !tasks_.empty(); });
     if (tasks_.empty()) return;  // stopping, and everything queued has run
-    std::function<void()> task = std::move(tasks_.front());
-    tasks_.pop_front();
+    const auto client = tasks_.find(turn_.front());
+    turn_.pop_front();
+    std::function<void()> task = std::move(client->second.front());
+    client->second.pop_front();
+    if (client->second.empty())
+      tasks_.erase(client);
+    else
+      turn_.push_back(client->first);
     lock.unlock();
     busy_since_ = std::chrono::steady_clock::now();
     task();

@@ -1,5 +1,6 @@
 // One thread that runs the host side of streaming RPCs (filling query directions, averaging and encoding
-// results) in submission order. Batcher done callbacks and gRPC reactions only post here: the batcher's
+// results): each client's tasks in submission order, clients in turn (round robin), so one client's many
+// calls cannot make another's next step wait behind all of theirs. Batcher done callbacks and gRPC reactions only post here: the batcher's
 // single thread serves every client's next launch, and gRPC callback threads must not do heavy work. One
 // thread per service bounds the CPU that host work takes from the kernels.
 #pragma once
@@ -9,7 +10,9 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <map>
 #include <mutex>
+#include <string>
 #include <thread>
 
 namespace loomlight::api {
@@ -21,7 +24,9 @@ class HostWorker {
   HostWorker& operator=(const HostWorker&) = delete;
   // Runs every task posted so far, then joins.
   ~HostWorker();
-  void Post(std::function<void()> task);
+  // Queues a task for `client` (server/api/access.h FairShareKey). One call's tasks must all name the same
+  // client: their order is kept only within a client.
+  void Post(std::function<void()> task, const std::string& client = "");
   // When the task running now started; max when idle (the health watchdog reads it).
   std::chrono::steady_clock::time_point busy_since() const { return busy_since_.load(); }
 
@@ -30,7 +35,8 @@ class HostWorker {
 
   std::mutex mutex_;
   std::condition_variable wake_;
-  std::deque<std::function<void()>> tasks_;
+  std::map<std::string, std::deque<std::function<void()>>> tasks_;  // by client; none empty
+  std::deque<std::string> turn_;  // the clients with tasks, next first
   bool stopping_ = false;
   std::atomic<std::chrono::steady_clock::time_point> busy_since_{std::chrono::steady_clock::time_point::max()};
   std::thread thread_;  // declared last: starts after the rest is constructed

@@ -10,6 +10,7 @@
 #include <mutex>
 #include <string>
 
+#include "server/api/access.h"
 #include "server/api/admission.h"
 #include "server/batching/batcher.h"
 #include "server/models/material_plan.h"
@@ -58,6 +59,7 @@ inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const m
   job->n = n;
   job->deadline = deadline;
   job->cancelled = [context] { return context->IsCancelled(); };
+  job->client = FairShareKey(*context);
   return job;
 }
 

@@ -79,7 +79,12 @@ Metrics::Metrics()
                         .Name("loomlight_client_calls_total")
                         .Help("Finished calls by client (token's client, certificate name or anonymous), call "
                               "and status code")
-                        .Register(*registry_)) {}
+                        .Register(*registry_)),
+      queues_(prometheus::BuildGauge()
+                  .Name("loomlight_queue")
+                  .Help("The batcher's queues by priority (interactive, bulk), sampled every half second: queued "
+                        "jobs, queries, bytes and clients, and queries in a kernel launch now")
+                  .Register(*registry_)) {}
 
 namespace {
 
@@ -205,6 +210,19 @@ void Metrics::Resources(const ResourceSample& r) {
       {"long_calls_in_use", double(r.long_calls_in_use)}, {"long_calls_limit", double(r.long_calls_limit)},
       {"material_cache_bytes", double(r.material_cache_bytes)}, {"serving", r.serving ? 1.0 : 0.0}};
   for (const auto& [name, value] : values) resources_.Add({{"name", name}}).Set(value);
+}
+
+void Metrics::Queues(const batching::QueueStats& q) {
+  for (int p = 0; p < 2; ++p) {
+    const std::string priority = batching::PriorityName(static_cast<batching::Priority>(p));
+    const std::pair<const char*, size_t> values[] = {{"queued_jobs", q.queued_jobs[p]},
+                                                     {"queued_queries", q.queued_queries[p]},
+                                                     {"queued_bytes", q.queued_bytes[p]},
+                                                     {"queued_clients", q.clients[p]},
+                                                     {"launching_queries", q.launching_queries[p]}};
+    for (const auto& [name, value] : values)
+      queues_.Add({{"priority", priority}, {"name", name}}).Set(static_cast<double>(value));
+  }
 }
 
 void Metrics::Rendered(uint64_t queries) {

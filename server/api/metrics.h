@@ -18,6 +18,7 @@
 #include <unordered_map>
 
 #include "server/api/access.h"
+#include "server/batching/batcher.h"
 
 namespace loomlight::api {
 
@@ -49,6 +50,8 @@ class Metrics {
   uint64_t tabulated_cells() const { return tabulated_cells_total_.load(); }
   // The admission resources now (the server's watchdog samples them).
   void Resources(const ResourceSample& sample);
+  // The batcher's queues now, per priority (sampled with the resources).
+  void Queues(const batching::QueueStats& stats);
   // Counts every finished call by client name, method and status (loomlight_client_calls_total), whichever
   // service it went to (reflection, health): installed on the gRPC server as an interceptor.
   std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> ClientCallCounter();
@@ -73,6 +76,7 @@ class Metrics {
   prometheus::Histogram& kernel_seconds_;
   prometheus::Family<prometheus::Gauge>& resources_;
   prometheus::Family<prometheus::Counter>& client_calls_;
+  prometheus::Family<prometheus::Gauge>& queues_;
   std::shared_ptr<TokenAuthProcessor> metrics_tokens_;  // basic auth of /metrics (null: none)
   std::unique_ptr<prometheus::Exposer> exposer_;
   // The per-call metrics' children by their label values, found once (Family::Add builds and hashes a label

@@ -201,7 +201,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       (fiber_job_ ? deps_.geometry : deps_.loader)->Post([this, map] {
         grpc::Status status = map ? LoadEnvironment() : grpc::Status::OK;
         if (status.ok() && fiber_job_) status = BuildFibers();
-        deps_.worker->Post([this, status] {
+        Post([this, status] {
           loading_ = false;
           if (status.ok()) SetUp();
           else if (status_.ok()) status_ = status;
@@ -210,7 +210,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       });
       return;
     }
-    deps_.worker->Post([this] {
+    Post([this] {
       SetUp();
       Pump();
     });
@@ -379,7 +379,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
         m->Sampler();
         deps_.materials->ChargeSampler(*m);
       }
-      deps_.worker->Post([this] {
+      Post([this] {
         loading_ = false;
         StartRendering();
         Pump();
@@ -490,7 +490,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       chunk.jobs_in_flight += chunk.plans[e]->parts();
     }
     if (chunk.jobs_in_flight == 0) {  // nothing to evaluate (e.g. only background): the chunk is done at once
-      deps_.worker->Post([this, index] { OnChunkDone(index); });
+      Post([this, index] { OnChunkDone(index); });
       chunk.jobs_in_flight = 1;  // held until OnChunkDone, so the call does not finish under it
       return;
     }
@@ -498,7 +498,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       if (!chunk.plans[e]) continue;
       SubmitPlan(deps_.batcher, *chunk.plans[e], runtime::ResultSink{.f64 = chunk.f[e].data()}, fp64_,
                  batching::Priority::kBulk, deadline_, context_, [this, index, e](size_t k, batching::JobResult r) {
-                   deps_.worker->Post([this, index, e, k, r = std::move(r)] { OnJobDone(index, e, k, r); });
+                   Post([this, index, e, k, r = std::move(r)] { OnJobDone(index, e, k, r); });
                  });
     }
   }
@@ -738,6 +738,23 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   return "";
 }
 
+grpc::Status CheckRenderRequest(const models::Registry& registry, const v1::RenderRequest& request,
+                                const models::Model& model, bool has_fp64, std::unique_ptr<YarnJob>* fiber_job,
+                                render::RenderSetup::FiberDetail* detail) {
+  if (std::string error = ValidateRenderRequest(request); !error.empty()) return Invalid(error);
+  if (request.precision() == v1::PRECISION_FP64 && !has_fp64)
+    return {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"};
+  if (!IsFiberScene(request.scene())) return grpc::Status::OK;
+  *fiber_job = std::make_unique<YarnJob>();
+  if (std::string error = FiberJobOf(registry, request, fiber_job->get()); !error.empty()) return Invalid(error);
+  // Checked before any fiber is generated (after the yarn's own fields): the material's model is known without packing it.
+  if (model.fiber_axis_param().empty() || request.material().has_transmission())
+    return Invalid("material: the fiber scenes shade each fiber with a fiber model (e.g. preset cotton), not '" +
+                   model.name() + "'" + (request.material().has_transmission() ? " with a layer" : ""));
+  ChooseFiberDetail(request, fiber_job->get(), detail);
+  return grpc::Status::OK;
+}
+
 grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps, grpc::CallbackServerContext* context,
                                                          const v1::RenderRequest* request) {
   const auto received = Clock::now();
@@ -749,26 +766,15 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
   if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
     return reject(Invalid(error));
-  if (std::string error = ValidateRenderRequest(*request); !error.empty()) return reject(Invalid(error));
-  if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
-    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
   std::unique_ptr<YarnJob> fiber_job;
   render::RenderSetup::FiberDetail detail;
-  if (IsFiberScene(request->scene())) {
-    fiber_job = std::make_unique<YarnJob>();
-    if (std::string error = FiberJobOf(*deps.registry, *request, fiber_job.get()); !error.empty())
-      return reject(Invalid(error));
-    // Checked before any fiber is generated (after the yarn's own fields): the material's model is known without packing it.
-    if (model->fiber_axis_param().empty() || request->material().has_transmission())
-      return reject(Invalid("material: the fiber scenes shade each fiber with a fiber model (e.g. preset cotton), not '" +
-                            model->name() + "'" + (request->material().has_transmission() ? " with a layer" : "")));
-    ChooseFiberDetail(*request, fiber_job.get(), &detail);
-  }
+  if (grpc::Status s = CheckRenderRequest(*deps.registry, *request, *model, deps.has_fp64, &fiber_job, &detail); !s.ok())
+    return reject(s);
   // A woven patch's centre polylines twice: the layout while its fibers are generated, and the copies the
   // visibility approximations keep for the render (the centre curves and the other yarns' tubes).
   const size_t layout_bytes = fiber_job ? 2 * fiber_job->layout_bytes : 0;
   Admission admission;
-  if (grpc::Status s = Admit(deps.memory, deps.long_calls, RenderBytes(*request) + layout_bytes, &admission); !s.ok())
+  if (grpc::Status s = AdmitLongCall(deps, *context, RenderBytes(*request) + layout_bytes, &admission); !s.ok())
     return reject(s);
   return new RenderCall(deps, context, *request, std::move(material), std::move(fiber_job), std::move(detail),
                         std::move(admission), received);

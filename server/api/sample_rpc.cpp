@@ -51,16 +51,7 @@ struct SampleCall {
                                                               &call->approximation);
         !error.empty())
       return call->Finish(Invalid(error));
-    if (std::string error = ValidateDirections(request.wo(), "wo"); !error.empty())
-      return call->Finish(Invalid(error));
-    if (request.uv_size() > 0) {
-      if (!call->material->model->spatially_varying())
-        return call->Finish(
-            Invalid("uv: model '" + call->material->model->name() + "' is not spatially varying; send no uv"));
-      if (std::string error = ValidateTextureCoordinates(request.uv(), call->n, "uv"); !error.empty())
-        return call->Finish(Invalid(error));
-    }
-    if (std::string error = ValidateSampleRandom(request.random(), call->n); !error.empty())
+    if (std::string error = CheckSampleQueries(request, *call->material->model); !error.empty())
       return call->Finish(Invalid(error));
     const int n = static_cast<int>(call->n);
     call->response->mutable_wi()->Resize(3 * n, 0.0f);
@@ -181,6 +172,22 @@ std::string ValidateSampleRandom(const google::protobuf::RepeatedField<float>& r
   return "";
 }
 
+grpc::Status CheckSampleRequest(const v1::SampleRequest& request, bool has_fp64) {
+  if (grpc::Status s = CheckPrecision(request.precision(), has_fp64); !s.ok()) return s;
+  if (request.wo_size() == 0) return Invalid("wo: no directions; give one xyz triple per sample");
+  return CheckQueriesAndTarget(request.wo_size() / 3, "wo", request.error_target());
+}
+
+std::string CheckSampleQueries(const v1::SampleRequest& request, const models::Model& model) {
+  const size_t n = request.wo_size() / 3;
+  if (std::string error = ValidateDirections(request.wo(), "wo"); !error.empty()) return error;
+  if (request.uv_size() > 0) {
+    if (!model.spatially_varying()) return "uv: model '" + model.name() + "' is not spatially varying; send no uv";
+    if (std::string error = ValidateTextureCoordinates(request.uv(), n, "uv"); !error.empty()) return error;
+  }
+  return ValidateSampleRandom(request.random(), n);
+}
+
 grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, HostWorker* preparer,
                                        grpc::CallbackServerContext* context, const v1::SampleRequest* request,
                                        v1::SampleResponse* response) {
@@ -191,11 +198,9 @@ grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, HostWorker* prep
     reactor->Finish(status);
     return reactor;
   };
-  if (grpc::Status s = CheckPrecision(request->precision(), deps.has_fp64); !s.ok()) return reject(s);
+  if (grpc::Status s = CheckSampleRequest(*request, deps.has_fp64); !s.ok()) return reject(s);
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
-  if (request->wo_size() == 0) return reject(Invalid("wo: no directions; give one xyz triple per sample"));
   const size_t n = request->wo_size() / 3;
-  if (grpc::Status s = CheckQueriesAndTarget(n, "wo", request->error_target()); !s.ok()) return reject(s);
 
   auto call = std::make_shared<SampleCall>();
   if (grpc::Status s = Admit(deps.memory, nullptr, n * kSampleBytesPerQuery, &call->admission); !s.ok())

@@ -30,6 +30,13 @@ constexpr size_t kInlineSampleWeights = 4096;
 // "random...: reason".
 std::string ValidateSampleRandom(const google::protobuf::RepeatedField<float>& random, size_t n);
 
+// Sample's checks that need no material (on the gRPC thread, before admission): precision, some wo, the query
+// count and error_target. OK or the status to reply.
+grpc::Status CheckSampleRequest(const v1::SampleRequest& request, bool has_fp64);
+// Sample's checks once the material's model is known: wo, uv against what the model serves, and random. "" or the
+// INVALID_ARGUMENT message.
+std::string CheckSampleQueries(const v1::SampleRequest& request, const models::Model& model);
+
 // Serves one call (the service has checked that it is serving); the reactor is finished exactly once, with the
 // samples or an error status. `preparer` is the service's preparer worker (LoomlightService::preparer_).
 grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, HostWorker* preparer,

@@ -103,6 +103,7 @@ void LoomlightServer::Watch() {
     if (draining_) return;
     metrics_->Resources({memory_->in_use(), memory_->limit(), long_calls_->in_use(), long_calls_->limit(),
                          service_->materials().bytes(), warm_ && !stuck_});
+    metrics_->Queues(batcher_->Stats());
     const auto now = batching::Clock::now();
     std::string reason;
     const std::pair<const char*, batching::Clock::time_point> busy[] = {

@@ -67,36 +67,11 @@ struct EvaluateCall {
     } else {
       call->approximation = models::DescribeOwnSettings(*call->material);
     }
+    if (std::string error = CheckEvaluateQueries(request, *call->material->model, call->material->transmission != nullptr);
+        !error.empty())
+      return call->Finish(Invalid(error));
     const bool ambient = request.quantity() == v1::QUANTITY_AMBIENT;
     const size_t n = request.wo_size() / 3;
-    for (const auto& [field, w] : {std::pair{"wi", &request.wi()}, std::pair{"wo", &request.wo()}})
-      if (std::string error = ValidateDirections(*w, field); !error.empty()) return call->Finish(Invalid(error));
-    if (ambient) {
-      const models::Model& model = *call->material->model;
-      if (!model.has_ambient())
-        return call->Finish(Invalid("quantity: model '" + model.name() + "' has no ambient factor (ModelInfo.ambient)"));
-      if (call->material->transmission)
-        return call->Finish(Invalid("quantity: the ambient factor is not served with material.transmission"));
-    }
-    if (request.uv_size() > 0) {
-      if (!call->material->model->spatially_varying())
-        return call->Finish(
-            Invalid("uv: model '" + call->material->model->name() + "' is not spatially varying; send no uv"));
-      if (std::string error = ValidateTextureCoordinates(request.uv(), n, "uv"); !error.empty())
-        return call->Finish(Invalid(error));
-    }
-    if (request.fiber_axis_size() > 0) {
-      const models::Model& model = *call->material->model;
-      if (model.fiber_axis_param().empty())
-        return call->Finish(Invalid("fiber_axis: model '" + model.name() + "' is not a fiber model; send no fiber_axis"));
-      if (call->material->transmission)
-        return call->Finish(Invalid("fiber_axis: not with material.transmission (a fiber is not a curtain)"));
-      if (request.fiber_axis_size() != request.wo_size())
-        return call->Finish(Invalid("fiber_axis: length " + std::to_string(request.fiber_axis_size()) +
-                                    " differs from wo length " + std::to_string(request.wo_size())));
-      if (std::string error = ValidateDirections(request.fiber_axis(), "fiber_axis"); !error.empty())
-        return call->Finish(Invalid(error));
-    }
     call->response->mutable_f()->Resize(static_cast<int>(3 * n), 0.0f);
     call->plan = std::make_unique<models::EvaluationPlan>(
         *call->material, request.wi().data(), request.wo().data(), request.uv_size() > 0 ? request.uv().data() : nullptr,
@@ -135,8 +110,9 @@ struct EvaluateCall {
 }  // namespace
 
 LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits& limits)
-    : deps_(deps), materials_(limits.material_cache_bytes) {
+    : deps_(deps), materials_(limits.material_cache_bytes), client_long_calls_(limits.max_long_calls_per_client) {
   deps_.materials = &materials_;
+  deps_.client_long_calls = &client_long_calls_;
   deps_.worker = &worker_;
   deps_.loader = &loader_;
   deps_.geometry = &geometry_;
@@ -153,6 +129,15 @@ grpc::ServerUnaryReactor* LoomlightService::Reply(grpc::CallbackServerContext* c
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
   reactor->Finish(std::move(status));
   return reactor;
+}
+
+grpc::Status AdmitLongCall(const ServiceDeps& deps, const grpc::ServerContextBase& context, size_t bytes,
+                           Admission* out) {
+  if (!deps.client_long_calls->TryTake(FairShareKey(context), &out->client_slot))
+    return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+            "this client is running its limit of " + std::to_string(deps.client_long_calls->per_client()) +
+                " long-running calls (TextureSlice, Tabulate, Render, YarnGeometry) at once; retry when one ends"};
+  return Admit(deps.memory, deps.long_calls, bytes, out);
 }
 
 grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& material,
@@ -201,6 +186,45 @@ std::string ValidateTextureCoordinates(const google::protobuf::RepeatedField<flo
     if (!std::isfinite(uv[i]) || std::fabs(uv[i]) > kMaxTextureCoordinate)
       return field + "[" + std::to_string(i) + "]: " + std::to_string(uv[i]) + " is not finite within +-" +
              std::to_string(static_cast<int>(kMaxTextureCoordinate)) + " pattern repeats";
+  return "";
+}
+
+grpc::Status CheckEvaluateRequest(const v1::EvaluateRequest& request, bool has_fp64) {
+  if (grpc::Status s = CheckPrecision(request.precision(), has_fp64); !s.ok()) return s;
+  if (!v1::Quantity_IsValid(request.quantity()))
+    return Invalid("quantity: unknown value " + std::to_string(request.quantity()));
+  const bool ambient = request.quantity() == v1::QUANTITY_AMBIENT;
+  if (ambient && request.wi_size() > 0)
+    return Invalid("wi: the ambient factor depends on wo only; send no wi with quantity AMBIENT");
+  if (ambient && request.uv_size() > 0)
+    return Invalid("uv: the ambient factor takes no texture coordinates; send no uv with quantity AMBIENT");
+  if (!ambient && request.wi_size() != request.wo_size())
+    return Invalid("wo: length " + std::to_string(request.wo_size()) + " differs from wi length " +
+                   std::to_string(request.wi_size()));
+  return CheckQueriesAndTarget(request.wo_size() / 3, "wi", request.error_target());
+}
+
+std::string CheckEvaluateQueries(const v1::EvaluateRequest& request, const models::Model& model, bool has_layer) {
+  const size_t n = request.wo_size() / 3;
+  for (const auto& [field, w] : {std::pair{"wi", &request.wi()}, std::pair{"wo", &request.wo()}})
+    if (std::string error = ValidateDirections(*w, field); !error.empty()) return error;
+  if (request.quantity() == v1::QUANTITY_AMBIENT) {
+    if (!model.has_ambient()) return "quantity: model '" + model.name() + "' has no ambient factor (ModelInfo.ambient)";
+    if (has_layer) return "quantity: the ambient factor is not served with material.transmission";
+  }
+  if (request.uv_size() > 0) {
+    if (!model.spatially_varying()) return "uv: model '" + model.name() + "' is not spatially varying; send no uv";
+    if (std::string error = ValidateTextureCoordinates(request.uv(), n, "uv"); !error.empty()) return error;
+  }
+  if (request.fiber_axis_size() > 0) {
+    if (model.fiber_axis_param().empty())
+      return "fiber_axis: model '" + model.name() + "' is not a fiber model; send no fiber_axis";
+    if (has_layer) return "fiber_axis: not with material.transmission (a fiber is not a curtain)";
+    if (request.fiber_axis_size() != request.wo_size())
+      return "fiber_axis: length " + std::to_string(request.fiber_axis_size()) + " differs from wo length " +
+             std::to_string(request.wo_size());
+    if (std::string error = ValidateDirections(request.fiber_axis(), "fiber_axis"); !error.empty()) return error;
+  }
   return "";
 }
 
@@ -256,20 +280,9 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
   const auto received = batching::Clock::now();
   const auto reject = [&](grpc::Status status) { return Reply(context, "Evaluate", received, std::move(status)); };
   if (grpc::Status s = Serving(); !s.ok()) return reject(s);
-  if (grpc::Status s = CheckPrecision(request->precision(), deps_.has_fp64); !s.ok()) return reject(s);
+  if (grpc::Status s = CheckEvaluateRequest(*request, deps_.has_fp64); !s.ok()) return reject(s);
   const bool fp64 = request->precision() == v1::PRECISION_FP64;
-  if (!v1::Quantity_IsValid(request->quantity()))
-    return reject(Invalid("quantity: unknown value " + std::to_string(request->quantity())));
-  const bool ambient = request->quantity() == v1::QUANTITY_AMBIENT;
-  if (ambient && request->wi_size() > 0)
-    return reject(Invalid("wi: the ambient factor depends on wo only; send no wi with quantity AMBIENT"));
-  if (ambient && request->uv_size() > 0)
-    return reject(Invalid("uv: the ambient factor takes no texture coordinates; send no uv with quantity AMBIENT"));
-  if (!ambient && request->wi_size() != request->wo_size())
-    return reject(Invalid("wo: length " + std::to_string(request->wo_size()) + " differs from wi length " +
-                          std::to_string(request->wi_size())));
   const size_t n = request->wo_size() / 3;
-  if (grpc::Status s = CheckQueriesAndTarget(n, "wi", request->error_target()); !s.ok()) return reject(s);
 
   auto call = std::make_shared<EvaluateCall>();
   if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission); !s.ok())

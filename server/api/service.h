@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/admission.h"
 #include "server/api/host_worker.h"
 #include "server/api/metrics.h"
 #include "server/assets/environment_maps.h"
@@ -34,6 +35,7 @@ constexpr size_t kInlineEvaluateQueries = 4096;
 struct ServiceLimits {
   size_t memory_budget_bytes = size_t{2} << 30;  // every call's buffers, cached environment maps
   size_t max_long_running_calls = 16;            // TextureSlice, Tabulate and Render calls at once
+  size_t max_long_calls_per_client = 8;          // of them, one client's (its name, else its connection)
   size_t material_cache_bytes = size_t{64} << 20;
 };
 
@@ -50,6 +52,7 @@ struct ServiceDeps {
   HostWorker* geometry = nullptr;  // generating yarn geometry, off the host worker
   batching::Budget* memory = nullptr;      // bytes every call reserves (server/api/admission.h)
   batching::Budget* long_calls = nullptr;  // slots of long-running calls
+  ClientSlots* client_long_calls = nullptr;  // and each client's share of them
   assets::EnvironmentMaps* environments = nullptr;
 };
 
@@ -57,6 +60,11 @@ struct ServiceDeps {
 // a thin layer solves its adding-doubling tables). OK, or INVALID_ARGUMENT as Get says.
 grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& material,
                              std::shared_ptr<const models::PreparedMaterial>* out);
+
+// Admits a long-running call (TextureSlice, Tabulate, Render, YarnGeometry): its client's slot, a server slot
+// and its buffers' bytes; OK or RESOURCE_EXHAUSTED saying which limit was reached.
+grpc::Status AdmitLongCall(const ServiceDeps& deps, const grpc::ServerContextBase& context, size_t bytes,
+                           Admission* out);
 
 // Finishes a streaming call that never started streaming (a rejected request).
 template <class Message>
@@ -110,6 +118,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
 
   ServiceDeps deps_;
   models::MaterialCache materials_;
+  ClientSlots client_long_calls_;
   std::atomic<bool> serving_{false};
   // Declared last, so destroyed first (the preparer and the loader before the worker): their remaining tasks
   // may still use the members above.
@@ -126,6 +135,12 @@ std::string ValidateDirections(const google::protobuf::RepeatedField<float>& w, 
 // query count (at most kMaxQueriesPerCall, named as `count_field`) and error_target; OK or the status to reply.
 grpc::Status CheckPrecision(int precision, bool has_fp64);
 grpc::Status CheckQueriesAndTarget(size_t n, const std::string& count_field, double error_target);
+// Evaluate's checks that need no material (on the gRPC thread, before admission): precision, quantity, the
+// arrays' lengths, the query count and error_target. OK or the status to reply.
+grpc::Status CheckEvaluateRequest(const v1::EvaluateRequest& request, bool has_fp64);
+// Evaluate's checks once the material is known (its model, and whether it has a curtain layer): directions,
+// uv, fiber axes and the quantity against what the model serves. "" or the INVALID_ARGUMENT message.
+std::string CheckEvaluateQueries(const v1::EvaluateRequest& request, const models::Model& model, bool has_layer);
 // Checks texture coordinates: 2 per query, finite, within kMaxTextureCoordinate. Returns "" or "field[i]: reason".
 std::string ValidateTextureCoordinates(const google::protobuf::RepeatedField<float>& uv, size_t n,
                                        const std::string& field);

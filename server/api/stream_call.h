@@ -16,24 +16,28 @@ template <class Message>
 class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
  public:
   void OnWriteDone(bool ok) override {
-    deps_.worker->Post([this, ok] {
+    Post([this, ok] {
       write_in_flight_ = false;
       if (!ok) stream_broken_ = true;  // the client went away
       Pump();
     });
   }
   void OnCancel() override {
-    deps_.worker->Post([this] { Pump(); });
+    Post([this] { Pump(); });
   }
   void OnDone() override {
-    deps_.worker->Post([this] { delete this; });
+    Post([this] { delete this; });
   }
 
  protected:
   WorkerStreamCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, const char* rpc,
                    batching::Clock::time_point received, Admission admission)
       : deps_(deps), context_(context), rpc_(rpc), received_(received), deadline_(CallDeadline(context, received)),
-        admission_(std::move(admission)) {}
+        client_(FairShareKey(*context)), admission_(std::move(admission)) {}
+
+  // Runs `task` on the host worker in the call's turn among clients; every task of the call goes through here
+  // (the worker keeps order only within a client, and `delete this` must run last).
+  void Post(std::function<void()> task) { deps_.worker->Post(std::move(task), client_); }
 
   // Advances the call; runs on the host worker only.
   virtual void Pump() = 0;
@@ -55,6 +59,7 @@ class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
   const char* const rpc_;
   const batching::Clock::time_point received_;
   const batching::Clock::time_point deadline_;
+  const std::string client_;
   Admission admission_;  // the call's slot and bytes, released with the call
   grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
   bool write_in_flight_ = false;

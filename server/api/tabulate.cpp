@@ -183,7 +183,7 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
         // Whole cells per job, so each cell's mean comes from one job.
         chunk_queries_(std::min<uint64_t>(kTabulateChunkQueries / grid_.queries_per_cell() * grid_.queries_per_cell(),
                                           grid_.queries())) {
-    deps_.worker->Post([this] {
+    Post([this] {
       if (!material_) status_ = PrepareMaterial(deps_, material_request_, &material_);
       encoder_->Begin(&pending_);
       Pump();
@@ -227,7 +227,7 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     jobs_in_flight_ = plan_->parts();
     SubmitPlan(deps_.batcher, *plan_, runtime::ResultSink{.f64 = chunk_f_.data()}, fp64_, batching::Priority::kBulk,
                deadline_, context_, [this](size_t k, batching::JobResult result) {
-                 deps_.worker->Post([this, k, result = std::move(result)] { OnJobDone(k, result); });
+                 Post([this, k, result = std::move(result)] { OnJobDone(k, result); });
                });
   }
 
@@ -512,6 +512,15 @@ std::string ValidateTabulateRequest(const v1::TabulateRequest& request, const Ta
   return "";
 }
 
+grpc::Status CheckTabulateRequest(const v1::TabulateRequest& request, const models::Model& model, bool has_fp64,
+                                  TabulationGrid* grid) {
+  if (std::string error = TabulationGrid::Resolve(request, model, grid); !error.empty()) return Invalid(error);
+  if (std::string error = ValidateTabulateRequest(request, *grid); !error.empty()) return Invalid(error);
+  if (request.precision() == v1::PRECISION_FP64 && !has_fp64)
+    return {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"};
+  return grpc::Status::OK;
+}
+
 grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& deps,
                                                             grpc::CallbackServerContext* context,
                                                             const v1::TabulateRequest* request) {
@@ -525,13 +534,9 @@ grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& 
   if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
     return reject(Invalid(error));
   TabulationGrid grid;
-  if (std::string error = TabulationGrid::Resolve(*request, *model, &grid); !error.empty())
-    return reject(Invalid(error));
-  if (std::string error = ValidateTabulateRequest(*request, grid); !error.empty()) return reject(Invalid(error));
-  if (request->precision() == v1::PRECISION_FP64 && !deps.has_fp64)
-    return reject({grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
+  if (grpc::Status s = CheckTabulateRequest(*request, *model, deps.has_fp64, &grid); !s.ok()) return reject(s);
   Admission admission;
-  if (grpc::Status s = Admit(deps.memory, deps.long_calls, TabulateBytes(*request, grid), &admission); !s.ok())
+  if (grpc::Status s = AdmitLongCall(deps, *context, TabulateBytes(*request, grid), &admission); !s.ok())
     return reject(s);
   return new TabulateCall(deps, context, *request, std::move(material), std::move(grid), std::move(admission),
                           received);

@@ -98,6 +98,11 @@ std::unique_ptr<TableEncoder> MakeTableEncoder(v1::TableFormat format, const Tab
 // with the grid). Returns "" or "field: reason".
 std::string ValidateTabulateRequest(const v1::TabulateRequest& request, const TabulationGrid& grid);
 
+// Every check of a request once its material's model is known (no packing): its grid (into *grid), the other
+// fields, and fp64 where the device has it. OK or the status to reply.
+grpc::Status CheckTabulateRequest(const v1::TabulateRequest& request, const models::Model& model, bool has_fp64,
+                                  TabulationGrid* grid);
+
 // The bytes a validated request's call holds (its admission).
 size_t TabulateBytes(const v1::TabulateRequest& request, const TabulationGrid& grid);
 

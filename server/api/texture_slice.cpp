@@ -369,7 +369,7 @@ grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc:
     return Reject(deps, context, received, {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"});
 
   Admission admission;
-  if (grpc::Status s = Admit(deps.memory, deps.long_calls, SliceBytes(*request), &admission); !s.ok())
+  if (grpc::Status s = AdmitLongCall(deps, *context, SliceBytes(*request), &admission); !s.ok())
     return Reject(deps, context, received, s);
   auto call = std::make_shared<SliceCall>(deps, context, *request, response, std::move(material),
                                           std::move(admission), received);

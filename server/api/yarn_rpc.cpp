@@ -111,7 +111,7 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
       out.set_length(y.length);
     }
     const double seconds = SecondsSince(started);
-    deps_.worker->Post([this, geometry = std::move(geometry), error = std::move(error), seconds] {
+    Post([this, geometry = std::move(geometry), error = std::move(error), seconds] {
       generated_ = true;
       if (error == "cancelled") {
         NoticeStop();
@@ -334,7 +334,7 @@ grpc::ServerWriteReactor<v1::YarnGeometryChunk>* HandleYarnGeometry(const Servic
   const size_t bytes = static_cast<size_t>(job.limits.max_control_points) * kYarnBytesPerPoint +
                        static_cast<size_t>(job.limits.max_fibers) * kYarnBytesPerFiber + job.layout_bytes;
   Admission admission;
-  if (grpc::Status s = Admit(deps.memory, deps.long_calls, bytes, &admission); !s.ok()) return reject(s);
+  if (grpc::Status s = AdmitLongCall(deps, *context, bytes, &admission); !s.ok()) return reject(s);
   return new YarnGeometryCall(deps, context, std::move(job), std::move(admission), received);
 }
 

@@ -12,6 +12,9 @@ bool SameKernel(const Job& a, const Job& b) {
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
 
+// Host bytes a queued query holds: wi and wo, uv, and its result in double.
+size_t QueuedBytesPerQuery(const Job& job) { return 6 * sizeof(float) + (job.uv ? 2 * sizeof(float) : 0) + 3 * sizeof(double); }
+
 JobResult Failed(JobStatus status, std::string message) {
   JobResult r;
   r.status = status;
@@ -26,13 +29,32 @@ Batcher::Batcher(runtime::ClRuntime* runtime, BatcherOptions options)
 
 Batcher::~Batcher() { Stop(); }
 
+const char* PriorityName(Priority priority) { return priority == Priority::kInteractive ? "interactive" : "bulk"; }
+
+Clock::time_point Batcher::PriorityQueue::oldest() const {
+  Clock::time_point t = Clock::time_point::max();
+  for (const auto& [name, client] : clients) t = std::min(t, client.jobs.front()->enqueued);
+  return t;
+}
+
 Batcher::Refusal Batcher::Submit(std::shared_ptr<Job> job) {
   {
     std::unique_lock<std::mutex> lock(mutex_);
     if (stopping_) return Refusal::kStopping;
-    if (options_.coalesce && options_.max_queue_delay.count() == 0 && !launching_ && Empty() &&
-        job->priority == Priority::kInteractive &&
-        job->n <= kMaxInlineQueries) {
+    const int p = static_cast<int>(job->priority);
+    PriorityQueue& queue = queue_[p];
+    const QueuePolicy& policy = options_.policy(job->priority);
+    const bool interactive_now = options_.coalesce && job->priority == Priority::kInteractive &&
+                                 policy.max_queue_delay.count() == 0 && queue.empty();
+    // A small interactive job runs at once on the small-launch device, beside whatever the main device runs:
+    // it would otherwise wait for a bulk slice.
+    if (interactive_now && runtime_->RunsApart(job->n)) {
+      job->enqueued = Clock::now();
+      lock.unlock();
+      Launch({std::move(job)});
+      return Refusal::kNone;
+    }
+    if (interactive_now && !launching_ && Empty() && job->n <= kMaxInlineQueries) {
       launching_ = true;
       job->enqueued = Clock::now();
       lock.unlock();
@@ -44,27 +66,46 @@ Batcher::Refusal Batcher::Submit(std::shared_ptr<Job> job) {
       if (more) wake_.notify_one();
       return Refusal::kNone;
     }
-    const int p = static_cast<int>(job->priority);
     // An empty queue always accepts, so one request up to the per-call limit can always run.
-    if (!queue_[p].empty() && queued_queries_[p] + job->n > options_.max_queued_queries) return Refusal::kQueueFull;
+    if (!queue.empty() && queue.queries + job->n > policy.max_queued_queries) return Refusal::kQueueFull;
+    auto [it, added] = queue.clients.try_emplace(job->client);
+    ClientQueue& client = it->second;
+    if (!client.jobs.empty() && client.queued_queries + job->n > policy.max_client_queued_queries)
+      return Refusal::kClientQueueFull;
+    if (added) client.served = queue.virtual_time;  // idleness earns no credit
     job->enqueued = Clock::now();
-    queued_queries_[p] += job->n;
-    queue_[p].push_back(std::move(job));
+    client.queued_queries += job->n;
+    queue.jobs += 1;
+    queue.queries += job->n;
+    queue.bytes += job->n * QueuedBytesPerQuery(*job);
+    client.jobs.push_back(std::move(job));
   }
   wake_.notify_one();
   return Refusal::kNone;
 }
 
+QueueStats Batcher::Stats() const {
+  QueueStats stats;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (int p = 0; p < 2; ++p) {
+    stats.queued_jobs[p] = queue_[p].jobs;
+    stats.queued_queries[p] = queue_[p].queries;
+    stats.queued_bytes[p] = queue_[p].bytes;
+    stats.clients[p] = queue_[p].clients.size();
+    stats.launching_queries[p] = launching_queries_[p].load();
+  }
+  return stats;
+}
+
 void Batcher::Stop() {
-  std::deque<std::shared_ptr<Job>> left;
+  std::vector<std::shared_ptr<Job>> left;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (stopping_) return;
     stopping_ = true;
-    for (int p = 0; p < 2; ++p) {
-      left.insert(left.end(), queue_[p].begin(), queue_[p].end());
-      queue_[p].clear();
-      queued_queries_[p] = 0;
+    for (PriorityQueue& queue : queue_) {
+      for (auto& [name, client] : queue.clients) left.insert(left.end(), client.jobs.begin(), client.jobs.end());
+      queue = PriorityQueue();
     }
   }
   wake_.notify_all();
@@ -72,22 +113,48 @@ void Batcher::Stop() {
   for (auto& job : left) job->done(Failed(JobStatus::kUnavailable, "server is shutting down"));
 }
 
+void Batcher::Remove(PriorityQueue& queue, std::map<std::string, ClientQueue>::iterator client,
+                     std::deque<std::shared_ptr<Job>>::iterator job) {
+  const size_t n = (*job)->n;
+  client->second.served += static_cast<double>(n);
+  client->second.queued_queries -= n;
+  queue.jobs -= 1;
+  queue.queries -= n;
+  queue.bytes -= n * QueuedBytesPerQuery(**job);
+  client->second.jobs.erase(job);
+}
+
 std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
   std::vector<std::shared_ptr<Job>> batch;
+  PriorityQueue& queue = queue_[queue_[0].empty() ? 1 : 0];
   size_t queries = 0;
-  const int p = queue_[0].empty() ? 1 : 0;
-  std::deque<std::shared_ptr<Job>>& queue = queue_[p];
-  for (auto it = queue.begin(); it != queue.end();) {
-    const bool first = batch.empty();
-    if (!first && (!options_.coalesce || !SameKernel(*batch.front(), **it) ||
-                   queries + (*it)->n > options_.max_batch_queries)) {
-      ++it;
-      continue;
+  // Job by job, each from the client served least so far (ties: the longest waiting) among those with a job
+  // that fits: fair within a launch too, so coalescing never gives one client's many jobs a ride ahead of
+  // another's.
+  while (true) {
+    auto chosen = queue.clients.end();
+    std::deque<std::shared_ptr<Job>>::iterator chosen_job;
+    for (auto client = queue.clients.begin(); client != queue.clients.end(); ++client) {
+      auto& jobs = client->second.jobs;
+      auto fits = jobs.begin();
+      if (!batch.empty())
+        fits = std::find_if(jobs.begin(), jobs.end(), [&](const std::shared_ptr<Job>& job) {
+          return SameKernel(*batch.front(), *job) && queries + job->n <= options_.max_batch_queries;
+        });
+      if (fits == jobs.end()) continue;
+      const bool better = chosen == queue.clients.end() || client->second.served < chosen->second.served ||
+                          (client->second.served == chosen->second.served && (*fits)->enqueued < (*chosen_job)->enqueued);
+      if (better) {
+        chosen = client;
+        chosen_job = fits;
+      }
     }
-    queries += (*it)->n;
-    queued_queries_[p] -= (*it)->n;
-    batch.push_back(std::move(*it));
-    it = queue.erase(it);
+    if (chosen == queue.clients.end()) break;
+    if (batch.empty()) queue.virtual_time = chosen->second.served;
+    queries += (*chosen_job)->n;
+    batch.push_back(*chosen_job);
+    Remove(queue, chosen, chosen_job);
+    if (chosen->second.jobs.empty()) queue.clients.erase(chosen);
     if (!options_.coalesce) break;
   }
   return batch;
@@ -98,12 +165,12 @@ void Batcher::Run() {
   while (true) {
     wake_.wait(lock, [this] { return stopping_ || (!Empty() && !launching_); });
     if (stopping_) return;
-    if (options_.max_queue_delay.count() > 0) {
+    const Priority next = queue_[0].empty() ? Priority::kBulk : Priority::kInteractive;
+    if (const auto delay = options_.policy(next).max_queue_delay; delay.count() > 0) {
       // Let more requests join until the oldest has waited max_queue_delay or a batch is full.
-      const std::deque<std::shared_ptr<Job>>& first = queue_[0].empty() ? queue_[1] : queue_[0];
-      const Clock::time_point until = first.front()->enqueued + options_.max_queue_delay;
+      const Clock::time_point until = queue_[static_cast<int>(next)].oldest() + delay;
       wake_.wait_until(lock, until, [this] {
-        return stopping_ || queued_queries_[0] + queued_queries_[1] >= options_.max_batch_queries;
+        return stopping_ || queue_[0].queries + queue_[1].queries >= options_.max_batch_queries;
       });
       if (stopping_) return;
     }
@@ -119,12 +186,18 @@ void Batcher::Run() {
 
 void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   const Clock::time_point now = Clock::now();
-  // Requests whose deadline passed or whose client went away are dropped before launch.
+  // Requests whose deadline passed, whose client went away or that queued past their queue's timeout are
+  // dropped before launch.
   std::vector<std::shared_ptr<Job>> live;
   for (auto& job : batch) {
     const bool cancelled = job->cancelled && job->cancelled();
+    const auto timeout = options_.policy(job->priority).timeout;
     if (job->deadline <= now || (cancelled && job->deadline <= now + kDeadlineSlack))
       job->done(Failed(JobStatus::kDeadlineExceeded, "deadline passed while queued"));
+    else if (timeout.count() > 0 && now - job->enqueued > timeout)
+      job->done(Failed(JobStatus::kResourceExhausted,
+                       std::string("queued longer than the ") + PriorityName(job->priority) + " queue's timeout of " +
+                           std::to_string(timeout.count()) + " ms: the server is overloaded; retry later"));
     else if (cancelled)
       job->done(Failed(JobStatus::kCancelled, "cancelled while queued"));
     else
@@ -172,7 +245,10 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   std::string error;
   const Clock::time_point start = Clock::now();
   double kernel_seconds = 0;
+  std::atomic<size_t>& launching = launching_queries_[static_cast<int>(live.front()->priority)];
+  launching += n;
   const bool ok = RunAndDeliver(args, live, first, &error, &kernel_seconds);
+  launching -= n;
 
   for (auto& job : live) {
     JobResult r;
@@ -191,9 +267,11 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
 bool Batcher::RunKernel(const runtime::LaunchArgs& args, runtime::LaunchResults* results, std::string* error,
                         double* seconds) {
   const Clock::time_point start = Clock::now();
-  busy_since_ = start;
+  // The watchdog watches the main device; launches beside it on the small device are short.
+  const bool watched = !runtime_->RunsApart(args.n);
+  if (watched) busy_since_ = start;
   const bool ok = runtime_->Run(args, results, error);
-  busy_since_ = Clock::time_point::max();
+  if (watched) busy_since_ = Clock::time_point::max();
   *seconds += Seconds(Clock::now() - start);
   return ok;
 }

@@ -2,10 +2,14 @@
 // with or without uv)
 // are coalesced into one launch, each query carrying its material's index. One launch is in flight at a
 // time (the CPU device already uses every core for one launch); whatever queues meanwhile forms the next.
-// Two priorities: interactive work (Evaluate, TextureSlice) always launches before bulk work (Tabulate,
-// Render chunks), and a bulk launch runs in slices of about `bulk_slice` with waiting interactive work
-// launched between them, so an interactive call waits for one slice, not for a whole bulk launch; each
-// priority has its own queue limit, so bulk work can never fill the queue interactive calls need.
+// Two priorities: interactive work (Evaluate, Sample, TextureSlice) always launches before bulk work
+// (Tabulate, Render chunks), and a bulk launch runs in slices of about `bulk_slice` with waiting interactive
+// work launched between them, so an interactive call waits for one slice, not for a whole bulk launch; a small
+// interactive job does not even wait for that, as it runs on PoCL's small-launch device beside the main one.
+// Each priority has its own queue policy (limits, timeout, queueing delay, in the spirit of Triton's), so
+// bulk work can never fill the queue interactive calls need. Within a priority, clients share the device
+// fairly: start-time fair queuing by queries, so a client's next job goes ahead of another's that has been
+// served more, and one client's many jobs cannot make another's wait behind all of them.
 #pragma once
 
 #include <atomic>
@@ -13,6 +17,7 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -30,7 +35,7 @@ using Clock = std::chrono::steady_clock;
 // this much of the deadline is the deadline.
 constexpr Clock::duration kDeadlineSlack = std::chrono::milliseconds(100);
 
-// kResourceExhausted: never set by the batcher; callers use it for a job Submit refused.
+// kResourceExhausted: a job that queued past its queue's timeout, or (set by callers) one Submit refused.
 enum class JobStatus { kOk, kDeadlineExceeded, kCancelled, kInternal, kUnavailable, kResourceExhausted };
 
 // A job's outcome; its f went to the job's sink (when the status is kOk).
@@ -42,11 +47,13 @@ struct JobResult {
 };
 
 enum class Priority { kInteractive = 0, kBulk = 1 };
+const char* PriorityName(Priority priority);
 
 // One request's work. The material, wi, wo (and uv) and the sink's buffers are the caller's, which must outlive
 // the completion callback; results are written into the sink before it.
 struct Job {
   Priority priority = Priority::kInteractive;
+  std::string client;  // who shares the device fairly with others: the caller's name, or its connection
   const models::Model* model = nullptr;
   bool fp64 = false;
   const models::PackedMaterial* material = nullptr;  // shared and immutable: jobs of one material share it
@@ -62,19 +69,35 @@ struct Job {
   Clock::time_point enqueued;
 };
 
+// One priority's queue (README "Queue policy").
+struct QueuePolicy {
+  std::chrono::microseconds max_queue_delay{0};  // 0: batch whatever queued while the last launch ran
+  size_t max_queued_queries = size_t{1} << 23;   // beyond this Submit refuses (RESOURCE_EXHAUSTED)
+  size_t max_client_queued_queries = size_t{1} << 22;  // one client's share of them
+  // A job queued longer than this fails RESOURCE_EXHAUSTED (the server is overloaded: retry) instead of
+  // waiting on; 0: it waits until its call's deadline.
+  std::chrono::milliseconds timeout{0};
+};
+
 struct BatcherOptions {
   size_t max_batch_queries = size_t{1} << 20;     // a larger single request still runs, alone
-  std::chrono::microseconds max_queue_delay{0};   // 0: batch whatever queued while the last launch ran
-  size_t max_queued_queries = size_t{1} << 23;    // per priority; beyond this Submit refuses (RESOURCE_EXHAUSTED)
   bool coalesce = true;                           // false: one request per launch (for comparison)
-  std::chrono::milliseconds bulk_slice{50};       // a bulk launch's slices take about this long each
+  std::chrono::milliseconds bulk_slice{20};       // a bulk launch's slices take about this long each
+  QueuePolicy interactive, bulk;
+  const QueuePolicy& policy(Priority p) const { return p == Priority::kInteractive ? interactive : bulk; }
+};
+
+// What is queued and launching now, per priority (exported as metrics).
+struct QueueStats {
+  size_t queued_jobs[2] = {0, 0}, queued_queries[2] = {0, 0}, queued_bytes[2] = {0, 0}, clients[2] = {0, 0};
+  size_t launching_queries[2] = {0, 0};  // in the kernel now, on the main device and on the small one
 };
 
 class Batcher {
  public:
   Batcher(runtime::ClRuntime* runtime, BatcherOptions options);
   ~Batcher();
-  enum class Refusal { kNone, kQueueFull, kStopping };
+  enum class Refusal { kNone, kQueueFull, kClientQueueFull, kStopping };
   // Queues the job; otherwise says why not (the job is not taken and done is not called). A small interactive
   // job that finds the batcher idle (nothing queued, nothing launching) is launched at once on the calling
   // thread instead, done called there: waking the batcher's thread would cost more than the launch, and there
@@ -85,13 +108,32 @@ class Batcher {
   // Stops after failing every queued job with kUnavailable.
   void Stop();
   const BatcherOptions& options() const { return options_; }
+  QueueStats Stats() const;
 
  private:
+  // One client's queued jobs of one priority, with the queries it has been served (its start tag).
+  struct ClientQueue {
+    std::deque<std::shared_ptr<Job>> jobs;
+    size_t queued_queries = 0;
+    double served = 0;
+  };
+  // One priority: its clients with queued jobs, and the virtual time (the served count of the client chosen
+  // last), from which a client that starts queueing again begins, so idleness earns no credit.
+  struct PriorityQueue {
+    std::map<std::string, ClientQueue> clients;
+    size_t jobs = 0, queries = 0, bytes = 0;
+    double virtual_time = 0;
+    bool empty() const { return jobs == 0; }
+    Clock::time_point oldest() const;
+  };
+
   void Run();
   bool Empty() const { return queue_[0].empty() && queue_[1].empty(); }
-  // Takes the next batch (lock held): the oldest job of the highest priority waiting, and every queued job
-  // of that priority with its key.
+  // Takes the next batch (lock held) from the highest priority waiting: the oldest job of its client served
+  // least, and every queued job of that priority with its key (each client charged its own queries).
   std::vector<std::shared_ptr<Job>> TakeBatch();
+  void Remove(PriorityQueue& queue, std::map<std::string, ClientQueue>::iterator client,
+              std::deque<std::shared_ptr<Job>>::iterator job);
   void Launch(std::vector<std::shared_ptr<Job>> batch);
   // One kernel run, marked busy for the watchdog; adds its time to *seconds.
   bool RunKernel(const runtime::LaunchArgs& args, runtime::LaunchResults* results, std::string* error,
@@ -108,10 +150,10 @@ class Batcher {
 
   runtime::ClRuntime* runtime_;
   BatcherOptions options_;
-  std::mutex mutex_;
+  mutable std::mutex mutex_;
   std::condition_variable wake_;
-  std::deque<std::shared_ptr<Job>> queue_[2];  // by Priority
-  size_t queued_queries_[2] = {0, 0};
+  PriorityQueue queue_[2];  // by Priority
+  std::atomic<size_t> launching_queries_[2] = {0, 0};
   std::atomic<Clock::time_point> busy_since_{Clock::time_point::max()};
   bool stopping_ = false;
   bool launching_ = false;  // a launch runs (on the batcher's thread or inline on a caller's)

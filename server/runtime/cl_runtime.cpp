@@ -395,7 +395,7 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
     materials_ptr = concatenated.data();
   }
 
-  std::lock_guard<std::mutex> lock(launch_mutex_);
+  std::lock_guard<std::mutex> lock(target.launch_mutex);
   cl_int err = CL_SUCCESS;
   Buffers b;
   // The six arguments' buffers: new ones holding copies (large launches), or the target's staging, filled here.

@@ -89,6 +89,8 @@ class ClRuntime {
 
   bool has_fp64() const { return has_fp64_; }
   const std::string& device_name() const { return main_.device_name; }
+  // Whether a launch of n queries runs on the small-launch device, apart from (and beside) the main one.
+  bool RunsApart(size_t n) const { return small_.device != nullptr && n <= small_launch_queries_; }
   // The device small launches go to ("" when they go to the main device too).
   const std::string& small_device_name() const { return small_.device_name; }
   const std::string& platform_name() const { return platform_name_; }
@@ -124,6 +126,9 @@ class ClRuntime {
     std::map<std::pair<std::string, bool>, Program> programs;
     bool staged = false;  // launches use `staging` (materials, offsets, wi, wo, uv, f) instead of new buffers
     Staging staging[6];
+    // One launch at a time per device (its kernels' arguments and staging are shared); the small device's
+    // launches run beside the main device's.
+    std::mutex launch_mutex;
     bool Open(cl_device_id d, std::string* error);
     void Close();
   };
@@ -136,7 +141,6 @@ class ClRuntime {
   Target main_;
   Target small_;  // device null: none
   size_t small_launch_queries_ = 0;
-  std::mutex launch_mutex_;
 };
 
 }  // namespace loomlight::runtime

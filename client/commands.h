@@ -26,5 +26,6 @@ const Command& render_command();
 const Command& yarn_command();
 const Command& health_command();
 const Command& sample_command();
+const Command& batch_command();
 
 }  // namespace loomlight::client

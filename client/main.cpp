@@ -20,9 +20,9 @@ constexpr int kExitUsage = 2;
 
 const OptionSpec kHelpOption = {"help", "", "show this help"};
 
-std::array<const Command*, 9> commands() {
+std::array<const Command*, 10> commands() {
   return {&models_command(), &eval_command(), &sample_command(), &plot_command(), &slice_command(), &tab_command(),
-          &render_command(), &yarn_command(), &health_command()};
+          &render_command(), &batch_command(), &yarn_command(), &health_command()};
 }
 
 const Command* find_command(std::string_view name) {

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "client/commands.h"
+#include "client/job_requests.h"
 #include "client/material.h"
 #include "client/progress.h"
 #include "client/rpc.h"
@@ -91,6 +92,8 @@ void parse_size(const std::string& text, v1::RenderRequest& request) {
   request.set_height(parse_int(text.substr(x + 1), "--size height", 1, 1 << 20));
 }
 
+}  // namespace
+
 v1::RenderRequest render_request(const ParsedOptions& options, const std::string& out) {
   const v1::EvaluateRequest material = material_request(options);
   v1::RenderRequest request;
@@ -137,6 +140,8 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
   request.set_format(output_format(options, out));
   return request;
 }
+
+namespace {
 
 const char* format_name(v1::RenderFormat format) {
   switch (format) {

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "client/commands.h"
+#include "client/job_requests.h"
 #include "client/material.h"
 #include "client/rpc.h"
 
@@ -76,6 +77,20 @@ void set_grid(const ParsedOptions& options, v1::TableFormat format, v1::Tabulate
   }
 }
 
+}  // namespace
+
+v1::TabulateRequest tabulate_request(const ParsedOptions& options, const std::string& out) {
+  const v1::EvaluateRequest material = material_request(options);
+  v1::TabulateRequest request;
+  *request.mutable_material() = material.material();
+  request.set_precision(material.precision());
+  request.set_format(output_format(options, out));
+  set_grid(options, request.format(), request);
+  return request;
+}
+
+namespace {
+
 // "[#######.............]  35%  510,300 / 1,458,000 cells" redrawn in place on a terminal.
 class Progress {
  public:
@@ -120,12 +135,7 @@ const char* format_name(v1::TableFormat format) {
 int run_tab(const ParsedOptions& options) {
   const auto out = options.last("out");
   if (!out || out->empty()) throw UsageError("tab needs --out FILE (.raw, .exr, .binary or .csv)");
-  const v1::EvaluateRequest material = material_request(options);
-  v1::TabulateRequest request;
-  *request.mutable_material() = material.material();
-  request.set_precision(material.precision());
-  request.set_format(output_format(options, *out));
-  set_grid(options, request.format(), request);
+  const v1::TabulateRequest request = tabulate_request(options, *out);
 
   std::ofstream file(*out, std::ios::binary | std::ios::trunc);
   if (!file) throw std::runtime_error("cannot write " + *out);

@@ -10,6 +10,7 @@ packages=(
   libembree-dev
   libgtest-dev libgmock-dev
   fonts-dejavu-core
+  haproxy
 )
 missing=()
 for p in "${packages[@]}"; do

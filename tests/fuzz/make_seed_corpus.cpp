@@ -1,0 +1,225 @@
+// Writes the request fuzzer's seed corpus (tests/fuzz/corpus/request/seed_*): small valid requests of every RPC
+// and every model the registry has (found there, not named here), each option the checks branch on, and a few
+// requests that must be refused. Run it again when models or request fields are added:
+//
+//     build/tests/fuzz/make_seed_corpus tests/fuzz/corpus/request
+//
+// The WIF corpus (tests/fuzz/corpus/wif/) is hand-written drafts.
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "loomlight/v1/loomlight.pb.h"
+#include "server/models/registry.h"
+
+namespace loomlight {
+namespace {
+
+enum RpcByte : char { kEvaluate = 0, kSample = 1, kTabulate = 2, kRender = 3, kNoFp64 = 4 };
+
+std::filesystem::path out_dir;
+int written = 0;
+
+void Write(const std::string& name, char rpc, const google::protobuf::Message& request) {
+  std::string bytes(1, rpc);
+  request.AppendToString(&bytes);
+  std::ofstream(out_dir / ("seed_" + name), std::ios::binary) << bytes;
+  ++written;
+}
+
+// Two queries: a mirror-like pair above the surface, and one through the cloth (transmission, the back side).
+void AddPairs(google::protobuf::RepeatedField<float>* wi, google::protobuf::RepeatedField<float>* wo) {
+  for (float v : {0.0f, 0.6f, 0.8f, 0.0f, 0.0f, -1.0f}) wi->Add(v);
+  for (float v : {0.0f, -0.6f, 0.8f, 0.6f, 0.0f, 0.8f}) wo->Add(v);
+}
+
+v1::Material Preset(const std::string& name) {
+  v1::Material m;
+  m.set_preset(name);
+  return m;
+}
+
+// The model spelled out parameter by parameter (its defaults), with its text parameters left out.
+v1::Material Spelled(const models::Model& model) {
+  v1::Material m;
+  m.set_model(model.name());
+  for (const auto& [name, values] : model.DefaultValues()) {
+    v1::Param* p = m.add_params();
+    p->set_name(name);
+    p->mutable_values()->Add(values.begin(), values.end());
+  }
+  return m;
+}
+
+const char kTwillWif[] =
+    "[WIF]\nVersion=1.1\n[CONTENTS]\nWEAVING=yes\nTHREADING=yes\nTIEUP=yes\nTREADLING=yes\n[WEAVING]\nShafts=4\n"
+    "Treadles=4\n[THREADING]\n1=1\n2=2\n3=3\n4=4\n[TIEUP]\n1=1,2\n2=2,3\n3=3,4\n4=4,1\n[TREADLING]\n1=1\n2=2\n3=3\n4=4\n";
+
+void WriteEvaluateSeeds(const models::Registry& registry) {
+  const models::Model* surface = nullptr;      // a reflection model, for a curtain's front
+  const models::Model* transmitting = nullptr;  // a layer for the curtain
+  for (const auto& model : registry.models()) {
+    const std::string& first = model->presets().front().name;
+    for (const models::PresetSpec& preset : model->presets()) {
+      v1::EvaluateRequest r;
+      *r.mutable_material() = Preset(preset.name);
+      AddPairs(r.mutable_wi(), r.mutable_wo());
+      Write("evaluate_" + preset.name, kEvaluate, r);
+    }
+    v1::EvaluateRequest spelled;
+    *spelled.mutable_material() = Spelled(*model);
+    AddPairs(spelled.mutable_wi(), spelled.mutable_wo());
+    spelled.set_precision(v1::PRECISION_FP64);
+    if (!model->accuracy_knob().param.empty()) spelled.set_error_target(0.05);
+    Write("evaluate_" + model->name() + "_params_fp64", kEvaluate, spelled);
+    if (model->spatially_varying()) {
+      v1::EvaluateRequest r;
+      *r.mutable_material() = Preset(first);
+      AddPairs(r.mutable_wi(), r.mutable_wo());
+      for (float v : {0.25f, 0.5f, -3.0f, 7.5f}) r.add_uv(v);
+      Write("evaluate_" + first + "_uv", kEvaluate, r);
+    }
+    if (model->has_ambient()) {
+      v1::EvaluateRequest r;
+      *r.mutable_material() = Preset(first);
+      for (float v : {0.0f, 0.0f, 1.0f}) r.add_wo(v);
+      r.set_quantity(v1::QUANTITY_AMBIENT);
+      Write("evaluate_" + first + "_ambient", kEvaluate, r);
+    }
+    if (!model->fiber_axis_param().empty()) {
+      v1::EvaluateRequest r;
+      *r.mutable_material() = Preset(first);
+      AddPairs(r.mutable_wi(), r.mutable_wo());
+      for (float v : {1.0f, 0.0f, 0.0f, 0.0f, 0.6f, 0.8f}) r.add_fiber_axis(v);
+      Write("evaluate_" + first + "_fiber_axis", kEvaluate, r);
+    }
+    for (const models::ParamSpec& p : model->params())
+      if (p.type == models::ParamType::kText) {
+        v1::EvaluateRequest r;
+        *r.mutable_material() = Preset(first);
+        v1::Param* text = r.mutable_material()->add_params();
+        text->set_name(p.name);
+        text->set_text(kTwillWif);
+        AddPairs(r.mutable_wi(), r.mutable_wo());
+        Write("evaluate_" + first + "_text_" + p.name, kEvaluate, r);
+      }
+    if (model->transmission()) transmitting = model.get();
+    else if (model->fiber_axis_param().empty()) surface = model.get();
+  }
+  v1::EvaluateRequest curtain;
+  *curtain.mutable_material() = Preset(surface->presets().front().name);
+  *curtain.mutable_material()->mutable_transmission() = Preset(transmitting->presets().front().name);
+  AddPairs(curtain.mutable_wi(), curtain.mutable_wo());
+  Write("evaluate_curtain", kEvaluate, curtain);
+  // Refusals: a direction that is not unit, an unknown preset, fp64 on a device without it.
+  v1::EvaluateRequest bad = curtain;
+  bad.set_wo(0, 2.0f);
+  Write("evaluate_refused_direction", kEvaluate, bad);
+  bad = curtain;
+  bad.mutable_material()->set_preset("no such preset");
+  Write("evaluate_refused_preset", kEvaluate, bad);
+  bad = curtain;
+  bad.set_precision(v1::PRECISION_FP64);
+  Write("evaluate_refused_fp64", kEvaluate | kNoFp64, bad);
+}
+
+void WriteSampleSeeds(const models::Registry& registry) {
+  for (const auto& model : registry.models()) {
+    v1::SampleRequest r;
+    *r.mutable_material() = Preset(model->presets().front().name);
+    for (float v : {0.0f, 0.6f, 0.8f}) r.add_wo(v);
+    if (model->spatially_varying()) r.add_uv(0.5f), r.add_uv(0.25f);
+    r.set_seed(1);
+    Write("sample_" + model->name(), kSample, r);
+  }
+  v1::SampleRequest r;
+  *r.mutable_material() = Preset(registry.models().front()->presets().front().name);
+  for (float v : {0.0f, 0.6f, 0.8f, 0.0f, 0.0f, 1.0f}) r.add_wo(v);
+  for (float v : {0.1f, 0.5f, 0.9f, 0.0f, 0.25f, 0.999f}) r.add_random(v);
+  Write("sample_random", kSample, r);
+}
+
+void WriteTabulateSeeds(const models::Registry& registry) {
+  const std::string preset = registry.models().front()->presets().front().name;
+  v1::TabulateRequest r;
+  *r.mutable_material() = Preset(preset);
+  r.mutable_in_plane()->add_theta_i_deg(30);
+  r.mutable_in_plane()->add_theta_i_deg(-60);
+  r.mutable_in_plane()->set_theta_o_count(9);
+  r.mutable_in_plane()->set_full_circle(true);
+  r.set_format(v1::TABLE_FORMAT_CSV);
+  Write("tabulate_in_plane_csv", kTabulate, r);
+  r.mutable_anisotropic()->set_theta_i_count(2);
+  r.mutable_anisotropic()->set_phi_i_count(3);
+  r.mutable_anisotropic()->set_theta_o_count(4);
+  r.mutable_anisotropic()->set_phi_o_count(5);
+  r.set_format(v1::TABLE_FORMAT_EXR);
+  r.set_precision(v1::PRECISION_FP64);
+  Write("tabulate_anisotropic_exr", kTabulate, r);
+  r.mutable_merl()->set_phi_h_samples(2);
+  r.set_format(v1::TABLE_FORMAT_MERL);
+  Write("tabulate_merl", kTabulate, r);
+}
+
+void WriteRenderSeeds(const models::Registry& registry) {
+  const models::Model* fiber = nullptr;
+  const models::Model* patterned = nullptr;  // a model with a weave pattern, for the woven patch's layout
+  for (const auto& model : registry.models()) {
+    if (!model->fiber_axis_param().empty()) fiber = model.get();
+    models::weave::WeavePattern pattern;
+    if (model->WeavePatternOf(model->DefaultValues(), &pattern).empty()) patterned = model.get();
+  }
+  v1::RenderRequest r;
+  *r.mutable_material() = Preset(registry.models().front()->presets().front().name);
+  r.set_width(8);
+  r.set_height(6);
+  r.set_samples_per_pixel(1);
+  Write("render_sphere", kRender, r);
+  r.set_scene(v1::SCENE_CURTAIN);
+  r.set_format(v1::RENDER_FORMAT_EXR);
+  v1::RenderLight* light = r.add_lights();
+  light->set_type(v1::RenderLight::TYPE_POINT);
+  for (double v : {1.0, 2.0, 3.0}) light->add_position(v), light->add_rgb(v);
+  for (double v : {0.0, 0.0, 4.0}) r.mutable_camera()->add_position(v);
+  for (double v : {0.0, 0.0, 0.0}) r.mutable_camera()->add_look_at(v);
+  r.mutable_camera()->set_fov_deg(40);
+  Write("render_curtain_lights_camera", kRender, r);
+  r.clear_lights();
+  r.mutable_environment()->set_name("studio");
+  r.mutable_environment()->set_intensity(2);
+  r.set_scene(v1::SCENE_CYLINDERS);
+  Write("render_cylinders_environment", kRender, r);
+  v1::RenderRequest yarn;
+  *yarn.mutable_material() = Preset(fiber->presets().front().name);
+  yarn.set_scene(v1::SCENE_YARN);
+  yarn.set_width(8);
+  yarn.set_height(8);
+  yarn.set_samples_per_pixel(1);
+  yarn.set_fiber_detail(v1::FIBER_DETAIL_CORES);
+  Write("render_yarn", kRender, yarn);
+  yarn.set_scene(v1::SCENE_WOVEN_PATCH);
+  *yarn.mutable_woven()->mutable_weave() = Preset(patterned->presets().front().name);
+  yarn.mutable_woven()->set_repeats_u(1);
+  yarn.mutable_woven()->set_repeats_v(1);
+  Write("render_woven_patch", kRender, yarn);
+}
+
+}  // namespace
+}  // namespace loomlight
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::fprintf(stderr, "usage: %s OUTPUT_DIR\n", argv[0]);
+    return 2;
+  }
+  loomlight::out_dir = argv[1];
+  std::filesystem::create_directories(loomlight::out_dir);
+  const loomlight::models::Registry& registry = loomlight::models::Registry::Global();
+  loomlight::WriteEvaluateSeeds(registry);
+  loomlight::WriteSampleSeeds(registry);
+  loomlight::WriteTabulateSeeds(registry);
+  loomlight::WriteRenderSeeds(registry);
+  std::printf("%d seeds written to %s\n", loomlight::written, argv[1]);
+  return 0;
+}

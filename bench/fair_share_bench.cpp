@@ -40,19 +40,12 @@ struct Clients {
 
 std::unique_ptr<api::LoomlightServer> StartTlsServer(const std::string& tokens_file, bool tls) {
   api::ServerOptions options;
-  options.address = "127.0.0.1:0";
   if (tls) {
     options.access.tls_cert = kTls + "server.pem";
     options.access.tls_key = kTls + "server.key";
     options.access.tokens_file = tokens_file;  // may be "": TLS alone
   }
-  std::string error;
-  auto server = api::LoomlightServer::Start(options, &error);
-  if (!server) {
-    std::fprintf(stderr, "cannot start the server: %s\n", error.c_str());
-    std::exit(1);
-  }
-  return server;
+  return StartServer(options);
 }
 
 // Its own TCP connection (as Connect in the service section), over TLS with `token` when given.

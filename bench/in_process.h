@@ -10,6 +10,8 @@ namespace loomlight::bench {
 
 // A server on 127.0.0.1 (port 0), batching on or off; exits the benchmark when it cannot start.
 std::unique_ptr<api::LoomlightServer> StartServer(bool coalesce);
+// A server with these options on 127.0.0.1 (port 0; the address is replaced); exits when it cannot start.
+std::unique_ptr<api::LoomlightServer> StartServer(api::ServerOptions options);
 
 // A stub on its own channel: the local subchannel pool and a distinct argument keep gRPC from sharing
 // one TCP connection between clients.

@@ -19,8 +19,12 @@ using Stub = v1::Loomlight::Stub;
 
 std::unique_ptr<api::LoomlightServer> StartServer(bool coalesce) {
   api::ServerOptions options;
-  options.address = "127.0.0.1:0";
   options.batcher.coalesce = coalesce;
+  return StartServer(options);
+}
+
+std::unique_ptr<api::LoomlightServer> StartServer(api::ServerOptions options) {
+  options.address = "127.0.0.1:0";
   std::string error;
   auto server = api::LoomlightServer::Start(options, &error);
   if (!server) {

@@ -63,7 +63,7 @@ std::unique_ptr<Stub> ConnectAs(int port, const std::string& token, int connecti
   std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::SslCredentials(ssl);
   if (!token.empty())
     credentials = grpc::CompositeChannelCredentials(credentials, grpc::AccessTokenCredentials(token));
-  return v1::Loomlight::NewStub(grpc::CreateCustomChannel("localhost:" + std::to_string(port), credentials, args));
+  return v1::Loomlight::NewStub(grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), credentials, args));
 }
 
 // The largest tabulation a call may ask for: the microcylinder on the MERL grid at the phi_h samples that fit

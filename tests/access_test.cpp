@@ -46,7 +46,7 @@ std::shared_ptr<grpc::Channel> TlsChannel(int port, const std::string& token = "
   std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::SslCredentials(ssl);
   if (!token.empty())
     credentials = grpc::CompositeChannelCredentials(credentials, grpc::AccessTokenCredentials(token));
-  return grpc::CreateChannel("localhost:" + std::to_string(port), credentials);
+  return grpc::CreateChannel("127.0.0.1:" + std::to_string(port), credentials);
 }
 
 grpc::Status ListModels(const std::shared_ptr<grpc::Channel>& channel) {
@@ -284,7 +284,7 @@ TEST(Access, ClientConnectsWithCaAndToken) {
   options.access.tokens_file = kTls + "tokens.txt";
   auto server = testing::StartInProcessServer(options);
   ASSERT_TRUE(server);
-  const std::string target = "localhost:" + std::to_string(server->port());
+  const std::string target = "127.0.0.1:" + std::to_string(server->port());
   const std::string token_file = ::testing::TempDir() + "/loomlight-token-" + std::to_string(getpid());
   std::ofstream(token_file) << kEditorToken << "\n";
   std::string output;

@@ -1,6 +1,6 @@
 // A drawing surface for the client's plots (polar lobes, line charts, image views): lines, dashed lines,
-// text, pixel images, a title block and a legend, written as PNG through OpenImageIO. Lengths are in
-// "units" of 1/800 of the image width, so a plot looks the same at any size.
+// text, pixel images, a title block, a legend and line-chart axes, written as PNG through OpenImageIO.
+// Lengths are in "units" of 1/800 of the image width, so a plot looks the same at any size.
 #pragma once
 
 #include <array>
@@ -70,6 +70,21 @@ void draw_title(Canvas& canvas, const std::string& title, const std::vector<std:
                 double top_units = 0);
 // Colour swatches with their text in the top-right corner of that panel (nothing without a font).
 void draw_legend(Canvas& canvas, const std::vector<LegendEntry>& legend, double top_units = 0);
+// A line chart's plot rectangle: x from 0 at the left edge to x_max, y from 0 at the bottom to y_max.
+struct Axes {
+  Point top_left, bottom_right;
+  double x_max, y_max;
+  Point at(double x, double y) const {
+    return {top_left.x + (bottom_right.x - top_left.x) * x / x_max,
+            bottom_right.y - (bottom_right.y - top_left.y) * y / y_max};
+  }
+};
+// A frame around the axes' rectangle, ticks every x_step and y_step with their labels, optional grid lines,
+// and the axis titles (x below, y above the rectangle's top-left corner).
+void draw_axes(Canvas& canvas, const Axes& axes, double x_step, double y_step, const std::string& x_title,
+               const std::string& y_title, bool grid_lines);
+// A round tick step (1, 2 or 5 times a power of ten) giving about four to eight ticks up to `top`.
+double nice_step(double top);
 // printf-style formatting of one number, e.g. format_value("%.3g", v).
 std::string format_value(const char* format, double v);
 

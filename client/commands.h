@@ -2,7 +2,9 @@
 // UsageError -> 2, RpcError and other failures -> 1.
 #pragma once
 
+#include <cstddef>
 #include <string_view>
+#include <vector>
 
 #include "client/cli.h"
 
@@ -15,6 +17,12 @@ struct Command {
   std::string_view description;  // further help text, may be empty
   OptionList options;            // the command's own options (main adds --help and the connection options)
   int (*run)(const ParsedOptions& options);
+  // Arguments after the command's name and before or among its options (e.g. an asset's NAME), handed to
+  // `run` as ParsedOptions::positional; main rejects fewer or more.
+  std::size_t min_arguments = 0, max_arguments = 0;
+  // A family of commands (`loomlight btf create ...`): the word after the family's name picks a member, whose
+  // own name is "FAMILY WORD"; the family's `run` is not called.
+  std::vector<const Command*> members = {};
 };
 
 const Command& models_command();
@@ -27,5 +35,6 @@ const Command& yarn_command();
 const Command& health_command();
 const Command& sample_command();
 const Command& batch_command();
+const Command& btf_command();
 
 }  // namespace loomlight::client

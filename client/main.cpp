@@ -1,5 +1,6 @@
 // `loomlight`: command-line client of the Loomlight service.
 // Exit status: 0 success, 1 failure (server error, I/O), 2 usage error (bad options or malformed input).
+#include <algorithm>
 #include <array>
 #include <exception>
 #include <iomanip>
@@ -20,15 +21,33 @@ constexpr int kExitUsage = 2;
 
 const OptionSpec kHelpOption = {"help", "", "show this help"};
 
-std::array<const Command*, 10> commands() {
+std::array<const Command*, 11> commands() {
   return {&models_command(), &eval_command(), &sample_command(), &plot_command(), &slice_command(), &tab_command(),
-          &render_command(), &batch_command(), &yarn_command(), &health_command()};
+          &render_command(), &batch_command(), &yarn_command(), &btf_command(), &health_command()};
 }
 
-const Command* find_command(std::string_view name) {
-  for (const Command* c : commands())
-    if (c->name == name) return c;
-  return nullptr;
+// A family member's word: "create" of "btf create".
+std::string_view member_word(const Command& family, const Command& member) {
+  return member.name.substr(family.name.size() + 1);
+}
+
+// The command the words begin with, descending into a family while the next word names a member; `words`
+// loses the words used. `current` follows the descent, so that a usage error shows the nearest synopsis.
+const Command* resolve_command(std::span<const std::string>& words, const Command*& current) {
+  const auto all = commands();
+  const auto found = std::find_if(all.begin(), all.end(), [&](const Command* c) { return c->name == words[0]; });
+  if (found == all.end()) throw UsageError("unknown command '" + words[0] + "'");
+  current = *found;
+  words = words.subspan(1);
+  while (!current->members.empty() && !words.empty() && !words[0].starts_with('-')) {
+    const auto member = std::find_if(current->members.begin(), current->members.end(),
+                                     [&](const Command* c) { return member_word(*current, *c) == words[0]; });
+    if (member == current->members.end())
+      throw UsageError("unknown command '" + std::string(current->name) + " " + words[0] + "'");
+    current = *member;
+    words = words.subspan(1);
+  }
+  return current;
 }
 
 // The options accepted before any command: the connection and --help.
@@ -62,21 +81,26 @@ void print_command_help(std::ostream& out, const Command& command) {
   print_synopsis(out, command);
   out << '\n' << command.summary << ".\n";
   if (!command.description.empty()) out << '\n' << command.description << '\n';
+  if (!command.members.empty()) {
+    out << "\ncommands:\n";
+    for (const Command* m : command.members)
+      out << "  " << std::left << std::setw(8) << member_word(command, *m) << m->summary << '\n';
+    out << "\nRun 'loomlight " << command.name << " COMMAND --help' for the arguments and options of each.\n";
+    return;
+  }
   out << "\noptions:\n";
   print_option_help(out, command.options);
   out << "\ncommon options:\n";
   print_option_help(out, global_options());
 }
 
-// `loomlight help [COMMAND]`.
-int run_help(std::span<const std::string> args) {
+// `loomlight help [COMMAND [MEMBER]]`.
+int run_help(std::span<const std::string> args, const Command*& current) {
   if (args.empty()) {
     print_usage(std::cout);
     return 0;
   }
-  const Command* command = find_command(args[0]);
-  if (command == nullptr) throw UsageError("unknown command '" + args[0] + "'");
-  print_command_help(std::cout, *command);
+  print_command_help(std::cout, *resolve_command(args, current));
   return 0;
 }
 
@@ -88,7 +112,10 @@ int run_command(const Command& command, const ParsedOptions& globals, std::span<
     print_command_help(std::cout, command);
     return 0;
   }
-  if (!options.positional.empty()) throw UsageError("unexpected argument '" + options.positional[0] + "'");
+  if (!command.members.empty()) throw UsageError("'" + std::string(command.name) + "' needs a command");
+  if (options.positional.size() > command.max_arguments)
+    throw UsageError("unexpected argument '" + options.positional[command.max_arguments] + "'");
+  if (options.positional.size() < command.min_arguments) throw UsageError("missing arguments");
   return command.run(options);
 }
 
@@ -99,12 +126,10 @@ int run(const std::vector<std::string>& args, const Command*& current) {
     print_usage(std::cout);
     return 0;
   }
-  const std::string& name = globals.positional[0];
-  const std::span<const std::string> rest(globals.positional.begin() + 1, globals.positional.end());
-  if (name == "help") return run_help(rest);
-  current = find_command(name);
-  if (current == nullptr) throw UsageError("unknown command '" + name + "'");
-  return run_command(*current, globals, rest);
+  std::span<const std::string> rest(globals.positional);
+  if (rest[0] == "help") return run_help(rest.subspan(1), current);
+  const Command& command = *resolve_command(rest, current);
+  return run_command(command, globals, rest);
 }
 
 }  // namespace

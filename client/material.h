@@ -9,9 +9,9 @@
 namespace loomlight::client {
 
 // The synopsis of the material options; a macro so that command synopses can embed it in their literals.
-#define LOOMLIGHT_MATERIAL_SYNOPSIS "(--preset NAME | --model NAME) [--param NAME=V1[,V2...]]... [--fp64]"
+#define LOOMLIGHT_MATERIAL_SYNOPSIS "(--preset NAME | --model NAME | --btf ASSET) [--param NAME=V1[,V2...]]... [--fp64]"
 
-// --preset, --model, --param (repeatable), --fp64.
+// --preset, --model, --btf, --param (repeatable), --fp64.
 const OptionList& material_options();
 
 // An EvaluateRequest carrying the material and precision from the options, without directions yet.
@@ -24,6 +24,9 @@ loomlight::v1::Param parse_param(const std::string& text, const std::string& opt
 // The bytes of a file on the client's machine (sent to the server as data); a UsageError naming `option`
 // when it cannot be read.
 std::string read_local_file(const std::string& path, const std::string& option);
+
+// Writes the bytes to a file on the client's machine; std::runtime_error when it cannot.
+void write_local_file(const std::string& path, const std::string& bytes);
 
 // A short human name of the material, e.g. "silk_shot" or "microcylinder (eta=1.46)", for titles.
 std::string material_label(const loomlight::v1::Material& material);

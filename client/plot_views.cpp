@@ -91,45 +91,10 @@ std::vector<float> tone_map(const std::vector<double>& rgb, double exposure) {
   return out;
 }
 
-// A round tick step (1, 2 or 5 times a power of ten) giving about four to eight ticks up to `top`.
-double nice_step(double top) {
-  const double raw = top / 5, power = std::pow(10.0, std::floor(std::log10(raw)));
-  for (double m : {1.0, 2.0, 5.0})
-    if (m * power >= raw) return m * power;
-  return 10 * power;
-}
-
 std::string degrees(double v) { return format_value("%g deg", v); }
 
 std::string material_note(const Common& c, const std::string& what) {
   return material_label(c.material.material()) + ", " + precision_name(c.material.precision()) + ": " + what;
-}
-
-// Axes around a plot rectangle: a frame, ticks with labels on both axes, and the axis titles.
-struct Axes {
-  Point top_left, bottom_right;
-  double x_max, y_max;  // x from 0 (left), y from 0 (bottom)
-  Point at(double x, double y) const {
-    return {top_left.x + (bottom_right.x - top_left.x) * x / x_max,
-            bottom_right.y - (bottom_right.y - top_left.y) * y / y_max};
-  }
-};
-
-void draw_axes(Canvas& canvas, const Axes& a, double x_step, double y_step, const std::string& x_title,
-               const std::string& y_title, bool grid_lines) {
-  const double u = canvas.unit();
-  for (double x = 0; x <= a.x_max + 1e-9; x += x_step) {
-    if (grid_lines) canvas.line(a.at(x, 0), a.at(x, a.y_max), kGrid, kGridWidth);
-    canvas.text({a.at(x, 0).x, a.bottom_right.y + 14 * u}, format_value("%g", x), kLabelFont, kFaintText);
-  }
-  for (double y = 0; y <= a.y_max + 1e-9; y += y_step) {
-    if (grid_lines) canvas.line(a.at(0, y), a.at(a.x_max, y), kGrid, kGridWidth);
-    canvas.text({a.top_left.x - 8 * u, a.at(0, y).y}, format_value("%.3g", y), kLabelFont, kFaintText, Align::kEnd);
-  }
-  const Point corners[4] = {a.top_left, {a.bottom_right.x, a.top_left.y}, a.bottom_right, {a.top_left.x, a.bottom_right.y}};
-  for (int i = 0; i < 4; ++i) canvas.line(corners[i], corners[(i + 1) % 4], kRim, kGridWidth);
-  canvas.text({(a.top_left.x + a.bottom_right.x) / 2, a.bottom_right.y + 36 * u}, x_title, kLabelFont, kText);
-  canvas.text({a.top_left.x, a.top_left.y - 12 * u}, y_title, kLabelFont, kText, Align::kStart);
 }
 
 // ---- theta_h / theta_d image slice (BRDF Explorer's "image slice") ----

@@ -297,6 +297,53 @@ void Client::yarn_geometry(const v1::YarnGeometryRequest& request,
   read_stream(context, *stub_->YarnGeometry(&context, request), on_chunk);
 }
 
+void Client::create_btf(const v1::CreateBtfRequest& request,
+                        const std::function<void(const v1::CreateBtfProgress&)>& on_progress) {
+  grpc::ClientContext context;
+  prepare(context);
+  read_stream(context, *stub_->CreateBtf(&context, request), on_progress);
+}
+
+v1::BtfAssetInfo Client::upload_btf(const v1::UploadBtfHeader& header,
+                                    const std::function<bool(v1::BtfImage&)>& next_image) {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::BtfAssetInfo asset;
+  const auto writer = stub_->UploadBtf(&context, &asset);
+  v1::UploadBtfMessage message;
+  *message.mutable_header() = header;
+  // Write fails once the server has ended the call (a bad header, a bad image): Finish then says why.
+  bool open = writer->Write(message);
+  try {
+    for (message.clear_part(); open && next_image(*message.mutable_image()); message.clear_part())
+      open = writer->Write(message);
+  } catch (...) {
+    context.TryCancel();  // the server must not store a partial upload
+    writer->Finish();
+    throw;
+  }
+  if (open) writer->WritesDone();
+  check(writer->Finish());
+  return asset;
+}
+
+v1::ListBtfsResponse Client::list_btfs() {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::ListBtfsResponse response;
+  check(stub_->ListBtfs(&context, v1::ListBtfsRequest(), &response));
+  return response;
+}
+
+void Client::delete_btf(const std::string& name) {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::DeleteBtfRequest request;
+  request.set_name(name);
+  v1::DeleteBtfResponse response;
+  check(stub_->DeleteBtf(&context, request, &response));
+}
+
 void print_timing(std::ostream& out, const v1::EvaluateResponse& response, int queries) {
   out << "model=" << response.model() << " precision=" << precision_name(response.precision())
       << " queries=" << queries << " queue_seconds=" << response.queue_seconds()

@@ -55,6 +55,14 @@ class Client {
   // Streams a yarn's fiber curves: `on_chunk` sees the summary first, then every chunk of curves in order.
   void yarn_geometry(const v1::YarnGeometryRequest& request,
                      const std::function<void(const v1::YarnGeometryChunk&)>& on_chunk);
+  // Streams the making of a BTF asset: `on_progress` sees every update and, last, the one with the asset.
+  void create_btf(const v1::CreateBtfRequest& request,
+                  const std::function<void(const v1::CreateBtfProgress&)>& on_progress);
+  // Uploads a BTF's images: the header, then one image per call of `next_image` until it returns false.
+  // Returns the stored asset; throws RpcError when the server refuses, also part way through.
+  v1::BtfAssetInfo upload_btf(const v1::UploadBtfHeader& header, const std::function<bool(v1::BtfImage&)>& next_image);
+  v1::ListBtfsResponse list_btfs();
+  void delete_btf(const std::string& name);
 
  private:
   void prepare(grpc::ClientContext& context) const;

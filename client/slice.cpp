@@ -3,8 +3,6 @@
 #include <cctype>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
-#include <stdexcept>
 #include <string>
 
 #include "client/commands.h"
@@ -82,12 +80,6 @@ v1::TextureSliceRequest slice_request(const ParsedOptions& options, const std::s
   return request;
 }
 
-void write_file(const std::string& path, const std::string& bytes) {
-  std::ofstream file(path, std::ios::binary);
-  file.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-  if (!file) throw std::runtime_error("cannot write " + path);
-}
-
 int run_slice(const ParsedOptions& options) {
   const auto out = options.last("out");
   if (!out || out->empty()) throw UsageError("slice needs --out FILE (.png, .exr or .raw)");
@@ -95,7 +87,7 @@ int run_slice(const ParsedOptions& options) {
 
   Client client(options);
   const v1::TextureSliceResponse response = client.texture_slice(request);
-  write_file(*out, response.image());
+  write_local_file(*out, response.image());
   const auto mean = [&](int c) { return response.mean_size() == 3 ? response.mean(c) : 0.0; };
   std::printf("%ux%u %s, %u samples/pixel: mean RGB %.6g %.6g %.6g (1/sr), exposure %.4g, %.3f s (kernel %.3f s) -> %s\n",
               response.width(), response.height(), format_name(response.format()),

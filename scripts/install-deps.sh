@@ -8,6 +8,7 @@ packages=(
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev
   libembree-dev
+  libeigen3-dev
   libgtest-dev libgmock-dev
   fonts-dejavu-core
   haproxy

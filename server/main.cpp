@@ -38,6 +38,9 @@ void Usage() {
                "  --no-batching              one request per launch\n"
                "  --metrics-address HOST:PORT  serve Prometheus metrics at http://HOST:PORT/metrics (default: off)\n"
                "  --environment-dir DIR      environment maps clients may name (EXR/HDR files; default: none)\n"
+               "  --data-dir DIR             BTF assets live under DIR/btf (default $XDG_STATE_HOME/loomlight,\n"
+               "                             else ~/.local/state/loomlight)\n"
+               "  --btf-store-mb N           all BTF assets together, in MiB (default 2048)\n"
                "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
                "  --max-long-calls N         TextureSlice, Tabulate and Render calls at once (default 16)\n"
                "  --max-long-calls-per-client N  of them, one client's (its token's name, else its connection;\n"
@@ -83,6 +86,7 @@ volatile std::sig_atomic_t g_reload = 0;
 
 int main(int argc, char** argv) {
   loomlight::api::ServerOptions options;
+  options.data_dir = loomlight::assets::BtfStore::DefaultDataDir();
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&]() -> std::string {
@@ -144,6 +148,8 @@ int main(int argc, char** argv) {
     else if (arg == "--no-batching") options.batcher.coalesce = false;
     else if (arg == "--metrics-address") options.metrics_address = value();
     else if (arg == "--environment-dir") options.environment_dir = value();
+    else if (arg == "--data-dir") options.data_dir = value();
+    else if (arg == "--btf-store-mb") options.btf_store_bytes = mebibytes();
     else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
     else if (arg == "--max-long-calls") options.limits.max_long_running_calls = positive();
     else if (arg == "--max-long-calls-per-client") options.limits.max_long_calls_per_client = positive();

@@ -93,7 +93,8 @@ TEST_F(ApiTest, ListModelsDescribesSchemaAndPresets) {
   for (int i = 0; i < resp.models_size(); ++i) {
     EXPECT_EQ(resp.models(i).name(), registered[i]->name());
     EXPECT_EQ(resp.models(i).presets_size(), int(registered[i]->presets().size()));
-    EXPECT_EQ(resp.models(i).spatially_varying(), resp.models(i).name() == "woven") << resp.models(i).name();
+    EXPECT_EQ(resp.models(i).spatially_varying(), resp.models(i).name() == "woven" || resp.models(i).name() == "btf")
+        << resp.models(i).name();
   }
   const v1::ModelInfo& m = resp.models(0);
   EXPECT_EQ(m.name(), "microcylinder");

@@ -368,8 +368,11 @@ void CheckPreset(const Model& model, const PresetSpec& preset) {
   EXPECT_EQ(resolved.size(), value_params) << "resolved values for parameters outside the schema";
   ASSERT_EQ(model.Validate(resolved), "");
   const PackedMaterial m = model.Pack(resolved);
-  ASSERT_FALSE(m.data.empty());
-  for (size_t i = 0; i < m.data.size(); ++i) ASSERT_TRUE(std::isfinite(m.data[i])) << "packed value " << i;
+  ASSERT_GT(m.size(), 0u);
+  for (size_t i = 0; i < m.size(); ++i) {
+    ASSERT_TRUE(std::isfinite(m.values64()[i])) << "packed value " << i;
+    ASSERT_EQ(float(m.values64()[i]), m.values32()[i]) << "packed value " << i;
+  }
 }
 
 // The schema is the model's, so this suite runs once per model (over all its presets): fewer test processes.

@@ -29,6 +29,10 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   s->environments_ = assets::EnvironmentMaps::Open(options.environment_dir, options.environment_cache_bytes,
                                                    s->memory_.get(), error);
   if (!s->environments_) return nullptr;
+  if (!options.data_dir.empty()) {
+    s->btf_store_ = assets::BtfStore::Open(options.data_dir, options.btf_store_bytes, error);
+    if (!s->btf_store_) return nullptr;
+  }
   s->batcher_ = std::make_unique<batching::Batcher>(s->runtime_.get(), options.batcher);
   ServiceDeps deps;
   deps.registry = &registry;
@@ -38,6 +42,7 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   deps.memory = s->memory_.get();
   deps.long_calls = s->long_calls_.get();
   deps.environments = s->environments_.get();
+  deps.btf_store = s->btf_store_.get();
   s->service_ = std::make_unique<LoomlightService>(deps, options.limits);
   if (!options.metrics_address.empty()) {
     *error = s->metrics_->Serve(options.metrics_address, options.access, s->tokens_);

@@ -13,6 +13,7 @@
 
 #include "server/api/access.h"
 #include "server/api/service.h"
+#include "server/assets/btf_store.h"
 #include "server/batching/batcher.h"
 #include "server/runtime/cl_runtime.h"
 
@@ -26,6 +27,8 @@ struct ServerOptions {
   std::string metrics_address;  // "host:port" for Prometheus' /metrics ("" = none; port 0 picks one)
   ServiceLimits limits;
   std::string environment_dir;                 // maps clients may name ("" = none)
+  std::string data_dir;                        // BTF assets live under DATA_DIR/btf ("" = none: no asset RPCs)
+  uint64_t btf_store_bytes = uint64_t{2} << 30;  // all BTF assets together (float32 tables)
   size_t environment_cache_bytes = size_t{256} << 20;  // decoded maps kept (within the memory budget)
   size_t grpc_memory_bytes = size_t{512} << 20;        // gRPC's own buffers (its resource quota)
   // Health reports NOT_SERVING while the host worker, the asset loader or a kernel launch has been busy
@@ -62,6 +65,7 @@ class LoomlightServer {
   std::unique_ptr<Metrics> metrics_;
   std::unique_ptr<batching::Budget> memory_, long_calls_;
   std::unique_ptr<assets::EnvironmentMaps> environments_;
+  std::unique_ptr<assets::BtfStore> btf_store_;
   std::unique_ptr<LoomlightService> service_;
   std::unique_ptr<grpc::Server> server_;
   std::shared_ptr<TokenAuthProcessor> tokens_;  // null when tokens are off

@@ -5,6 +5,7 @@
 #include <mutex>
 
 #include "server/api/admission.h"
+#include "server/api/btf_rpc.h"
 #include "server/api/job_status.h"
 #include "server/api/render_rpc.h"
 #include "server/api/sample_rpc.h"
@@ -342,6 +343,29 @@ grpc::ServerUnaryReactor* LoomlightService::Sample(grpc::CallbackServerContext* 
                                                    const v1::SampleRequest* request, v1::SampleResponse* response) {
   if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "Sample", batching::Clock::now(), s);
   return HandleSample(deps_, &preparer_, context, request, response);
+}
+
+
+grpc::ServerWriteReactor<v1::CreateBtfProgress>* LoomlightService::CreateBtf(grpc::CallbackServerContext* context,
+                                                                            const v1::CreateBtfRequest* request) {
+  if (grpc::Status s = Serving(); !s.ok()) return new RejectedStream<v1::CreateBtfProgress>(std::move(s));
+  return HandleCreateBtf(deps_, context, request);
+}
+
+grpc::ServerUnaryReactor* LoomlightService::ListBtfs(grpc::CallbackServerContext* context,
+                                                     const v1::ListBtfsRequest*, v1::ListBtfsResponse* response) {
+  const auto received = batching::Clock::now();
+  grpc::Status s = Serving();
+  if (s.ok()) s = HandleListBtfs(deps_, response);
+  return Reply(context, "ListBtfs", received, std::move(s));
+}
+
+grpc::ServerUnaryReactor* LoomlightService::DeleteBtf(grpc::CallbackServerContext* context,
+                                                      const v1::DeleteBtfRequest* request, v1::DeleteBtfResponse*) {
+  const auto received = batching::Clock::now();
+  grpc::Status s = Serving();
+  if (s.ok()) s = HandleDeleteBtf(deps_, *request);
+  return Reply(context, "DeleteBtf", received, std::move(s));
 }
 
 }  // namespace loomlight::api

@@ -9,6 +9,7 @@
 #include "server/api/admission.h"
 #include "server/api/host_worker.h"
 #include "server/api/metrics.h"
+#include "server/assets/btf_store.h"
 #include "server/assets/environment_maps.h"
 #include "server/batching/batcher.h"
 #include "server/batching/budget.h"
@@ -54,6 +55,7 @@ struct ServiceDeps {
   batching::Budget* long_calls = nullptr;  // slots of long-running calls
   ClientSlots* client_long_calls = nullptr;  // and each client's share of them
   assets::EnvironmentMaps* environments = nullptr;
+  assets::BtfStore* btf_store = nullptr;  // null: the server keeps no BTF assets
 };
 
 // Packs a material its handler checked with MaterialCache::Peek; on a worker, never on a gRPC thread (packing
@@ -108,6 +110,13 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // Delegates to HandleSample (server/api/sample_rpc.h), which works on the preparer.
   grpc::ServerUnaryReactor* Sample(grpc::CallbackServerContext* context, const v1::SampleRequest* request,
                                    v1::SampleResponse* response) override;
+  // Delegate to server/api/btf_rpc.h.
+  grpc::ServerWriteReactor<v1::CreateBtfProgress>* CreateBtf(grpc::CallbackServerContext* context,
+                                                            const v1::CreateBtfRequest* request) override;
+  grpc::ServerUnaryReactor* ListBtfs(grpc::CallbackServerContext* context, const v1::ListBtfsRequest* request,
+                                     v1::ListBtfsResponse* response) override;
+  grpc::ServerUnaryReactor* DeleteBtf(grpc::CallbackServerContext* context, const v1::DeleteBtfRequest* request,
+                                      v1::DeleteBtfResponse* response) override;
 
  private:
   // Finishes a call on the default reactor and records it.

@@ -207,6 +207,14 @@ void MaterialCache::Insert(std::string key, std::shared_ptr<const Entry> entry, 
   if (!alias) ++entries_;
 }
 
+void MaterialCache::Clear() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  map_.clear();
+  order_.clear();
+  bytes_ = 0;
+  entries_ = 0;
+}
+
 void MaterialCache::EvictUntil(size_t incoming) {
   while (!order_.empty() && bytes_ + incoming > capacity_bytes_) {
     auto last = map_.find(order_.back());

@@ -44,6 +44,9 @@ class MaterialCache {
   // Counts an entry's sampling table (PreparedMaterial::Sampler, built on its first use by a render or a Sample
   // call, which then call this) in its bytes, evicting the least recently used entries if that passes the bound.
   void ChargeSampler(const Entry& entry);
+  // Drops every entry: what a material names changed (a BTF asset was replaced or deleted), so neither a
+  // request's bytes nor its resolved values may find the old packing.
+  void Clear();
   size_t bytes() const;
   size_t entries() const;  // packed materials (not counting the request-bytes aliases of the fast path)
 

@@ -54,21 +54,21 @@ const host::HostKernel& Model::EvalKernel(const float** uv) const {
 void Model::ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                           double* f) const {
   const host::HostKernel& kernel = EvalKernel(&uv);
-  host::RunReference(kernel, m.data.data(), m.uniform, wi, wo, uv, n, f);
+  host::RunReference(kernel, m.values64(), m.uniform, wi, wo, uv, n, f);
 }
 
 void Model::NativeEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,
                        float* f) const {
   const host::HostKernel& kernel = EvalKernel(&uv);
-  host::RunNative(kernel, m.data32.data(), m.uniform, wi, wo, uv, n, f);
+  host::RunNative(kernel, m.values32(), m.uniform, wi, wo, uv, n, f);
 }
 
 void Model::ReferenceAmbient(const PackedMaterial& m, const float* wo, size_t n, double* a) const {
-  host::RunReference(HostKernelOf(*this, spec().ambient_function), m.data.data(), m.uniform, wo, wo, nullptr, n, a);
+  host::RunReference(HostKernelOf(*this, spec().ambient_function), m.values64(), m.uniform, wo, wo, nullptr, n, a);
 }
 
 void Model::NativeAmbient(const PackedMaterial& m, const float* wo, size_t n, float* a) const {
-  host::RunNative(HostKernelOf(*this, spec().ambient_function), m.data32.data(), m.uniform, wo, wo, nullptr, n, a);
+  host::RunNative(HostKernelOf(*this, spec().ambient_function), m.values32(), m.uniform, wo, wo, nullptr, n, a);
 }
 
 void Model::DirectTransmittance(const PackedMaterial& m, const float* wo, size_t n, double* t) const {
@@ -78,7 +78,7 @@ void Model::DirectTransmittance(const PackedMaterial& m, const float* wo, size_t
     return;
   }
   std::vector<double> rgb(3 * n);
-  host::RunReference(HostKernelOf(*this, name), m.data.data(), m.uniform, wo, wo, nullptr, n, rgb.data());
+  host::RunReference(HostKernelOf(*this, name), m.values64(), m.uniform, wo, wo, nullptr, n, rgb.data());
   for (size_t q = 0; q < n; ++q) t[q] = rgb[3 * q];
 }
 

@@ -45,10 +45,34 @@ struct PresetSpec {
 // Device layout of one material, packed once per precision: `data` in double (fp64 kernels, the reference),
 // `data32` the same rounded once to float (fp32 kernels, the native baseline). Its size may depend on the
 // parameters (a woven material carries its pattern); a launch concatenates materials.
+// A data-driven material's kernel layout (a BTF asset: tens of MB), shared by every material naming it instead
+// of copied into each: float as stored, double made from it on first use (fp64 kernels, the reference).
+class PackedTables {
+ public:
+  explicit PackedTables(std::vector<float> values) : data32_(std::move(values)) {}
+  const std::vector<float>& data32() const { return data32_; }
+  const std::vector<double>& data() const {
+    std::call_once(data_once_, [this] { data_.assign(data32_.begin(), data32_.end()); });
+    return data_;
+  }
+  size_t size() const { return data32_.size(); }
+
+ private:
+  std::vector<float> data32_;
+  mutable std::once_flag data_once_;
+  mutable std::vector<double> data_;
+};
+
 struct PackedMaterial {
   std::vector<double> data;
   std::vector<float> data32;
   int uniform = 0;  // launch-uniform integer (e.g. tangent samples); only equal ones share a launch
+  std::shared_ptr<const PackedTables> tables;  // when set, the layout is the tables' (data, data32 empty)
+
+  // The layout in either precision, wherever it is held.
+  size_t size() const { return tables ? tables->size() : data.size(); }
+  const double* values64() const { return tables ? tables->data().data() : data.data(); }
+  const float* values32() const { return tables ? tables->data32().data() : data32.data(); }
 };
 
 // A model's kernels: the entry file under kernels/ and its kernel functions, all with the signature of

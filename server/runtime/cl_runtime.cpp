@@ -46,6 +46,9 @@ std::vector<float> Repeat(const float* v, size_t k, size_t n) {
 std::string ClError(const char* what, cl_int err) { return std::string(what) + " failed (OpenCL error " + std::to_string(err) + ")"; }
 
 // Releases OpenCL memory objects at scope exit.
+// Materials from this size on are not copied into a launch's buffers (see Run).
+constexpr size_t kLargeMaterialBytes = size_t{1} << 20;
+
 struct Buffers {
   std::vector<cl_mem> mems;
   ~Buffers() {
@@ -334,7 +337,7 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   size_t values = 0;
   for (const models::PackedMaterial* m : *a.materials) {
     offset.push_back(values);
-    values += m->data.size();
+    values += m->size();
   }
   if (values > size_t(INT32_MAX)) {
     *error = "materials of one launch exceed 2^31 values";
@@ -383,14 +386,14 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   const size_t real_size = a.fp64 ? sizeof(double) : sizeof(float);
   // One material is read where it lies; several are concatenated once.
   std::vector<char> concatenated;
-  const void* materials_ptr = a.fp64 ? static_cast<const void*>(a.materials->front()->data.data())
-                                     : static_cast<const void*>(a.materials->front()->data32.data());
+  const void* materials_ptr = a.fp64 ? static_cast<const void*>(a.materials->front()->values64())
+                                     : static_cast<const void*>(a.materials->front()->values32());
   if (a.materials->size() > 1) {
     concatenated.resize(values * real_size);
     for (size_t m = 0; m < a.materials->size(); ++m) {
       const models::PackedMaterial& p = *(*a.materials)[m];
-      const void* from = a.fp64 ? static_cast<const void*>(p.data.data()) : static_cast<const void*>(p.data32.data());
-      std::memcpy(concatenated.data() + offset[m] * real_size, from, p.data.size() * real_size);
+      const void* from = a.fp64 ? static_cast<const void*>(p.values64()) : static_cast<const void*>(p.values32());
+      std::memcpy(concatenated.data() + offset[m] * real_size, from, p.size() * real_size);
     }
     materials_ptr = concatenated.data();
   }
@@ -411,7 +414,22 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
     b.mems.push_back(m);
     return m;
   };
-  cl_mem mat = make(std::max<size_t>(1, values) * real_size, values ? materials_ptr : nullptr, CL_MEM_READ_ONLY);
+  // A large material (a BTF asset, tens of MB) is read where it lies (on a CPU device, without a copy; the
+  // launch ends before Run returns): copying it per launch would cost more than a small launch's kernel.
+  const size_t material_bytes = std::max<size_t>(1, values) * real_size;
+  cl_mem mat = nullptr;
+  if (material_bytes >= kLargeMaterialBytes && a.materials->size() == 1) {
+    mat = clCreateBuffer(target.context, CL_MEM_READ_ONLY | CL_MEM_USE_HOST_PTR, material_bytes,
+                         const_cast<void*>(materials_ptr), &err);
+    b.mems.push_back(mat);
+    ++next;  // its staging slot stays unused
+    if (err != CL_SUCCESS) {
+      *error = ClError("clCreateBuffer", err);
+      return false;
+    }
+  } else {
+    mat = make(material_bytes, values ? materials_ptr : nullptr, CL_MEM_READ_ONLY);
+  }
   cl_mem idx = make(group_offset.size() * sizeof(int), group_offset.data(), CL_MEM_READ_ONLY);
   cl_mem bwi = make(wi.size() * sizeof(float), wi.data(), CL_MEM_READ_ONLY);
   cl_mem bwo = make(wo.size() * sizeof(float), wo.data(), CL_MEM_READ_ONLY);

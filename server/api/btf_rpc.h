@@ -1,0 +1,31 @@
+// The BTF asset RPCs (README "BTF assets"): CreateBtf synthesises a BTF from a spatially varying material on a
+// direction grid (view by view, as bulk batcher jobs), compresses it (models::btf::Compress, on the geometry
+// worker) and stores it (assets::BtfStore), streaming progress; ListBtfs and DeleteBtf. Requests are checked
+// on the gRPC thread; asset names are checked before anything touches the store.
+#pragma once
+
+#include <cstddef>
+
+#include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/service.h"
+
+namespace loomlight::api {
+
+// Documented limits (README "BTF assets").
+constexpr uint32_t kDefaultBtfTexels = 64;
+constexpr uint32_t kMaxBtfTexels = 128;  // per side: 81 x 81 images of 128 x 128 are 1.3 GB in float
+constexpr uint32_t kDefaultBtfComponents = 16;
+// Bytes a CreateBtf call holds per image value: the images in float (4), a view's PCA in double (its n x d
+// matrix and the d x K basis: ~16 per value of one view, small against all views), rounded up.
+constexpr size_t kBtfBytesPerImageValue = 6;
+
+grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDeps& deps,
+                                                                 grpc::CallbackServerContext* context,
+                                                                 const v1::CreateBtfRequest* request);
+grpc::Status HandleListBtfs(const ServiceDeps& deps, v1::ListBtfsResponse* response);
+grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const v1::DeleteBtfRequest& request);
+
+// The compression options of a request; "" or "compression.field: reason".
+std::string CompressionOf(const v1::BtfCompression& c, models::btf::CompressionOptions* out);
+
+}  // namespace loomlight::api

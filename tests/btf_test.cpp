@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <random>
 
 #include "server/assets/btf_store.h"
@@ -455,6 +456,129 @@ TEST_F(BtfRpcTest, BadRequestsAreRefusedNamingTheField) {
   s = stub->Evaluate(&ctx, r, &out);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_NE(s.error_message().find("nothing_here"), std::string::npos) << s.error_message();
+}
+
+// The images a client would upload: TextureSlice of the woven twill at every grid pair, as EXR (exact floats).
+std::vector<v1::BtfImage> SliceImages(v1::Loomlight::Stub& stub, const DirectionGrid& grid, int texels) {
+  std::vector<v1::BtfImage> images;
+  for (size_t v = 0; v < grid.size(); ++v)
+    for (size_t l = 0; l < grid.size(); ++l) {
+      double dv[3], dl[3];
+      grid.Direction(v, dv);
+      grid.Direction(l, dl);
+      v1::TextureSliceRequest r;
+      r.mutable_material()->set_preset("cotton_twill");
+      for (int c = 0; c < 3; ++c) r.add_wi(float(dl[c])), r.add_wo(float(dv[c]));
+      r.set_width(texels);
+      r.set_height(texels);
+      r.set_format(v1::IMAGE_FORMAT_EXR);
+      v1::TextureSliceResponse out;
+      grpc::ClientContext ctx;
+      EXPECT_TRUE(stub.TextureSlice(&ctx, r, &out).ok());
+      v1::BtfImage& image = images.emplace_back();
+      for (int c = 0; c < 3; ++c) image.add_view(float(dv[c])), image.add_light(float(dl[c]));
+      image.set_data(out.image());
+    }
+  return images;
+}
+
+v1::UploadBtfHeader UploadHeader(const std::string& name, int texels) {
+  v1::UploadBtfHeader h;
+  h.set_name(name);
+  *h.mutable_grid() = TwillRequest("x").grid();
+  h.set_width(texels);
+  h.set_height(texels);
+  h.mutable_compression()->set_max_components(12);
+  return h;
+}
+
+grpc::Status Upload(v1::Loomlight::Stub& stub, const v1::UploadBtfHeader* header, const std::vector<v1::BtfImage>& images,
+                    v1::BtfAssetInfo* info) {
+  grpc::ClientContext ctx;
+  auto writer = stub.UploadBtf(&ctx, info);
+  v1::UploadBtfMessage m;
+  if (header) {
+    *m.mutable_header() = *header;
+    writer->Write(m);
+  }
+  for (const v1::BtfImage& image : images) {
+    *m.mutable_image() = image;
+    if (!writer->Write(m)) break;  // the server ended the call
+  }
+  writer->WritesDone();
+  return writer->Finish();
+}
+
+TEST_F(BtfRpcTest, UploadedImagesGiveTheServerSynthesisedAsset) {
+  auto server = Start();
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  v1::BtfAssetInfo made, uploaded;
+  v1::CreateBtfRequest create = TwillRequest("twill_made");
+  ASSERT_TRUE(Create(*stub, create, &made).ok());
+  DirectionGrid grid;
+  ASSERT_EQ(assets::GridOf(create.grid(), "grid", &grid), "");
+  std::vector<v1::BtfImage> images = SliceImages(*stub, grid, 16);
+  std::reverse(images.begin(), images.end());  // any order
+  const v1::UploadBtfHeader header = UploadHeader("twill_uploaded", 16);
+  grpc::Status s = Upload(*stub, &header, images, &uploaded);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_EQ(uploaded.source(), "upload");
+  ASSERT_EQ(uploaded.errors_size(), made.errors_size());
+  EXPECT_EQ(uploaded.peak(), made.peak());
+  for (int c = 0; c < made.errors_size(); ++c)
+    EXPECT_NEAR(uploaded.errors(c).rmse(), made.errors(c).rmse(), 1e-9 * made.peak()) << c;
+  // Evaluated alike at random directions and positions.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  v1::EvaluateRequest a = BtfEvaluate("twill_made", 0);
+  for (int q = 0; q < 500; ++q) {
+    for (auto* w : {a.mutable_wi(), a.mutable_wo()}) {
+      const float z = 0.2f + 0.8f * unit(rng), phi = 6.2831853f * unit(rng), sn = std::sqrt(1 - z * z);
+      w->Add(sn * std::cos(phi)), w->Add(sn * std::sin(phi)), w->Add(z);
+    }
+    a.add_uv(unit(rng)), a.add_uv(unit(rng));
+  }
+  v1::EvaluateRequest b = a;
+  b.mutable_material()->mutable_params(0)->set_text("twill_uploaded");
+  v1::EvaluateResponse fa, fb;
+  grpc::ClientContext c1, c2;
+  ASSERT_TRUE(stub->Evaluate(&c1, a, &fa).ok());
+  ASSERT_TRUE(stub->Evaluate(&c2, b, &fb).ok());
+  for (int i = 0; i < fa.f_size(); ++i) ASSERT_NEAR(fa.f(i), fb.f(i), 1e-5 * made.peak()) << i;
+
+  // Bad uploads, each refused naming the image or the header field.
+  const std::string small = SliceImages(*stub, DirectionGrid{{{0, 1}}}, 8)[0].data();  // 8 x 8, not 16 x 16
+  struct Bad {
+    std::string why, field;
+    std::function<void(v1::UploadBtfHeader*, std::vector<v1::BtfImage>*)> spoil;
+  };
+  const std::vector<Bad> bad = {
+      {"image size differs", "images[5].data", [&small](auto*, auto* im) { (*im)[5].set_data(small); }},
+      {"not an image", "images[3].data", [](auto*, auto* im) { (*im)[3].set_data("GIF89a this is not a picture"); }},
+      {"repeated pair", "images[7]", [](auto*, auto* im) { (*im)[7] = (*im)[2]; }},
+      {"missing pair", "images", [](auto*, auto* im) { im->pop_back(); }},
+      {"too many", "images[729]", [](auto*, auto* im) { im->push_back(im->front()); }},
+      {"direction off the grid", "images[4].light", [](auto*, auto* im) { (*im)[4].set_light(0, 0.1f), (*im)[4].set_light(2, 0.99498744f); }},
+      {"not unit", "images[9].view", [](auto*, auto* im) { (*im)[9].set_view(2, 3.0f); }},
+      {"bad name", "header.name", [](auto* h, auto*) { h->set_name("../../etc/x"); }},
+      {"bad size", "header.width", [](auto* h, auto*) { h->set_width(100000); }},
+  };
+  for (const Bad& b : bad) {
+    v1::UploadBtfHeader h = UploadHeader("twill_bad", 16);
+    std::vector<v1::BtfImage> im = SliceImages(*stub, grid, 16);
+    b.spoil(&h, &im);
+    v1::BtfAssetInfo out;
+    grpc::Status st = Upload(*stub, &h, im, &out);
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << b.why << ": " << st.error_message();
+    EXPECT_EQ(st.error_message().rfind(b.field, 0), 0u) << b.why << ": " << st.error_message();
+  }
+  v1::BtfAssetInfo out;
+  EXPECT_EQ(Upload(*stub, nullptr, images, &out).error_code(), grpc::StatusCode::INVALID_ARGUMENT);  // no header
+  v1::ListBtfsResponse list;
+  grpc::ClientContext ctx;
+  ASSERT_TRUE(stub->ListBtfs(&ctx, {}, &list).ok());
+  for (const v1::BtfAssetInfo& a : list.assets()) EXPECT_NE(a.name(), "twill_bad");
 }
 
 }  // namespace

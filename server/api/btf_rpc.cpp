@@ -6,6 +6,7 @@
 #include "server/api/job_status.h"
 #include "server/api/stream_call.h"
 #include "server/assets/btf_store.h"
+#include "server/imaging/image_encode.h"
 #include "server/models/material_plan.h"
 #include "server/models/quote.h"
 
@@ -13,6 +14,13 @@ namespace loomlight::api {
 namespace {
 using batching::Clock;
 constexpr const char* kRpc = "CreateBtf";
+
+// Ends an upload that cannot start (no store; the service not serving).
+class RejectedUpload final : public grpc::ServerReadReactor<v1::UploadBtfMessage> {
+ public:
+  explicit RejectedUpload(grpc::Status status) { Finish(std::move(status)); }
+  void OnDone() override { delete this; }
+};
 
 grpc::Status NoStore() {
   return {grpc::StatusCode::FAILED_PRECONDITION, "this server keeps no BTF assets (started without a data directory)"};
@@ -22,26 +30,61 @@ grpc::Status NoStore() {
 struct BtfJob {
   std::string name;
   models::btf::DirectionGrid grid;
-  int texels = 0;
+  int width = 0, height = 0;  // texels of the tile
   models::btf::CompressionOptions compression;
   bool replace = false;
 };
 
-std::string CheckAssetRequest(const std::string& name, const v1::BtfGrid& grid, uint32_t texels,
+// The checks CreateBtf and UploadBtf share (fields named under `prefix`); the tile's size is the caller's.
+std::string CheckAssetRequest(const std::string& prefix, const std::string& name, const v1::BtfGrid& grid,
                               const v1::BtfCompression& compression, bool replace, BtfJob* job) {
-  if (std::string e = assets::ValidateAssetName(name); !e.empty()) return "name: " + e;
+  if (std::string e = assets::ValidateAssetName(name); !e.empty()) return prefix + "name: " + e;
   job->name = name;
   job->replace = replace;
-  if (std::string e = assets::GridOf(grid, "grid", &job->grid); !e.empty()) return e;
+  if (std::string e = assets::GridOf(grid, prefix + "grid", &job->grid); !e.empty()) return e;
+  if (std::string e = CompressionOf(compression, &job->compression); !e.empty()) return prefix + e;
+  return "";
+}
+
+std::string CheckTexels(const std::string& field, uint32_t texels, int* out) {
   if (texels > kMaxBtfTexels)
-    return "resolution: at most " + std::to_string(kMaxBtfTexels) + " texels per side, got " + std::to_string(texels);
-  job->texels = int(texels == 0 ? kDefaultBtfTexels : texels);
-  return CompressionOf(compression, &job->compression);
+    return field + ": at most " + std::to_string(kMaxBtfTexels) + " texels per side, got " + std::to_string(texels);
+  *out = int(texels == 0 ? kDefaultBtfTexels : texels);
+  return "";
+}
+
+// Compresses the images and stores the asset under the job's name, replacing or not; on the geometry worker.
+// OK with *out the stored asset, or why not (the stop's status when `stop` ended it).
+grpc::Status CompressAndStore(const ServiceDeps& deps, const models::btf::BtfImages& images, const BtfJob& job,
+                              const std::string& source, double synthesis_seconds,
+                              const std::function<void(size_t)>& progress, const std::function<grpc::Status()>& stop,
+                              std::shared_ptr<models::btf::BtfAsset>* out) {
+  const int threads = int(std::max(1u, std::min(4u, std::thread::hardware_concurrency())));
+  std::shared_ptr<models::btf::BtfAsset> asset = models::btf::Compress(
+      images, job.compression, progress, [&stop] { return !stop().ok(); }, threads);
+  if (!asset) {
+    grpc::Status s = stop();
+    return s.ok() ? grpc::Status(grpc::StatusCode::INTERNAL, "compression failed") : s;
+  }
+  asset->name = job.name;
+  asset->source = source;
+  asset->synthesis_seconds = synthesis_seconds;
+  std::string error;
+  switch (deps.btf_store->Put(asset, job.replace, &error)) {
+    case assets::BtfStore::Outcome::kOk:
+      deps.materials->Clear();  // a material naming this name must not find a replaced asset's packing
+      *out = asset;
+      return grpc::Status::OK;
+    case assets::BtfStore::Outcome::kExists: return {grpc::StatusCode::ALREADY_EXISTS, "name: " + error};
+    case assets::BtfStore::Outcome::kFull: return {grpc::StatusCode::RESOURCE_EXHAUSTED, error};
+    case assets::BtfStore::Outcome::kFailed: break;
+  }
+  return {grpc::StatusCode::INTERNAL, error};
 }
 
 // Bytes a call building this asset holds at most: the images, every view's PCA and the packed tables.
 size_t BuildBytes(const BtfJob& job) {
-  const size_t n = job.grid.size(), d = 3 * size_t(job.texels) * job.texels,
+  const size_t n = job.grid.size(), d = 3 * size_t(job.width) * job.height,
                k = size_t(std::min<int>(job.compression.max_components, int(n)));
   return n * n * d * sizeof(float) + n * (d * k + n * k + d) * sizeof(double) +
          2 * n * d * sizeof(double) + n * d * (1 + k) * sizeof(float);
@@ -71,9 +114,10 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
                   " does not vary over the surface (a BTF needs one that does, e.g. woven)");
     if (s.ok() && prepared->transmission) s = Invalid("material.transmission: a BTF asset is a reflection model");
     if (s.ok()) {
-      const size_t n = job_.grid.size(), texels = size_t(job_.texels) * job_.texels;
+      const size_t n = job_.grid.size(), texels = size_t(job_.width) * job_.height;
       images_.grid = job_.grid;
-      images_.width = images_.height = job_.texels;
+      images_.width = job_.width;
+      images_.height = job_.height;
       images_.f.assign(n * n * images_.image_values(), 0.0f);
       // Query (light l, texel t) of a view: wi the light's direction, uv the texel's centre.
       wi_.resize(3 * n * texels);
@@ -85,8 +129,8 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
         for (size_t t = 0; t < texels; ++t) {
           const size_t q = l * texels + t;
           for (int c = 0; c < 3; ++c) wi_[3 * q + c] = float(w[c]);
-          uv_[2 * q] = float((double(t % job_.texels) + 0.5) / job_.texels);
-          uv_[2 * q + 1] = float((double(t / job_.texels) + 0.5) / job_.texels);
+          uv_[2 * q] = float((double(t % job_.width) + 0.5) / job_.width);
+          uv_[2 * q + 1] = float((double(t / job_.width) + 0.5) / job_.height);
         }
       }
     }
@@ -142,7 +186,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   // The next view's images to the batcher when none is in flight; after the last, compression.
   void MaybeSubmitView() {
     if (stage_ != Stage::kSynthesis || job_in_flight_ || compressing_) return;
-    const size_t n = job_.grid.size(), texels = size_t(job_.texels) * job_.texels;
+    const size_t n = job_.grid.size(), texels = size_t(job_.width) * job_.height;
     if (next_view_ == n) return StartCompression();
     const size_t v = next_view_++;
     double w[3];
@@ -176,27 +220,11 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     stage_ = Stage::kCompression;
     synthesis_seconds_ = SecondsSince(received_);
     deps_.geometry->Post([this] {
-      const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
-      const int threads = int(std::max(1u, std::min(4u, std::thread::hardware_concurrency())));
-      std::shared_ptr<models::btf::BtfAsset> asset = models::btf::Compress(
-          images_, job_.compression, [this](size_t done) { Post([this, done] { compressed_ = done; Pump(); }); }, stop,
-          threads);
-      grpc::Status s;
-      if (!asset) {
-        s = StopStatus(context_, deadline_);
-        if (s.ok()) s = {grpc::StatusCode::INTERNAL, "compression failed"};
-      } else {
-        asset->name = job_.name;
-        asset->source = Describe();
-        asset->synthesis_seconds = synthesis_seconds_;
-        std::string error;
-        switch (deps_.btf_store->Put(asset, job_.replace, &error)) {
-          case assets::BtfStore::Outcome::kOk: deps_.materials->Clear(); break;
-          case assets::BtfStore::Outcome::kExists: s = {grpc::StatusCode::ALREADY_EXISTS, "name: " + error}; break;
-          case assets::BtfStore::Outcome::kFull: s = {grpc::StatusCode::RESOURCE_EXHAUSTED, error}; break;
-          case assets::BtfStore::Outcome::kFailed: s = {grpc::StatusCode::INTERNAL, error}; break;
-        }
-      }
+      std::shared_ptr<models::btf::BtfAsset> asset;
+      grpc::Status s = CompressAndStore(
+          deps_, images_, job_, Describe(), synthesis_seconds_,
+          [this](size_t done) { Post([this, done] { compressed_ = done; Pump(); }); },
+          [this] { return StopStatus(context_, deadline_); }, &asset);
       images_.f = {};  // the call's biggest buffer, not needed to answer
       Post([this, s, asset] {
         compressing_ = false;
@@ -233,6 +261,139 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   v1::CreateBtfProgress message_;
 };
 
+
+// One UploadBtf call: the header admits the call (its images' bytes); each image is checked and decoded on
+// gRPC's thread as it arrives (one read at a time: a 128 x 128 image decodes in well under a millisecond), into
+// its (view, light) slot; when the client closes the stream with every pair sent, the compression and storing
+// run on the geometry worker and the call answers the stored asset. An error ends the call at once.
+class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage> {
+ public:
+  UploadBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, v1::BtfAssetInfo* response)
+      : deps_(deps), context_(context), response_(response), received_(Clock::now()),
+        deadline_(CallDeadline(context, received_)) {
+    StartRead(&message_);
+  }
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return EndOfStream();
+    const grpc::Status s = images_seen_ < 0 ? Header() : Image();
+    if (!s.ok()) return Finish(s);
+    message_.Clear();
+    StartRead(&message_);
+  }
+  void OnDone() override { delete this; }
+
+ private:
+  grpc::Status Header() {
+    if (!message_.has_header()) return Invalid("the first message must be a header");
+    const v1::UploadBtfHeader& h = message_.header();
+    std::string e = CheckAssetRequest("header.", h.name(), h.grid(), h.compression(), h.replace(), &job_);
+    if (e.empty() && (h.width() == 0 || h.height() == 0)) e = "header.width, header.height: give the images' size";
+    if (e.empty()) e = CheckTexels("header.width", h.width(), &job_.width);
+    if (e.empty()) e = CheckTexels("header.height", h.height(), &job_.height);
+    if (e.empty() && (!std::isfinite(h.value_scale()) || h.value_scale() < 0))
+      e = "header.value_scale: must be finite and >= 0";
+    if (!e.empty()) return Invalid(e);
+    scale_ = h.value_scale() == 0 ? 1.0 : h.value_scale();
+    if (!job_.replace && deps_.btf_store->Exists(job_.name))
+      return {grpc::StatusCode::ALREADY_EXISTS,
+              "header.name: an asset named " + models::Quote(job_.name) + " exists (set replace, or delete it first)"};
+    if (grpc::Status s = AdmitLongCall(deps_, *context_, BuildBytes(job_), &admission_); !s.ok()) return s;
+    const size_t n = job_.grid.size();
+    images_.grid = job_.grid;
+    images_.width = job_.width;
+    images_.height = job_.height;
+    images_.f.assign(n * n * images_.image_values(), 0.0f);
+    filled_.assign(n * n, false);
+    images_seen_ = 0;
+    return grpc::Status::OK;
+  }
+
+  grpc::Status Image() {
+    const std::string field = "images[" + std::to_string(images_seen_++) + "]";
+    if (!message_.has_image()) return Invalid(field + ": after the header, only images");
+    const v1::BtfImage& image = message_.image();
+    const size_t n = job_.grid.size();
+    if (size_t(images_seen_) > n * n)
+      return Invalid(field + ": more images than the grid's " + std::to_string(n * n) + " (view, light) pairs");
+    int slot[2];
+    const char* names[2] = {"view", "light"};
+    const google::protobuf::RepeatedField<float>* dirs[2] = {&image.view(), &image.light()};
+    for (int k = 0; k < 2; ++k) {
+      const auto& w = *dirs[k];
+      const std::string f = field + "." + names[k];
+      if (w.size() != 3) return Invalid(f + ": an xyz direction, 3 values, got " + std::to_string(w.size()));
+      const double x = w[0], y = w[1], z = w[2], norm = std::sqrt(x * x + y * y + z * z);
+      if (!std::isfinite(norm) || std::abs(norm - 1) > kUnitTolerance) return Invalid(f + ": not a unit vector");
+      const double unit[3] = {x / norm, y / norm, z / norm};
+      slot[k] = job_.grid.Find(unit, 0.5);
+      if (slot[k] < 0) return Invalid(f + ": not within 0.5 degrees of a direction of the grid");
+    }
+    const size_t pair = size_t(slot[0]) * n + size_t(slot[1]);
+    if (filled_[pair])
+      return Invalid(field + ": view " + std::to_string(slot[0]) + " and light " + std::to_string(slot[1]) +
+                     " were sent before");
+    imaging::LinearRgbImage decoded;
+    if (std::string e = imaging::DecodeImage(image.data(), size_t(kMaxBtfTexels) * kMaxBtfTexels, &decoded); !e.empty())
+      return Invalid(field + ".data: " + e);
+    if (decoded.width != job_.width || decoded.height != job_.height)
+      return Invalid(field + ".data: " + std::to_string(decoded.width) + " x " + std::to_string(decoded.height) +
+                     " pixels, the header says " + std::to_string(job_.width) + " x " + std::to_string(job_.height));
+    // The file's top row is v = 1; the images' row iv = 0 is v = 0.
+    float* out = images_.image(size_t(slot[0]), size_t(slot[1]));
+    for (int row = 0; row < job_.height; ++row)
+      for (int col = 0; col < job_.width; ++col)
+        for (int c = 0; c < 3; ++c) {
+          const double v = scale_ * decoded.rgb[(size_t(row) * job_.width + col) * 3 + c];
+          if (!std::isfinite(v) || v < 0)
+            return Invalid(field + ".data: a value that is negative or not finite (f is >= 0)");
+          out[(size_t(job_.height - 1 - row) * job_.width + col) * 3 + c] = float(v);
+        }
+    filled_[pair] = true;
+    ++filled_count_;
+    return grpc::Status::OK;
+  }
+
+  // The client closed its side (or went away): everything arrived, or the call fails saying what is missing.
+  void EndOfStream() {
+    if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return Finish(s);
+    if (images_seen_ < 0) return Finish(Invalid("no header: the stream was empty"));
+    const size_t n = job_.grid.size();
+    if (filled_count_ < n * n) {
+      const size_t missing = size_t(std::find(filled_.begin(), filled_.end(), false) - filled_.begin());
+      return Finish(Invalid("images: " + std::to_string(n * n - filled_count_) + " of " + std::to_string(n * n) +
+                            " (view, light) pairs missing, the first view " + std::to_string(missing / n) +
+                            ", light " + std::to_string(missing % n)));
+    }
+    deps_.geometry->Post([this] {
+      std::shared_ptr<models::btf::BtfAsset> asset;
+      grpc::Status s = CompressAndStore(deps_, images_, job_, "upload", 0, nullptr,
+                                        [this] { return StopStatus(context_, deadline_); }, &asset);
+      images_.f = {};
+      if (s.ok()) assets::DescribeAsset(*asset, response_);
+      Finish(s);
+    });
+  }
+
+  void Finish(const grpc::Status& s) {
+    deps_.metrics->Call(kUploadRpc, s.error_code(), SecondsSince(received_));
+    grpc::ServerReadReactor<v1::UploadBtfMessage>::Finish(s);
+  }
+
+  static constexpr const char* kUploadRpc = "UploadBtf";
+  const ServiceDeps deps_;
+  grpc::CallbackServerContext* const context_;
+  v1::BtfAssetInfo* const response_;
+  const Clock::time_point received_, deadline_;
+  Admission admission_;
+  BtfJob job_;
+  double scale_ = 1;
+  int images_seen_ = -1;  // -1: the header has not come
+  models::btf::BtfImages images_;
+  std::vector<bool> filled_;
+  size_t filled_count_ = 0;
+  v1::UploadBtfMessage message_;
+};
 }  // namespace
 
 std::string CompressionOf(const v1::BtfCompression& c, models::btf::CompressionOptions* out) {
@@ -255,10 +416,10 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
   };
   if (!deps.btf_store) return reject(NoStore());
   BtfJob job;
-  if (std::string e = CheckAssetRequest(request->name(), request->grid(), request->resolution(),
-                                        request->compression(), request->replace(), &job);
-      !e.empty())
-    return reject(Invalid(e));
+  std::string e = CheckAssetRequest("", request->name(), request->grid(), request->compression(), request->replace(), &job);
+  if (e.empty()) e = CheckTexels("resolution", request->resolution(), &job.width);
+  if (!e.empty()) return reject(Invalid(e));
+  job.height = job.width;
   if (!job.replace && deps.btf_store->Exists(job.name))
     return reject({grpc::StatusCode::ALREADY_EXISTS, "name: an asset named " + models::Quote(job.name) +
                                                           " exists (set replace, or delete it first)"});
@@ -269,6 +430,14 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
   Admission admission;
   if (grpc::Status s = AdmitLongCall(deps, *context, BuildBytes(job), &admission); !s.ok()) return reject(s);
   return new CreateBtfCall(deps, context, std::move(job), request->material(), std::move(admission), received);
+}
+
+grpc::ServerReadReactor<v1::UploadBtfMessage>* HandleUploadBtf(const ServiceDeps& deps,
+                                                               grpc::CallbackServerContext* context,
+                                                               v1::BtfAssetInfo* response, grpc::Status serving) {
+  if (!serving.ok()) return new RejectedUpload(std::move(serving));
+  if (!deps.btf_store) return new RejectedUpload(NoStore());
+  return new UploadBtfCall(deps, context, response);
 }
 
 grpc::Status HandleListBtfs(const ServiceDeps& deps, v1::ListBtfsResponse* response) {

@@ -1,10 +1,11 @@
-// The BTF asset RPCs (README "BTF assets"): CreateBtf synthesises a BTF from a spatially varying material on a
+// The BTF asset RPCs (README "BTF assets"): UploadBtf takes a client's images; CreateBtf synthesises a BTF from a spatially varying material on a
 // direction grid (view by view, as bulk batcher jobs), compresses it (models::btf::Compress, on the geometry
 // worker) and stores it (assets::BtfStore), streaming progress; ListBtfs and DeleteBtf. Requests are checked
 // on the gRPC thread; asset names are checked before anything touches the store.
 #pragma once
 
 #include <cstddef>
+#include <string>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/service.h"
@@ -22,6 +23,10 @@ constexpr size_t kBtfBytesPerImageValue = 6;
 grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDeps& deps,
                                                                  grpc::CallbackServerContext* context,
                                                                  const v1::CreateBtfRequest* request);
+grpc::ServerReadReactor<v1::UploadBtfMessage>* HandleUploadBtf(const ServiceDeps& deps,
+                                                               grpc::CallbackServerContext* context,
+                                                               v1::BtfAssetInfo* response,
+                                                               grpc::Status serving);  // not OK: refused with it
 grpc::Status HandleListBtfs(const ServiceDeps& deps, v1::ListBtfsResponse* response);
 grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const v1::DeleteBtfRequest& request);
 

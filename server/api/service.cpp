@@ -352,6 +352,11 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* LoomlightService::CreateBtf(grp
   return HandleCreateBtf(deps_, context, request);
 }
 
+grpc::ServerReadReactor<v1::UploadBtfMessage>* LoomlightService::UploadBtf(grpc::CallbackServerContext* context,
+                                                                           v1::BtfAssetInfo* response) {
+  return HandleUploadBtf(deps_, context, response, Serving());
+}
+
 grpc::ServerUnaryReactor* LoomlightService::ListBtfs(grpc::CallbackServerContext* context,
                                                      const v1::ListBtfsRequest*, v1::ListBtfsResponse* response) {
   const auto received = batching::Clock::now();

@@ -113,6 +113,8 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // Delegate to server/api/btf_rpc.h.
   grpc::ServerWriteReactor<v1::CreateBtfProgress>* CreateBtf(grpc::CallbackServerContext* context,
                                                             const v1::CreateBtfRequest* request) override;
+  grpc::ServerReadReactor<v1::UploadBtfMessage>* UploadBtf(grpc::CallbackServerContext* context,
+                                                          v1::BtfAssetInfo* response) override;
   grpc::ServerUnaryReactor* ListBtfs(grpc::CallbackServerContext* context, const v1::ListBtfsRequest* request,
                                      v1::ListBtfsResponse* response) override;
   grpc::ServerUnaryReactor* DeleteBtf(grpc::CallbackServerContext* context, const v1::DeleteBtfRequest* request,

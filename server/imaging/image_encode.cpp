@@ -120,4 +120,39 @@ std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double 
   return "unknown image format";
 }
 
+std::string DecodeImage(const std::string& bytes, size_t max_pixels, LinearRgbImage* image) {
+  // The reader is chosen by the bytes' signature; OpenImageIO picks a reader by the name's extension.
+  const char* name = nullptr;
+  if (bytes.rfind("\x89PNG\r\n\x1a\n", 0) == 0) name = "image.png";
+  else if (bytes.rfind("\xff\xd8\xff", 0) == 0) name = "image.jpg";
+  else if (bytes.rfind(std::string("\x76\x2f\x31\x01", 4), 0) == 0) name = "image.exr";
+  if (!name) return "not a PNG, JPEG or OpenEXR image";
+  OIIO::Filesystem::IOMemReader reader(const_cast<char*>(bytes.data()), bytes.size());
+  auto in = OIIO::ImageInput::open(name, nullptr, &reader);
+  if (!in) {
+    (void)OIIO::geterror();  // cleared: the library's message may quote the bytes
+    return std::string("undecodable ") + (name + 6) + " data";
+  }
+  const OIIO::ImageSpec& spec = in->spec();
+  const int channels = spec.nchannels;
+  if (spec.width < 1 || spec.height < 1 || uint64_t(spec.width) * uint64_t(spec.height) > max_pixels)
+    return "its " + std::to_string(spec.width) + " x " + std::to_string(spec.height) + " pixels are out of range";
+  if (channels != 1 && channels < 3) return std::to_string(channels) + " channels (1, 3 or 4 are read)";
+  std::vector<float> pixels(size_t(spec.width) * spec.height * channels);
+  if (!in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, pixels.data())) {
+    (void)in->geterror();
+    return std::string("undecodable ") + (name + 6) + " data";
+  }
+  const bool srgb = std::string(name) != "image.exr";  // 8-bit formats carry sRGB codes, EXR linear values
+  image->width = spec.width;
+  image->height = spec.height;
+  image->rgb.resize(size_t(spec.width) * spec.height * 3);
+  for (size_t p = 0; p < size_t(spec.width) * spec.height; ++p)
+    for (int c = 0; c < 3; ++c) {
+      const float v = pixels[p * channels + (channels == 1 ? 0 : c)];
+      image->rgb[3 * p + c] = srgb ? float(SrgbToLinear(v)) : v;
+    }
+  return "";
+}
+
 }  // namespace loomlight::imaging

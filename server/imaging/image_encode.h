@@ -30,4 +30,10 @@ double AutomaticExposure(const LinearRgbImage& image);
 // Returns "" on success, else the reason (an OpenImageIO error: the caller reports it as internal).
 std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double exposure, std::string* bytes);
 
+// Decodes PNG, JPEG or OpenEXR bytes (recognised by their first bytes, never by a name a client gives) into linear
+// RGB, top row first: 8-bit PNG and JPEG through the inverse sRGB transfer function, EXR as stored; one channel
+// is grey, more than three keep the first three. At most max_pixels pixels (checked from the header, before
+// anything is decoded). Returns "" or why not ("not a PNG, JPEG or OpenEXR image", "2 channels", ...).
+std::string DecodeImage(const std::string& bytes, size_t max_pixels, LinearRgbImage* image);
+
 }  // namespace loomlight::imaging

@@ -286,6 +286,7 @@ TEST_F(BtfRpcTest, SynthesisedTwillReproducesTheWovenBtfAtGridDirectionsAndSurvi
   EXPECT_GT(messages, 3);  // progress, then the asset
   ASSERT_EQ(info.name(), "twill16");
   ASSERT_EQ(info.components(), 12u);
+  EXPECT_EQ(info.threads_per_tile(), 4);  // the 3/1 twill's repeat: what the fidelity chooser compares with a pixel
   ASSERT_EQ(info.errors_size(), 13);
   for (int c = 1; c < info.errors_size(); ++c) EXPECT_LE(info.errors(c).rmse(), info.errors(c - 1).rmse() * (1 + 1e-12));
   EXPECT_LT(info.errors(12).rmse(), info.errors(1).rmse());

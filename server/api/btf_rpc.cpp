@@ -53,11 +53,17 @@ std::string CheckTexels(const std::string& field, uint32_t texels, int* out) {
   return "";
 }
 
+// What an asset was made from, recorded with it.
+struct AssetOrigin {
+  std::string source;
+  double synthesis_seconds = 0;
+  double threads_per_tile = 1;
+};
+
 // Compresses the images and stores the asset under the job's name, replacing or not; on the geometry worker.
 // OK with *out the stored asset, or why not (the stop's status when `stop` ended it).
 grpc::Status CompressAndStore(const ServiceDeps& deps, const models::btf::BtfImages& images, const BtfJob& job,
-                              const std::string& source, double synthesis_seconds,
-                              const std::function<void(size_t)>& progress, const std::function<grpc::Status()>& stop,
+                              const AssetOrigin& origin, const std::function<void(size_t)>& progress, const std::function<grpc::Status()>& stop,
                               std::shared_ptr<models::btf::BtfAsset>* out) {
   const int threads = int(std::max(1u, std::min(4u, std::thread::hardware_concurrency())));
   std::shared_ptr<models::btf::BtfAsset> asset = models::btf::Compress(
@@ -67,8 +73,9 @@ grpc::Status CompressAndStore(const ServiceDeps& deps, const models::btf::BtfIma
     return s.ok() ? grpc::Status(grpc::StatusCode::INTERNAL, "compression failed") : s;
   }
   asset->name = job.name;
-  asset->source = source;
-  asset->synthesis_seconds = synthesis_seconds;
+  asset->source = origin.source;
+  asset->synthesis_seconds = origin.synthesis_seconds;
+  asset->threads_per_tile = origin.threads_per_tile;
   std::string error;
   switch (deps.btf_store->Put(asset, job.replace, &error)) {
     case assets::BtfStore::Outcome::kOk:
@@ -222,7 +229,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     deps_.geometry->Post([this] {
       std::shared_ptr<models::btf::BtfAsset> asset;
       grpc::Status s = CompressAndStore(
-          deps_, images_, job_, Describe(), synthesis_seconds_,
+          deps_, images_, job_, {Describe(), synthesis_seconds_, prepared_->model->ThreadsPerRepeat(prepared_->values)},
           [this](size_t done) { Post([this, done] { compressed_ = done; Pump(); }); },
           [this] { return StopStatus(context_, deadline_); }, &asset);
       images_.f = {};  // the call's biggest buffer, not needed to answer
@@ -295,6 +302,9 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
       e = "header.value_scale: must be finite and >= 0";
     if (!e.empty()) return Invalid(e);
     scale_ = h.value_scale() == 0 ? 1.0 : h.value_scale();
+    if (!(h.threads_per_tile() == 0 || (h.threads_per_tile() >= 1 && h.threads_per_tile() <= 1024)))
+      return Invalid("header.threads_per_tile: must be in [1, 1024] (0 = 1)");
+    threads_per_tile_ = h.threads_per_tile() == 0 ? 1.0 : h.threads_per_tile();
     if (!job_.replace && deps_.btf_store->Exists(job_.name))
       return {grpc::StatusCode::ALREADY_EXISTS,
               "header.name: an asset named " + models::Quote(job_.name) + " exists (set replace, or delete it first)"};
@@ -367,7 +377,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
     }
     deps_.geometry->Post([this] {
       std::shared_ptr<models::btf::BtfAsset> asset;
-      grpc::Status s = CompressAndStore(deps_, images_, job_, "upload", 0, nullptr,
+      grpc::Status s = CompressAndStore(deps_, images_, job_, {"upload", 0, threads_per_tile_}, nullptr,
                                         [this] { return StopStatus(context_, deadline_); }, &asset);
       images_.f = {};
       if (s.ok()) assets::DescribeAsset(*asset, response_);
@@ -387,7 +397,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   const Clock::time_point received_, deadline_;
   Admission admission_;
   BtfJob job_;
-  double scale_ = 1;
+  double scale_ = 1, threads_per_tile_ = 1;
   int images_seen_ = -1;  // -1: the header has not come
   models::btf::BtfImages images_;
   std::vector<bool> filled_;

@@ -4,6 +4,7 @@
 
 #include <cstdio>
 #include <cctype>
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -86,6 +87,7 @@ void DescribeAsset(const BtfAsset& a, v1::BtfAssetInfo* out) {
   out->set_images_float16_bytes(a.images_float16_bytes());
   out->set_synthesis_seconds(a.synthesis_seconds);
   out->set_compression_seconds(a.compression_seconds);
+  out->set_threads_per_tile(a.threads_per_tile);
 }
 
 std::string BtfStore::DefaultDataDir() {
@@ -143,6 +145,8 @@ std::string BtfStore::Load(const std::string& name, std::shared_ptr<BtfAsset>* o
   asset->rms = info.rms();
   asset->synthesis_seconds = info.synthesis_seconds();
   asset->compression_seconds = info.compression_seconds();
+  asset->threads_per_tile = std::clamp(info.threads_per_tile(), 1.0, 1024.0);  // NaN: 1
+  if (!(asset->threads_per_tile >= 1)) asset->threads_per_tile = 1;
   for (const v1::BtfErrorRow& r : info.errors())
     asset->errors.push_back({int(r.components()), r.rmse(), r.psnr_db(), r.bytes()});
   if (asset->errors.size() != size_t(asset->components) + 1) return "manifest's error table does not match its components";

@@ -79,6 +79,7 @@ struct BtfAsset {
   double peak = 0, rms = 0;
   std::vector<ErrorRow> errors;  // components 0 .. K
   double synthesis_seconds = 0, compression_seconds = 0;
+  double threads_per_tile = 1;  // how fine the tile's structure is (Model::ThreadsPerRepeat)
   std::shared_ptr<const PackedTables> tables;  // kernels/models/btf.h's layout, float32
   uint64_t id = 0;                             // set by Assets::Add: the `btf` model's asset_id
 

@@ -39,6 +39,11 @@ class BtfModel : public Model {
     return "";
   }
 
+  double ThreadsPerRepeat(const ParamValues& v) const override {
+    auto asset = btf::Assets::Global().Find(uint64_t(v.at("asset_id")[0]));
+    return asset ? asset->threads_per_tile : 1;
+  }
+
   AccuracyKnob accuracy_knob() const override {
     return {"components", {1, 2, 4, 8, 16, 32, 64},
             "RMSE of the reconstruction against the asset's stored images relative to their RMS, recorded when "

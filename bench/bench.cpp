@@ -31,6 +31,8 @@ Sizes Sizes::Quick() {
   s.cpu_seconds = 0.3;
   s.cpu_warmup_calls = 20;
   s.cpu_idle_seconds = 0.2;
+  s.btf_texels = 16;
+  s.btf_queries = 20000;
   return s;
 }
 
@@ -53,7 +55,7 @@ struct Args {
 // Section names for --only, in report order.
 const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "woven",
                                      "slice", "transmission", "tabulate", "render", "noise",
-                                     "fair-share"};
+                                     "fair-share", "btf"};
 
 bool KnownSection(const std::string& name) {
   for (const char* n : kSectionNames)
@@ -66,7 +68,8 @@ void Usage(const char* argv0, const Args& defaults) {
                "usage: %s [--out FILE] [--quick] [--only SECTIONS]\n  --out FILE  report path (default %s)\n"
                "  --quick     small sizes, a smoke run of a few seconds\n"
                "  --only SECTIONS  comma-separated, of: kernel, sweep, service, service-cpu, woven, slice,\n"
-               "              transmission, tabulate, render, noise (a partial report: give it its own --out)\n",
+               "              transmission, tabulate, render, noise, fair-share, btf (a partial report: give it its\n"
+               "              own --out)\n",
                argv0, defaults.out.c_str());
 }
 
@@ -126,7 +129,7 @@ int main(int argc, char** argv) {
   const CpuSnapshot start = CpuSnapshot::Now();
   auto want = [&args](const char* name) { return args.only.empty() || args.only.count(name) > 0; };
 
-  std::string machine, sections, woven, transmission;
+  std::string machine, sections, woven, transmission, btf;
   {
     std::unique_ptr<loomlight::runtime::ClRuntime> rt = StartRuntime();
     if (!rt) return 1;
@@ -136,6 +139,7 @@ int main(int argc, char** argv) {
     // numbered after the service section, which was there first
     if (want("woven")) woven = WovenSection(*rt, sizes);
     if (want("transmission")) transmission = TransmissionSection(*rt, sizes);
+    if (want("btf")) btf = BtfSection(*rt, sizes);  // last in the report, the newest section
   }
   if (want("service")) sections += ServiceSection(sizes);
   if (want("service-cpu")) sections += ServiceCpuSection(sizes);
@@ -146,6 +150,7 @@ int main(int argc, char** argv) {
   if (want("render")) sections += RenderSection(sizes);
   if (want("noise")) sections += NoiseSection(sizes);
   if (want("fair-share")) sections += FairShareSection(sizes);
+  sections += btf;
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   std::string only;

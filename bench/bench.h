@@ -26,6 +26,8 @@ struct Sizes {
   int cpu_rounds = 3;
   size_t cpu_warmup_calls = 200;  // of each kind, before the first round
   double cpu_idle_seconds = 1.0;  // the idle server's own CPU is measured over this long
+  int btf_texels = 64;             // BTF asset tile, per side (81 x 81 images of it)
+  size_t btf_queries = 2000000;    // random BTF reconstruction queries timed per variant and implementation
 
   static Sizes Full();
   static Sizes Quick();
@@ -59,5 +61,8 @@ std::string RenderSection(const Sizes& sizes);
 std::string NoiseSection(const Sizes& sizes);
 // Section 10: an interactive client's latency beside another's bulk work (fair share), TLS against plaintext.
 std::string FairShareSection(const Sizes& sizes);
+// Section 11: a BTF asset (woven twill on the H1 grid) synthesised and compressed in process, its error against
+// storage, and the btf model's reconstruction throughput and error, OpenCL fp32 / fp64 and native.
+std::string BtfSection(runtime::ClRuntime& rt, const Sizes& sizes);
 
 }  // namespace loomlight::bench

@@ -5,9 +5,9 @@
 #include <functional>
 #include <optional>
 #include <random>
-#include <thread>
 
 #include "bench/bench.h"
+#include "bench/kernel_runs.h"
 #include "bench/report.h"
 #include "bench/stats.h"
 #include "server/models/registry.h"
@@ -32,47 +32,6 @@ const models::PresetSpec& FindPreset(const std::string& name) {
   const models::PresetSpec* preset = nullptr;
   models::Registry::Global().FindPreset(name, &preset);
   return *preset;
-}
-
-// What one measurement evaluates: a model's material on direction pairs, with texture positions for a BTF.
-struct Workload {
-  const Model& model;
-  const PackedMaterial& material;
-  const Pairs& pairs;
-  const float* uv = nullptr;  // a (u, v) per pair, or nullptr for f(wi, wo)
-};
-
-// The double reference for the first n pairs, split into contiguous chunks over `threads` threads.
-std::vector<double> Reference(const Workload& w, size_t n, size_t threads) {
-  n = std::min(n, w.pairs.size());
-  std::vector<double> f(3 * n);
-  const size_t chunk = (n + threads - 1) / threads;
-  std::vector<std::thread> workers;
-  for (size_t begin = 0; begin < n; begin += chunk) {
-    const size_t count = std::min(chunk, n - begin);
-    workers.emplace_back([&, begin, count] {
-      w.model.ReferenceEval(w.material, &w.pairs.wi[3 * begin], &w.pairs.wo[3 * begin],
-                            w.uv ? w.uv + 2 * begin : nullptr, count, &f[3 * begin]);
-    });
-  }
-  for (auto& t : workers) t.join();
-  return f;
-}
-
-// The OpenCL kernel over all pairs in one launch; f receives 3 values per pair.
-void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const Workload& w, std::vector<double>* f) {
-  std::string error;
-  if (!rt.RunSingle(w.model, w.material, fp64, w.pairs.wi.data(), w.pairs.wo.data(), w.uv, w.pairs.size(), f,
-                    &error)) {
-    std::fprintf(stderr, "OpenCL launch failed: %s\n", error.c_str());
-    std::exit(1);
-  }
-}
-
-// The native float baseline over all pairs (all hardware threads).
-void RunNative(const Workload& w, std::vector<float>* f) {
-  f->resize(3 * w.pairs.size());
-  w.model.NativeEval(w.material, w.pairs.wi.data(), w.pairs.wo.data(), w.uv, w.pairs.size(), f->data());
 }
 
 struct Measurement {

@@ -105,6 +105,7 @@ LL_INLINE void bt_eval_one(LL_GLOBAL const scalar* mat, int c, scalar wix, scala
   }
   scalar acc[3] = {0, 0, 0};
   scalar gamma[BT_MAX_COMPONENTS];
+  scalar sum[1 + BT_MAX_COMPONENTS];
   for (int m = 0; m < 4; ++m) {
     if (view_w[m] == 0) continue;
     // Eq. 3: the four light directions' coefficients folded into one per component.
@@ -112,18 +113,22 @@ LL_INLINE void bt_eval_one(LL_GLOBAL const scalar* mat, int c, scalar wix, scala
     for (int l = 0; l < 4; ++l) {
       if (light_w[l] == 0) continue;
       LL_GLOBAL const scalar* p = weights + (view[m] * n + light[l]) * kept;
-      for (int k = 0; k < c; ++k) gamma[k] += light_w[l] * p[k];
+      const scalar w = light_w[l];
+      for (int k = 0; k < c; ++k) gamma[k] += w * p[k];
     }
     LL_GLOBAL const scalar* slot = block + view[m] * view_stride;
-    for (int t = 0; t < texels; ++t) {
-      LL_GLOBAL const scalar* b = slot + texel[t] * texel_stride;
-      const scalar w = view_w[m] * texel_w[t];
-      for (int ch = 0; ch < 3; ++ch) {
-        LL_GLOBAL const scalar* e = b + ch * stride;
-        scalar value = e[0];  // the view's mean (the PCA is mean-centred)
-        for (int k = 0; k < c; ++k) value += gamma[k] * e[1 + k];
-        acc[ch] += w * value;
+    for (int ch = 0; ch < 3; ++ch) {
+      // The texels' filter first, elementwise over (mean, components) (contiguous: it vectorises), then one
+      // dot product with gamma per channel, instead of one per texel.
+      for (int k = 0; k <= c; ++k) sum[k] = 0;
+      for (int t = 0; t < texels; ++t) {
+        LL_GLOBAL const scalar* e = slot + texel[t] * texel_stride + ch * stride;
+        const scalar w = texel_w[t];
+        for (int k = 0; k <= c; ++k) sum[k] += w * e[k];
       }
+      scalar value = sum[0];  // the view's mean (the PCA is mean-centred)
+      for (int k = 0; k < c; ++k) value += gamma[k] * sum[1 + k];
+      acc[ch] += view_w[m] * value;
     }
   }
   // The data are non-negative; a truncated PCA series can undershoot near zero, which no BTF value can be.

@@ -46,6 +46,14 @@ std::string CheckAssetRequest(const std::string& prefix, const std::string& name
   return "";
 }
 
+// ALREADY_EXISTS early, before any work, when the name is taken and the job does not replace it (the store
+// checks again when it writes: another call may take the name meanwhile).
+grpc::Status CheckNameFree(const ServiceDeps& deps, const BtfJob& job, const std::string& prefix) {
+  if (job.replace || !deps.btf_store->Exists(job.name)) return grpc::Status::OK;
+  return {grpc::StatusCode::ALREADY_EXISTS,
+          prefix + "name: an asset named " + models::Quote(job.name) + " exists (set replace, or delete it first)"};
+}
+
 std::string CheckTexels(const std::string& field, uint32_t texels, int* out) {
   if (texels > kMaxBtfTexels)
     return field + ": at most " + std::to_string(kMaxBtfTexels) + " texels per side, got " + std::to_string(texels);
@@ -305,9 +313,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
     if (!(h.threads_per_tile() == 0 || (h.threads_per_tile() >= 1 && h.threads_per_tile() <= 1024)))
       return Invalid("header.threads_per_tile: must be in [1, 1024] (0 = 1)");
     threads_per_tile_ = h.threads_per_tile() == 0 ? 1.0 : h.threads_per_tile();
-    if (!job_.replace && deps_.btf_store->Exists(job_.name))
-      return {grpc::StatusCode::ALREADY_EXISTS,
-              "header.name: an asset named " + models::Quote(job_.name) + " exists (set replace, or delete it first)"};
+    if (grpc::Status s = CheckNameFree(deps_, job_, "header."); !s.ok()) return s;
     if (grpc::Status s = AdmitLongCall(deps_, *context_, BuildBytes(job_), &admission_); !s.ok()) return s;
     const size_t n = job_.grid.size();
     images_.grid = job_.grid;
@@ -430,9 +436,7 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
   if (e.empty()) e = CheckTexels("resolution", request->resolution(), &job.width);
   if (!e.empty()) return reject(Invalid(e));
   job.height = job.width;
-  if (!job.replace && deps.btf_store->Exists(job.name))
-    return reject({grpc::StatusCode::ALREADY_EXISTS, "name: an asset named " + models::Quote(job.name) +
-                                                          " exists (set replace, or delete it first)"});
+  if (grpc::Status s = CheckNameFree(deps, job, ""); !s.ok()) return reject(s);
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> cached;
   if (std::string e = deps.materials->Peek(request->material(), *deps.registry, &model, &cached); !e.empty())

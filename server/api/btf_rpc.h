@@ -16,9 +16,6 @@ namespace loomlight::api {
 constexpr uint32_t kDefaultBtfTexels = 64;
 constexpr uint32_t kMaxBtfTexels = 128;  // per side: 81 x 81 images of 128 x 128 are 1.3 GB in float
 constexpr uint32_t kDefaultBtfComponents = 16;
-// Bytes a CreateBtf call holds per image value: the images in float (4), a view's PCA in double (its n x d
-// matrix and the d x K basis: ~16 per value of one view, small against all views), rounded up.
-constexpr size_t kBtfBytesPerImageValue = 6;
 
 grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDeps& deps,
                                                                  grpc::CallbackServerContext* context,

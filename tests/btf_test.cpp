@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <functional>
 #include <random>
+#include <thread>
 
 #include "server/assets/btf_store.h"
 #include "server/models/btf/btf_asset.h"
@@ -580,6 +581,43 @@ TEST_F(BtfRpcTest, UploadedImagesGiveTheServerSynthesisedAsset) {
   grpc::ClientContext ctx;
   ASSERT_TRUE(stub->ListBtfs(&ctx, {}, &list).ok());
   for (const v1::BtfAssetInfo& a : list.assets()) EXPECT_NE(a.name(), "twill_bad");
+}
+
+// An upload whose client sends its header and then nothing holds only what it sent: two such stalled uploads,
+// whose headers promise h1 at 32 x 32 (~136 MB each to compress), do not keep a CreateBtf of that size from a
+// 300 MB memory budget.
+TEST_F(BtfRpcTest, StalledUploadsHoldOnlyWhatTheySent) {
+  api::ServerOptions options;
+  options.data_dir = DataDir();
+  options.limits.memory_budget_bytes = size_t{300} << 20;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  v1::UploadBtfHeader header;
+  header.set_name("stalled");
+  header.mutable_grid()->set_preset("h1");
+  header.set_width(32);
+  header.set_height(32);
+  std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
+  std::vector<std::unique_ptr<grpc::ClientWriter<v1::UploadBtfMessage>>> writers;
+  v1::BtfAssetInfo unused[2];
+  for (int k = 0; k < 2; ++k) {
+    contexts.push_back(std::make_unique<grpc::ClientContext>());
+    writers.push_back(stub->UploadBtf(contexts.back().get(), &unused[k]));
+    v1::UploadBtfMessage m;
+    *m.mutable_header() = header;
+    ASSERT_TRUE(writers.back()->Write(m));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));  // the server reads both headers
+  v1::CreateBtfRequest create = TwillRequest("fits");
+  create.mutable_grid()->Clear();
+  create.mutable_grid()->set_preset("h1");
+  create.set_resolution(32);
+  v1::BtfAssetInfo info;
+  grpc::Status s = Create(*stub, create, &info);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  for (auto& c : contexts) c->TryCancel();
+  for (auto& w : writers) EXPECT_FALSE(w->Finish().ok());
 }
 
 }  // namespace

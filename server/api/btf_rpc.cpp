@@ -277,10 +277,12 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
 };
 
 
-// One UploadBtf call: the header admits the call (its images' bytes); each image is checked and decoded on
-// gRPC's thread as it arrives (one read at a time: a 128 x 128 image decodes in well under a millisecond), into
-// its (view, light) slot; when the client closes the stream with every pair sent, the compression and storing
-// run on the geometry worker and the call answers the stored asset. An error ends the call at once.
+// One UploadBtf call: the header takes a long-call slot; each image is checked and decoded on gRPC's thread as
+// it arrives (one read at a time: a 128 x 128 image decodes in well under a millisecond) and its bytes are
+// charged to the memory budget then, so a client that stalls holds only what it sent, never what its header
+// promised. When the client closes the stream with every pair sent, the call is charged for the compression
+// (BuildBytes), the images are gathered into one buffer, compressed and stored on the geometry worker, and the
+// call answers the stored asset. An error ends the call at once.
 class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage> {
  public:
   UploadBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, v1::BtfAssetInfo* response)
@@ -314,13 +316,12 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
       return Invalid("header.threads_per_tile: must be in [1, 1024] (0 = 1)");
     threads_per_tile_ = h.threads_per_tile() == 0 ? 1.0 : h.threads_per_tile();
     if (grpc::Status s = CheckNameFree(deps_, job_, "header."); !s.ok()) return s;
-    if (grpc::Status s = AdmitLongCall(deps_, *context_, BuildBytes(job_), &admission_); !s.ok()) return s;
+    if (grpc::Status s = AdmitLongCall(deps_, *context_, 0, &admission_); !s.ok()) return s;
     const size_t n = job_.grid.size();
     images_.grid = job_.grid;
     images_.width = job_.width;
     images_.height = job_.height;
-    images_.f.assign(n * n * images_.image_values(), 0.0f);
-    filled_.assign(n * n, false);
+    pairs_.assign(n * n, {});
     images_seen_ = 0;
     return grpc::Status::OK;
   }
@@ -346,7 +347,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
       if (slot[k] < 0) return Invalid(f + ": not within 0.5 degrees of a direction of the grid");
     }
     const size_t pair = size_t(slot[0]) * n + size_t(slot[1]);
-    if (filled_[pair])
+    if (!pairs_[pair].empty())
       return Invalid(field + ": view " + std::to_string(slot[0]) + " and light " + std::to_string(slot[1]) +
                      " were sent before");
     imaging::LinearRgbImage decoded;
@@ -355,8 +356,12 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
     if (decoded.width != job_.width || decoded.height != job_.height)
       return Invalid(field + ".data: " + std::to_string(decoded.width) + " x " + std::to_string(decoded.height) +
                      " pixels, the header says " + std::to_string(job_.width) + " x " + std::to_string(job_.height));
+    if (!admission_.bytes.Grow(images_.image_values() * sizeof(float)))
+      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+              field + ": the server's memory budget holds no more images now; retry later"};
     // The file's top row is v = 1; the images' row iv = 0 is v = 0.
-    float* out = images_.image(size_t(slot[0]), size_t(slot[1]));
+    std::vector<float>& out = pairs_[pair];
+    out.resize(images_.image_values());
     for (int row = 0; row < job_.height; ++row)
       for (int col = 0; col < job_.width; ++col)
         for (int c = 0; c < 3; ++c) {
@@ -365,7 +370,6 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
             return Invalid(field + ".data: a value that is negative or not finite (f is >= 0)");
           out[(size_t(job_.height - 1 - row) * job_.width + col) * 3 + c] = float(v);
         }
-    filled_[pair] = true;
     ++filled_count_;
     return grpc::Status::OK;
   }
@@ -376,12 +380,23 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
     if (images_seen_ < 0) return Finish(Invalid("no header: the stream was empty"));
     const size_t n = job_.grid.size();
     if (filled_count_ < n * n) {
-      const size_t missing = size_t(std::find(filled_.begin(), filled_.end(), false) - filled_.begin());
+      size_t missing = 0;
+      while (!pairs_[missing].empty()) ++missing;
       return Finish(Invalid("images: " + std::to_string(n * n - filled_count_) + " of " + std::to_string(n * n) +
                             " (view, light) pairs missing, the first view " + std::to_string(missing / n) +
                             ", light " + std::to_string(missing % n)));
     }
-    deps_.geometry->Post([this] {
+    if (!admission_.bytes.Grow(BuildBytes(job_)))
+      return Finish(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                                 "the server's memory budget cannot hold the compression of " +
+                                     std::to_string(n * n) + " images now; retry later"));
+    deps_.geometry->Post([this, n] {
+      // One buffer, view-major, as Compress reads it; each pair's image freed once copied.
+      images_.f.resize(n * n * images_.image_values());
+      for (size_t pair = 0; pair < n * n; ++pair) {
+        std::copy(pairs_[pair].begin(), pairs_[pair].end(), images_.f.begin() + pair * images_.image_values());
+        pairs_[pair] = {};
+      }
       std::shared_ptr<models::btf::BtfAsset> asset;
       grpc::Status s = CompressAndStore(deps_, images_, job_, {"upload", 0, threads_per_tile_}, nullptr,
                                         [this] { return StopStatus(context_, deadline_); }, &asset);
@@ -405,8 +420,8 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   BtfJob job_;
   double scale_ = 1, threads_per_tile_ = 1;
   int images_seen_ = -1;  // -1: the header has not come
-  models::btf::BtfImages images_;
-  std::vector<bool> filled_;
+  models::btf::BtfImages images_;          // grid and size from the header; the values once all have come
+  std::vector<std::vector<float>> pairs_;  // the images as they arrive, by view * N + light
   size_t filled_count_ = 0;
   v1::UploadBtfMessage message_;
 };

@@ -15,10 +15,15 @@ namespace {
 using batching::Clock;
 constexpr const char* kRpc = "CreateBtf";
 
-// Ends an upload that cannot start (no store; the service not serving).
+constexpr const char* kUploadRpc = "UploadBtf";
+
+// Ends an upload that cannot start (no store; the service not serving), recording it.
 class RejectedUpload final : public grpc::ServerReadReactor<v1::UploadBtfMessage> {
  public:
-  explicit RejectedUpload(grpc::Status status) { Finish(std::move(status)); }
+  RejectedUpload(Metrics* metrics, grpc::Status status) {
+    metrics->Call(kUploadRpc, status.error_code(), 0);
+    Finish(std::move(status));
+  }
   void OnDone() override { delete this; }
 };
 
@@ -71,7 +76,8 @@ struct AssetOrigin {
 // Compresses the images and stores the asset under the job's name, replacing or not; on the geometry worker.
 // OK with *out the stored asset, or why not (the stop's status when `stop` ended it).
 grpc::Status CompressAndStore(const ServiceDeps& deps, const models::btf::BtfImages& images, const BtfJob& job,
-                              const AssetOrigin& origin, const std::function<void(size_t)>& progress, const std::function<grpc::Status()>& stop,
+                              const AssetOrigin& origin, const std::function<void(size_t)>& progress,
+                              const std::function<grpc::Status()>& stop,
                               std::shared_ptr<models::btf::BtfAsset>* out) {
   const int threads = int(std::max(1u, std::min(4u, std::thread::hardware_concurrency())));
   std::shared_ptr<models::btf::BtfAsset> asset = models::btf::Compress(
@@ -223,7 +229,6 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     } else if (result.batch_queries > 0) {
       deps_.metrics->Evaluated(plan_->model(part).name(), false, plan_->size(part), result.batch_queries,
                                result.batch_requests, result.queue_seconds, result.kernel_seconds);
-      synthesis_kernel_seconds_ += result.kernel_seconds;
     }
     if (job_in_flight_ == 0 && status_.ok()) ++views_done_;
     Pump();
@@ -270,12 +275,11 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   std::unique_ptr<models::EvaluationPlan> plan_;
   size_t next_view_ = 0, views_done_ = 0, compressed_ = 0, job_in_flight_ = 0;
   bool compressing_ = false, final_sent_ = false;
-  double synthesis_seconds_ = 0, synthesis_kernel_seconds_ = 0;
+  double synthesis_seconds_ = 0;
   std::shared_ptr<models::btf::BtfAsset> asset_;
   std::tuple<Stage, size_t> reported_{Stage::kPreparing, 0};
   v1::CreateBtfProgress message_;
 };
-
 
 // One UploadBtf call: the header takes a long-call slot; each image is checked and decoded on gRPC's thread as
 // it arrives (one read at a time: a 128 x 128 image decodes in well under a millisecond) and its bytes are
@@ -411,7 +415,6 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
     grpc::ServerReadReactor<v1::UploadBtfMessage>::Finish(s);
   }
 
-  static constexpr const char* kUploadRpc = "UploadBtf";
   const ServiceDeps deps_;
   grpc::CallbackServerContext* const context_;
   v1::BtfAssetInfo* const response_;
@@ -442,8 +445,7 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
                                                                  const v1::CreateBtfRequest* request) {
   const auto received = Clock::now();
   const auto reject = [&](grpc::Status status) {
-    deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
-    return new RejectedStream<v1::CreateBtfProgress>(std::move(status));
+    return new RejectedStream<v1::CreateBtfProgress>(deps.metrics, kRpc, received, std::move(status));
   };
   if (!deps.btf_store) return reject(NoStore());
   BtfJob job;
@@ -464,8 +466,8 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
 grpc::ServerReadReactor<v1::UploadBtfMessage>* HandleUploadBtf(const ServiceDeps& deps,
                                                                grpc::CallbackServerContext* context,
                                                                v1::BtfAssetInfo* response, grpc::Status serving) {
-  if (!serving.ok()) return new RejectedUpload(std::move(serving));
-  if (!deps.btf_store) return new RejectedUpload(NoStore());
+  if (!serving.ok()) return new RejectedUpload(deps.metrics, std::move(serving));
+  if (!deps.btf_store) return new RejectedUpload(deps.metrics, NoStore());
   return new UploadBtfCall(deps, context, response);
 }
 

@@ -759,8 +759,7 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
                                                          const v1::RenderRequest* request) {
   const auto received = Clock::now();
   const auto reject = [&](grpc::Status status) {
-    deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
-    return new RejectedStream<v1::RenderUpdate>(std::move(status));
+    return new RejectedStream<v1::RenderUpdate>(deps.metrics, kRpc, received, std::move(status));
   };
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker

@@ -314,28 +314,22 @@ grpc::ServerUnaryReactor* LoomlightService::TextureSlice(grpc::CallbackServerCon
 
 grpc::ServerWriteReactor<v1::TabulateChunk>* LoomlightService::Tabulate(grpc::CallbackServerContext* context,
                                                                         const v1::TabulateRequest* request) {
-  if (grpc::Status s = Serving(); !s.ok()) {
-    deps_.metrics->Call("Tabulate", s.error_code(), 0);
-    return new RejectedStream<v1::TabulateChunk>(s);
-  }
+  if (grpc::Status s = Serving(); !s.ok())
+    return new RejectedStream<v1::TabulateChunk>(deps_.metrics, "Tabulate", batching::Clock::now(), s);
   return HandleTabulate(deps_, context, request);
 }
 
 grpc::ServerWriteReactor<v1::RenderUpdate>* LoomlightService::Render(grpc::CallbackServerContext* context,
                                                                     const v1::RenderRequest* request) {
-  if (grpc::Status s = Serving(); !s.ok()) {
-    deps_.metrics->Call("Render", s.error_code(), 0);
-    return new RejectedStream<v1::RenderUpdate>(s);
-  }
+  if (grpc::Status s = Serving(); !s.ok())
+    return new RejectedStream<v1::RenderUpdate>(deps_.metrics, "Render", batching::Clock::now(), s);
   return HandleRender(deps_, context, request);
 }
 
 grpc::ServerWriteReactor<v1::YarnGeometryChunk>* LoomlightService::YarnGeometry(grpc::CallbackServerContext* context,
                                                                                const v1::YarnGeometryRequest* request) {
-  if (grpc::Status s = Serving(); !s.ok()) {
-    deps_.metrics->Call("YarnGeometry", s.error_code(), 0);
-    return new RejectedStream<v1::YarnGeometryChunk>(s);
-  }
+  if (grpc::Status s = Serving(); !s.ok())
+    return new RejectedStream<v1::YarnGeometryChunk>(deps_.metrics, "YarnGeometry", batching::Clock::now(), s);
   return HandleYarnGeometry(deps_, context, request);
 }
 
@@ -345,10 +339,10 @@ grpc::ServerUnaryReactor* LoomlightService::Sample(grpc::CallbackServerContext* 
   return HandleSample(deps_, &preparer_, context, request, response);
 }
 
-
 grpc::ServerWriteReactor<v1::CreateBtfProgress>* LoomlightService::CreateBtf(grpc::CallbackServerContext* context,
                                                                             const v1::CreateBtfRequest* request) {
-  if (grpc::Status s = Serving(); !s.ok()) return new RejectedStream<v1::CreateBtfProgress>(std::move(s));
+  if (grpc::Status s = Serving(); !s.ok())
+    return new RejectedStream<v1::CreateBtfProgress>(deps_.metrics, "CreateBtf", batching::Clock::now(), s);
   return HandleCreateBtf(deps_, context, request);
 }
 

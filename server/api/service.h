@@ -3,6 +3,7 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <memory>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
@@ -68,11 +69,14 @@ grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& materi
 grpc::Status AdmitLongCall(const ServiceDeps& deps, const grpc::ServerContextBase& context, size_t bytes,
                            Admission* out);
 
-// Finishes a streaming call that never started streaming (a rejected request).
+// Finishes a streaming call that never started streaming (a rejected request), recording it as `rpc`'s.
 template <class Message>
 class RejectedStream final : public grpc::ServerWriteReactor<Message> {
  public:
-  explicit RejectedStream(grpc::Status status) { this->Finish(std::move(status)); }
+  RejectedStream(Metrics* metrics, const char* rpc, batching::Clock::time_point received, grpc::Status status) {
+    metrics->Call(rpc, status.error_code(), std::chrono::duration<double>(batching::Clock::now() - received).count());
+    this->Finish(std::move(status));
+  }
   void OnDone() override { delete this; }
 };
 

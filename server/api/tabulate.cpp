@@ -526,8 +526,7 @@ grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& 
                                                             const v1::TabulateRequest* request) {
   const auto received = Clock::now();
   const auto reject = [&](grpc::Status status) {
-    deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
-    return new RejectedStream<v1::TabulateChunk>(std::move(status));
+    return new RejectedStream<v1::TabulateChunk>(deps.metrics, kRpc, received, std::move(status));
   };
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker

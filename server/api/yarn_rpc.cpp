@@ -326,8 +326,7 @@ grpc::ServerWriteReactor<v1::YarnGeometryChunk>* HandleYarnGeometry(const Servic
                                                                    const v1::YarnGeometryRequest* request) {
   const auto received = Clock::now();
   const auto reject = [&](grpc::Status status) {
-    deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
-    return new RejectedStream<v1::YarnGeometryChunk>(std::move(status));
+    return new RejectedStream<v1::YarnGeometryChunk>(deps.metrics, kRpc, received, std::move(status));
   };
   YarnJob job;
   if (std::string error = Validate(*deps.registry, *request, &job); !error.empty()) return reject(Invalid(error));

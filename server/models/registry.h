@@ -42,9 +42,6 @@ struct PresetSpec {
   ParamValues values;  // overrides of the defaults; the registry completes them
 };
 
-// Device layout of one material, packed once per precision: `data` in double (fp64 kernels, the reference),
-// `data32` the same rounded once to float (fp32 kernels, the native baseline). Its size may depend on the
-// parameters (a woven material carries its pattern); a launch concatenates materials.
 // A data-driven material's kernel layout (a BTF asset: tens of MB), shared by every material naming it instead
 // of copied into each: float as stored, double made from it on first use (fp64 kernels, the reference).
 class PackedTables {
@@ -63,6 +60,9 @@ class PackedTables {
   mutable std::vector<double> data_;
 };
 
+// Device layout of one material, packed once per precision: `data` in double (fp64 kernels, the reference),
+// `data32` the same rounded once to float (fp32 kernels, the native baseline). Its size may depend on the
+// parameters (a woven material carries its pattern); a launch concatenates materials.
 struct PackedMaterial {
   std::vector<double> data;
   std::vector<float> data32;

@@ -45,10 +45,10 @@ std::vector<float> Repeat(const float* v, size_t k, size_t n) {
 
 std::string ClError(const char* what, cl_int err) { return std::string(what) + " failed (OpenCL error " + std::to_string(err) + ")"; }
 
-// Releases OpenCL memory objects at scope exit.
 // Materials from this size on are not copied into a launch's buffers (see Run).
 constexpr size_t kLargeMaterialBytes = size_t{1} << 20;
 
+// Releases OpenCL memory objects at scope exit.
 struct Buffers {
   std::vector<cl_mem> mems;
   ~Buffers() {

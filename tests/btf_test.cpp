@@ -410,7 +410,7 @@ TEST_F(BtfRpcTest, BadRequestsAreRefusedNamingTheField) {
     std::string field;
   };
   std::vector<Case> cases;
-  for (const char* name : {"../escape", "a/b", ".hidden", ""}) cases.push_back({TwillRequest(name), grpc::StatusCode::INVALID_ARGUMENT, "name"});
+  for (const char* name : {"../escape", "a/b", ".hidden", "", "/etc/passwd"}) cases.push_back({TwillRequest(name), grpc::StatusCode::INVALID_ARGUMENT, "name"});
   Case c{TwillRequest("ok"), grpc::StatusCode::INVALID_ARGUMENT, "material"};
   c.request.mutable_material()->set_preset("cotton_microcylinder_does_not_exist");
   cases.push_back(c);
@@ -426,6 +426,17 @@ TEST_F(BtfRpcTest, BadRequestsAreRefusedNamingTheField) {
   cases.push_back(c);
   c = {TwillRequest("ok"), grpc::StatusCode::INVALID_ARGUMENT, "compression.max_components"};
   c.request.mutable_compression()->set_max_components(1000);
+  cases.push_back(c);
+  for (double psnr : {-1.0, std::nan(""), 1e9}) {
+    c = {TwillRequest("ok"), grpc::StatusCode::INVALID_ARGUMENT, "compression.target_psnr_db"};
+    c.request.mutable_compression()->set_target_psnr_db(psnr);
+    cases.push_back(c);
+  }
+  c = {TwillRequest("ok"), grpc::StatusCode::INVALID_ARGUMENT, "grid.rings[0].count"};
+  c.request.mutable_grid()->mutable_rings(0)->set_count(6);  // theta 0 is one direction
+  cases.push_back(c);
+  c = {TwillRequest("ok"), grpc::StatusCode::INVALID_ARGUMENT, "grid.rings[2].count"};
+  c.request.mutable_grid()->mutable_rings(2)->set_count(0);
   cases.push_back(c);
   for (const Case& k : cases) {
     v1::BtfAssetInfo info;
@@ -450,14 +461,16 @@ TEST_F(BtfRpcTest, BadRequestsAreRefusedNamingTheField) {
     EXPECT_TRUE(s.error_code() == grpc::StatusCode::NOT_FOUND || s.error_code() == grpc::StatusCode::INVALID_ARGUMENT)
         << name;
   }
-  // A material naming an asset that does not exist.
-  v1::EvaluateRequest r = BtfEvaluate("nothing_here", 0);
-  r.add_wi(0), r.add_wi(0), r.add_wi(1), r.add_wo(0), r.add_wo(0), r.add_wo(1);
-  grpc::ClientContext ctx;
-  v1::EvaluateResponse out;
-  s = stub->Evaluate(&ctx, r, &out);
-  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_NE(s.error_message().find("nothing_here"), std::string::npos) << s.error_message();
+  // A material naming an asset that does not exist, or a path: assets are found by name only.
+  for (const char* name : {"nothing_here", "../../etc/passwd", "/etc/passwd"}) {
+    v1::EvaluateRequest r = BtfEvaluate(name, 0);
+    r.add_wi(0), r.add_wi(0), r.add_wi(1), r.add_wo(0), r.add_wo(0), r.add_wo(1);
+    grpc::ClientContext ctx;
+    v1::EvaluateResponse out;
+    s = stub->Evaluate(&ctx, r, &out);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << name;
+    EXPECT_NE(s.error_message().find("no BTF asset named"), std::string::npos) << s.error_message();
+  }
 }
 
 // The images a client would upload: TextureSlice of the woven twill at every grid pair, as EXR (exact floats).
@@ -565,6 +578,9 @@ TEST_F(BtfRpcTest, UploadedImagesGiveTheServerSynthesisedAsset) {
       {"not unit", "images[9].view", [](auto*, auto* im) { (*im)[9].set_view(2, 3.0f); }},
       {"bad name", "header.name", [](auto* h, auto*) { h->set_name("../../etc/x"); }},
       {"bad size", "header.width", [](auto* h, auto*) { h->set_width(100000); }},
+      {"negative scale", "header.value_scale", [](auto* h, auto*) { h->set_value_scale(-1); }},
+      {"threads", "header.threads_per_tile", [](auto* h, auto*) { h->set_threads_per_tile(5000); }},
+      {"no size", "header.width", [](auto* h, auto*) { h->set_height(0); }},
   };
   for (const Bad& b : bad) {
     v1::UploadBtfHeader h = UploadHeader("twill_bad", 16);

@@ -2,6 +2,8 @@
 // and the gRPC service, then writes the markdown report (default bench/report.md in the source tree) and prints it.
 #include "bench/bench.h"
 
+#include <absl/synchronization/mutex.h>
+
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
@@ -119,6 +121,9 @@ std::string Quietness(const OtherLoad& o) {
 
 int main(int argc, char** argv) {
   using namespace loomlight::bench;
+  // As the server does (server/api/server.cpp): the benchmark's own gRPC clients skip Abseil's debug-only
+  // lock-order graph too.
+  absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
   Args args;
   const bool parsed = ParseArgs(argc, argv, &args);
   if (!parsed || args.help) {

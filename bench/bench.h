@@ -20,10 +20,10 @@ struct Sizes {
   size_t service_max_calls = 20000;  // per client and configuration, whichever comes first
   size_t big_call_queries = size_t{1} << 20;
   // Server CPU per call (section 3b): per round, health Check and 1-query Evaluate make this many calls,
-  // 64-query Evaluate a quarter of it, each stopping early after cpu_seconds; the median of cpu_rounds.
+  // each stopping early after cpu_seconds; the median of cpu_rounds.
   size_t cpu_calls = 2000;
   double cpu_seconds = 3.0;
-  int cpu_rounds = 3;
+  int cpu_rounds = 5;
   size_t cpu_warmup_calls = 200;  // of each kind, before the first round
   double cpu_idle_seconds = 1.0;  // the idle server's own CPU is measured over this long
   int btf_texels = 64;             // BTF asset tile, per side (81 x 81 images of it)

@@ -34,8 +34,8 @@ std::vector<std::string> ChildEnvironment() {
   return env;
 }
 
-bool HealthServing(const std::string& address) {
-  auto stub = grpc::health::v1::Health::NewStub(grpc::CreateChannel(address, grpc::InsecureChannelCredentials()));
+bool HealthServing(const std::string& address, const std::shared_ptr<grpc::ChannelCredentials>& credentials) {
+  auto stub = grpc::health::v1::Health::NewStub(grpc::CreateChannel(address, credentials));
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(2));
   grpc::health::v1::HealthCheckRequest request;
@@ -46,7 +46,9 @@ bool HealthServing(const std::string& address) {
 
 }  // namespace
 
-ChildServer::ChildServer(const std::vector<std::string>& extra_args) {
+ChildServer::ChildServer(const std::vector<std::string>& extra_args,
+                         std::shared_ptr<grpc::ChannelCredentials> credentials) {
+  if (!credentials) credentials = grpc::InsecureChannelCredentials();
   std::vector<std::string> args = {LOOMLIGHT_SERVER_BINARY, "--address", "127.0.0.1:0"};
   args.insert(args.end(), extra_args.begin(), extra_args.end());
   std::vector<std::string> env = ChildEnvironment();
@@ -99,7 +101,7 @@ ChildServer::ChildServer(const std::vector<std::string>& extra_args) {
     std::exit(1);
   }
   const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-  while (!HealthServing(address())) {
+  while (!HealthServing(address(), credentials)) {
     if (std::chrono::steady_clock::now() > until) {
       std::fprintf(stderr, "%s: health never SERVING on %s\n", LOOMLIGHT_SERVER_BINARY, address().c_str());
       std::exit(1);

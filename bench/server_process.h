@@ -2,8 +2,10 @@
 // apart from the client's (section 3b).
 #pragma once
 
+#include <grpcpp/security/credentials.h>
 #include <sys/types.h>
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -12,8 +14,10 @@ namespace loomlight::bench {
 class ChildServer {
  public:
   // Starts LOOMLIGHT_SERVER_BINARY --address 127.0.0.1:0 plus `extra_args` and waits until it prints its port
-  // and its health Check answers SERVING; exits the benchmark when it cannot.
-  explicit ChildServer(const std::vector<std::string>& extra_args = {});
+  // and its health Check, over `credentials` (null: plaintext), answers SERVING; exits the benchmark when it
+  // cannot.
+  explicit ChildServer(const std::vector<std::string>& extra_args = {},
+                       std::shared_ptr<grpc::ChannelCredentials> credentials = nullptr);
   ~ChildServer();  // SIGTERM, then SIGKILL after 10 s; reaped, so its CPU shows in RUSAGE_CHILDREN
   ChildServer(const ChildServer&) = delete;
   ChildServer& operator=(const ChildServer&) = delete;

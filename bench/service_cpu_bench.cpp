@@ -16,6 +16,7 @@
 #include "bench/stats.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/access.h"
 #include "server/api/server.h"
 
 namespace loomlight::bench {
@@ -29,20 +30,18 @@ using grpc::health::v1::HealthCheckResponse;
 struct Kind {
   std::string name;
   size_t queries = 0;  // 0: health Check
-  size_t calls_divisor = 1;
 };
 
-const std::vector<Kind> kKinds = {{"health Check", 0, 1}, {"Evaluate", 1, 1}, {"Evaluate", 64, 4}};
+const std::vector<Kind> kKinds = {{"health Check", 0}, {"Evaluate", 1}, {"Evaluate", 64}};
 
 // One channel (one TCP connection) for both services, with the message limits of section 3's clients.
 class Client {
  public:
-  explicit Client(int port) {
+  Client(int port, const std::shared_ptr<grpc::ChannelCredentials>& credentials) {
     grpc::ChannelArguments args;
     args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
     args.SetMaxSendMessageSize(api::kMaxMessageBytes);
-    channel_ = grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(),
-                                         args);
+    channel_ = grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), credentials, args);
     health_ = Health::NewStub(channel_);
     loomlight_ = v1::Loomlight::NewStub(channel_);
     for (const Kind& k : kKinds)
@@ -144,71 +143,116 @@ KindResult Summarise(const std::vector<Round>& rounds, double idle_rate) {
   return k;
 }
 
+// The test-only TLS material (tests/data/tls: a certificate for 127.0.0.1 and a token file).
+const std::string kTlsDir = std::string(LOOMLIGHT_SOURCE_DIR) + "/tests/data/tls/";
+const char kTlsToken[] = "editor-token-0123456789abcdef";
+
+struct Transport {
+  std::string name;
+  std::vector<std::string> server_args;
+  std::shared_ptr<grpc::ChannelCredentials> credentials;  // the client's, token included
+};
+
+std::vector<Transport> Transports() {
+  grpc::SslCredentialsOptions ssl;
+  std::string error;
+  api::ReadFile(kTlsDir + "ca.pem", &ssl.pem_root_certs, &error);
+  return {{"plaintext", {}, grpc::InsecureChannelCredentials()},
+          {"TLS + token",
+           {"--tls-cert", kTlsDir + "server.pem", "--tls-key", kTlsDir + "server.key", "--tokens",
+            kTlsDir + "tokens.txt"},
+           grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl), grpc::AccessTokenCredentials(kTlsToken))}};
+}
+
+struct TransportResult {
+  std::vector<KindResult> kinds;
+  double idle_rate = 0;  // the idle server's CPU seconds per second
+  int threads = 0;
+  std::string clock_name;
+};
+
+// Warm-up, the idle server's own CPU, then interleaved rounds of every kind, on a fresh child server.
+TransportResult Measure(const Transport& transport, const Sizes& sizes) {
+  TransportResult out;
+  std::vector<std::string> args = {"--shutdown-grace", "2"};
+  args.insert(args.end(), transport.server_args.begin(), transport.server_args.end());
+  const ChildServer server(args, transport.credentials);
+  out.clock_name = server.CpuClockName();
+  Client client(server.port(), transport.credentials);
+  Progress("service cpu, %s: %zu warm-up calls of each kind\n", transport.name.c_str(), sizes.cpu_warmup_calls);
+  for (size_t kind = 0; kind < kKinds.size(); ++kind)
+    for (size_t i = 0; i < sizes.cpu_warmup_calls; ++i) client.Call(kind);
+  // What the server burns doing nothing (gRPC timers, the batcher, the stall watchdog, PoCL's workers).
+  const double idle0 = server.CpuSeconds();
+  const Clock::time_point idle_start = Clock::now();
+  std::this_thread::sleep_for(std::chrono::duration<double>(sizes.cpu_idle_seconds));
+  out.idle_rate = (server.CpuSeconds() - idle0) / SecondsSince(idle_start);
+
+  std::vector<std::vector<Round>> rounds(kKinds.size());
+  for (int round = 0; round < sizes.cpu_rounds; ++round)
+    for (size_t kind = 0; kind < kKinds.size(); ++kind) {
+      Progress("service cpu, %s: round %d, %s of %zu queries\n", transport.name.c_str(), round + 1,
+               kKinds[kind].name.c_str(), kKinds[kind].queries);
+      rounds[kind].push_back(
+          RunRound(server, client, kind, sizes.cpu_calls, sizes.cpu_seconds));
+    }
+  out.threads = Threads(server.pid());
+  for (const auto& r : rounds) out.kinds.push_back(Summarise(r, out.idle_rate));
+  return out;
+}
+
 }  // namespace
 
 std::string ServiceCpuSection(const Sizes& sizes) {
   Progress("service cpu: starting %s\n", LOOMLIGHT_SERVER_BINARY);
-  std::vector<KindResult> results;
-  double idle_rate = 0;
-  int threads = 0;
-  std::string clock_name;
-  {
-    const ChildServer server({"--shutdown-grace", "2"});
-    clock_name = server.CpuClockName();
-    Client client(server.port());
-    Progress("service cpu: %zu warm-up calls of each kind\n", sizes.cpu_warmup_calls);
-    for (size_t kind = 0; kind < kKinds.size(); ++kind)
-      for (size_t i = 0; i < sizes.cpu_warmup_calls / kKinds[kind].calls_divisor; ++i) client.Call(kind);
-    // What the server burns doing nothing (gRPC timers, the batcher, the stall watchdog, PoCL's workers).
-    const double idle0 = server.CpuSeconds();
-    const Clock::time_point idle_start = Clock::now();
-    std::this_thread::sleep_for(std::chrono::duration<double>(sizes.cpu_idle_seconds));
-    idle_rate = (server.CpuSeconds() - idle0) / SecondsSince(idle_start);
+  const std::vector<Transport> transports = Transports();
+  std::vector<TransportResult> results;
+  for (const Transport& t : transports) results.push_back(Measure(t, sizes));
 
-    std::vector<std::vector<Round>> rounds(kKinds.size());
-    for (int round = 0; round < sizes.cpu_rounds; ++round)
-      for (size_t kind = 0; kind < kKinds.size(); ++kind) {
-        Progress("service cpu: round %d, %s of %zu queries\n", round + 1, kKinds[kind].name.c_str(),
-                 kKinds[kind].queries);
-        rounds[kind].push_back(
-            RunRound(server, client, kind, sizes.cpu_calls / kKinds[kind].calls_divisor, sizes.cpu_seconds));
-      }
-    threads = Threads(server.pid());
-    for (const auto& r : rounds) results.push_back(Summarise(r, idle_rate));
-  }
-
-  const double health_us = results[0].server_us;
-  auto ratio = [&](double us) { return health_us > 0 ? us / health_us : 0.0; };
-  Table table({"call", "queries", "calls", "server CPU us/call", "rounds min-max", "of it idle us",
-               "client CPU us/call", "p50 latency us", "server CPU / health", "failed"});
-  for (size_t kind = 0; kind < kKinds.size(); ++kind) {
-    const KindResult& r = results[kind];
-    table.Add({kKinds[kind].name, kKinds[kind].queries ? Count(kKinds[kind].queries) : "-", Count(r.calls),
-               Fixed(r.server_us, 1), Fixed(r.server_min_us, 1) + "-" + Fixed(r.server_max_us, 1),
-               Fixed(r.idle_us, 1), Fixed(r.client_us, 1), Fixed(r.p50_us, 0), Fixed(ratio(r.server_us), 2),
-               Count(r.failures)});
-  }
+  const std::vector<KindResult>& plain = results[0].kinds;
+  const double health_us = plain[0].server_us;
+  auto ratio = [](double us, double base_us) { return base_us > 0 ? us / base_us : 0.0; };
+  Table table({"transport", "call", "queries", "calls", "server CPU us/call", "rounds min-max", "of it idle us",
+               "client CPU us/call", "p50 latency us", "server CPU / plaintext health", "failed"});
+  for (size_t t = 0; t < transports.size(); ++t)
+    for (size_t kind = 0; kind < kKinds.size(); ++kind) {
+      const KindResult& r = results[t].kinds[kind];
+      table.Add({transports[t].name, kKinds[kind].name, kKinds[kind].queries ? Count(kKinds[kind].queries) : "-",
+                 Count(r.calls), Fixed(r.server_us, 1),
+                 Fixed(r.server_min_us, 1) + "-" + Fixed(r.server_max_us, 1), Fixed(r.idle_us, 1),
+                 Fixed(r.client_us, 1), Fixed(r.p50_us, 0), Fixed(ratio(r.server_us, health_us), 2),
+                 Count(r.failures)});
+    }
+  // A server whose CPU is the bottleneck serves calls in inverse proportion to its CPU per call.
+  const double tls_capacity = ratio(plain[2].server_us, results[1].kinds[2].server_us);
 
   const std::string method =
       "The real `loomlight-server` binary as a child process of the benchmark (`--address 127.0.0.1:0`, default "
-      "options: batching on), so that its CPU time holds nothing of the client's. One client thread in the "
-      "benchmark, on one channel (one TCP connection), calls it back to back: the standard `grpc.health.v1` "
-      "Health/Check (service \"\", the empty call) and Evaluate with section 3's request (a microcylinder preset, "
-      "fp32, default T) of 1 and of 64 random pairs, every call with a 120 s deadline. After " +
-      Count(sizes.cpu_warmup_calls) + " warm-up calls of each kind (64 queries: a quarter), " +
+      "options: batching on), so that its CPU time holds nothing of the client's; once in plaintext and once "
+      "with TLS and bearer tokens (`--tls-cert`, `--tls-key`, `--tokens`: the test-only certificate and token "
+      "file of tests/data/tls; the client sends its token on every call but health, which needs none). One "
+      "client thread in the benchmark, on one channel (one TCP connection, its TLS handshake in the warm-up), "
+      "calls it back to back: the standard `grpc.health.v1` Health/Check (service \"\", the empty call) and "
+      "Evaluate with section 3's request (a microcylinder preset, fp32, default T) of 1 and of 64 random pairs, "
+      "every call with a 120 s deadline. After " +
+      Count(sizes.cpu_warmup_calls) + " warm-up calls of each kind, " +
       std::to_string(sizes.cpu_rounds) + " interleaved rounds of health, Evaluate 1, Evaluate 64, each " +
-      Count(sizes.cpu_calls) + " calls (64 queries: " + Count(sizes.cpu_calls / 4) + ") or " +
+      Count(sizes.cpu_calls) + " calls or " +
       Fixed(sizes.cpu_seconds, 1) + " s, whichever comes first. Server CPU per call is the difference of " +
-      clock_name + " over a round, divided by its calls; the table gives the median round. The idle server used " +
-      Fixed(1e6 * idle_rate, 0) + " us of CPU per second (measured over " + Fixed(sizes.cpu_idle_seconds, 1) +
+      results[0].clock_name + " over a round, divided by its calls; the table gives the median round. The idle "
+      "server used " + Fixed(1e6 * results[0].idle_rate, 0) + " us of CPU per second in plaintext, " +
+      Fixed(1e6 * results[1].idle_rate, 0) + " with TLS (measured over " + Fixed(sizes.cpu_idle_seconds, 1) +
       " s before the rounds; included in the per-call figures, shown as \"of it idle\"); it ran " +
-      std::to_string(threads) + " threads at the end. Client CPU is the whole benchmark process's.";
+      std::to_string(results[0].threads) + " threads at the end. Client CPU is the whole benchmark process's.";
   const std::string body =
-      TableBlock("server CPU us/call lower is better; the ratio column divides by the health Check's, the cost "
-                 "of gRPC's own call path on this server; rounds min-max shows how steady the machine was.",
+      TableBlock("server CPU us/call lower is better; the ratio column divides by the plaintext health Check's, "
+                 "the cost of gRPC's own call path on this server; rounds min-max shows how steady the machine "
+                 "was.",
                  table) +
-      "**server CPU, 1-query Evaluate / health Check: " + Fixed(ratio(results[1].server_us), 2) +
-      "** (target <= 1.4)\n";
+      "**server CPU, 1-query Evaluate / health Check: " + Fixed(ratio(plain[1].server_us, health_us), 2) +
+      "** (target <= 1.4)\n\n**server capacity for 64-query Evaluate calls with TLS and tokens, as a share of "
+      "plaintext's (plaintext server CPU per call / TLS's): " + Fixed(tls_capacity, 2) +
+      "** (target >= 0.85: within 15%)\n";
   return Section("3b. Server CPU per call", method, body);
 }
 

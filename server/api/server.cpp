@@ -3,6 +3,7 @@
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/resource_quota.h>
+#include <absl/synchronization/mutex.h>
 
 #include <cstdio>
 
@@ -48,6 +49,9 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
     *error = s->metrics_->Serve(options.metrics_address, options.access, s->tokens_);
     if (!error->empty()) return nullptr;
   }
+  // Debian builds Abseil without NDEBUG, which leaves its lock-order graph (a deadlock detector for debugging)
+  // running on every gRPC mutex acquisition: measured at ~4% of the server's CPU on small calls.
+  absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;

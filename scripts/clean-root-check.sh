@@ -8,7 +8,10 @@
 #   ./scripts/serve.sh                the README's serve command, in the background (in a private network
 #                                     namespace, so a server already on this machine's port 50051 cannot
 #                                     answer for it) until `loomlight health` reports SERVING; then SIGTERM,
-#                                     and the server must exit 0.
+#                                     and the server must exit 0;
+#   ./scripts/fuzz.sh SECONDS         when LOOMLIGHT_CLEAN_ROOT_FUZZ_SECONDS is set (CI sets 60): coverage-guided
+#                                     fuzzing of each libFuzzer target, with ASan and UBSan (a clang build of
+#                                     its own, about 12 minutes on 2 cores); a crash fails the check.
 # The root is unmounted and removed on exit, also on failure. Needs root (re-runs itself with sudo) and a few
 # GiB of disk (10-20 minutes on 2 cores, most of it the build and the tests). Used by .ci/run;
 # developers can run it too.
@@ -23,10 +26,11 @@
 #                                 reaches the mirror: Acquire::http(s)/ftp options, proxies, validity checks)
 #   LOOMLIGHT_SERVE_TIMEOUT       seconds serve.sh may take to report SERVING (default 600)
 #   LOOMLIGHT_KEEP_ROOT=1         keep the root on exit (for debugging; mounts are still undone)
+#   LOOMLIGHT_CLEAN_ROOT_FUZZ_SECONDS  seconds of fuzzing per target after the serve check (default 0: none)
 set -euo pipefail
 
 if [ "$(id -u)" -ne 0 ]; then
-  exec sudo --preserve-env=LOOMLIGHT_CLEAN_ROOT_PARENT,LOOMLIGHT_CLEAN_ROOT_SOURCES,LOOMLIGHT_CLEAN_ROOT_APT_CONF,LOOMLIGHT_SERVE_TIMEOUT,LOOMLIGHT_KEEP_ROOT,http_proxy,https_proxy,no_proxy \
+  exec sudo --preserve-env=LOOMLIGHT_CLEAN_ROOT_FUZZ_SECONDS,LOOMLIGHT_CLEAN_ROOT_PARENT,LOOMLIGHT_CLEAN_ROOT_SOURCES,LOOMLIGHT_CLEAN_ROOT_APT_CONF,LOOMLIGHT_SERVE_TIMEOUT,LOOMLIGHT_KEEP_ROOT,http_proxy,https_proxy,no_proxy \
     "$0" "$@"
 fi
 
@@ -34,6 +38,8 @@ repo="$(cd "$(dirname "$0")/.." && pwd)"
 suite=bookworm
 inner=/root/loomlight  # the repository's place inside the root
 serve_timeout="${LOOMLIGHT_SERVE_TIMEOUT:-600}"
+fuzz_seconds="${LOOMLIGHT_CLEAN_ROOT_FUZZ_SECONDS:-0}"
+[[ "$fuzz_seconds" =~ ^[0-9]+$ ]] || { echo "LOOMLIGHT_CLEAN_ROOT_FUZZ_SECONDS must be a number of seconds" >&2; exit 2; }
 need_gib=4  # measured: 2.1 GiB for the root with the dependencies and the build
 
 log() { printf '[clean-root %s] %s\n' "$(date +%H:%M:%S)" "$*"; }
@@ -219,3 +225,10 @@ wait "$server_pid" || server_status=$?
 server_pid=""
 ((server_status == 0)) || { tail -n 20 "$serve_log"; die "the server exited with status $server_status after SIGTERM"; }
 log "the server stopped on SIGTERM (exit status 0)"
+
+# ---- 7. Coverage-guided fuzzing (CI), after the README's commands are proven ----
+if ((fuzz_seconds > 0)); then
+  begin_phase "fuzz, ${fuzz_seconds} s per target (scripts/fuzz.sh)"
+  in_root "cd $inner && ./scripts/fuzz.sh $fuzz_seconds" </dev/null || die "fuzzing found a crash or a failed check"
+  end_phase
+fi

@@ -11,7 +11,8 @@
 # every build replays it (ctest fuzz_<target>_corpus).
 #
 # Needs clang and libFuzzer, on Debian bookworm the packages clang and libclang-rt-14-dev (llvm-14 for symbolized
-# stack traces).
+# stack traces): installed first when missing (scripts/install-deps.sh --fuzz). CI (.ci/run) runs each target for
+# 60 s in its clean root.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -25,6 +26,7 @@ for arg in "$@"; do
   esac
 done
 
+./scripts/install-deps.sh --fuzz
 build=build-fuzz
 targets=(fuzz_request fuzz_wif)
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ -DLOOMLIGHT_FUZZ=ON \

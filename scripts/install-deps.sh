@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
 # Installs the Debian bookworm packages Loomlight builds and runs with, when any is missing.
+#     scripts/install-deps.sh [--fuzz]
+# --fuzz adds the coverage-guided fuzzing toolchain scripts/fuzz.sh needs (clang, libFuzzer, llvm-symbolizer).
 set -euo pipefail
 packages=(
   build-essential cmake pkg-config
@@ -13,6 +15,11 @@ packages=(
   fonts-dejavu-core
   haproxy
 )
+case "${1:-}" in
+  --fuzz) packages+=(clang libclang-rt-14-dev llvm-14) ;;
+  '') ;;
+  *) echo "usage: $0 [--fuzz]" >&2; exit 2 ;;
+esac
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

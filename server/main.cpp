@@ -33,8 +33,10 @@ void Usage() {
                "  --queue-policy PRIORITY:KEY=VALUE[,KEY=VALUE...]\n"
                "                             one priority's queue (interactive: Evaluate, Sample, TextureSlice;\n"
                "                             bulk: Tabulate, Render); keys: max_queue_delay_us, max_queued_queries,\n"
-               "                             max_client_queued_queries (default 4194304), timeout_ms (queued longer:\n"
-               "                             RESOURCE_EXHAUSTED; default 0, none)\n"
+               "                             max_client_queued_queries (default 4194304), timeout_ms (default 0,\n"
+               "                             none), timeout_action: reject (a job queued longer than timeout_ms\n"
+               "                             fails RESOURCE_EXHAUSTED; the default) or delay (it goes behind every\n"
+               "                             job of its priority that has not timed out)\n"
                "  --no-batching              one request per launch\n"
                "  --metrics-address HOST:PORT  serve Prometheus metrics at http://HOST:PORT/metrics (default: off)\n"
                "  --environment-dir DIR      environment maps clients may name (EXR/HDR files; default: none)\n"
@@ -65,16 +67,23 @@ std::string ParseQueuePolicy(const std::string& text, loomlight::batching::Batch
     const size_t comma = std::min(text.find(',', begin), text.size());
     const std::string item = text.substr(begin, comma - begin);
     const size_t equals = item.find('=');
+    if (equals == std::string::npos || equals + 1 == item.size()) return "'" + item + "' is not KEY=VALUE";
+    const std::string key = item.substr(0, equals), value = item.substr(equals + 1);
+    begin = comma + 1;
+    using Action = loomlight::batching::QueuePolicy::TimeoutAction;
+    if (key == "timeout_action") {
+      if (value != "reject" && value != "delay") return "timeout_action is reject or delay, not '" + value + "'";
+      policy->timeout_action = value == "reject" ? Action::kReject : Action::kDelay;
+      continue;
+    }
     char* end = nullptr;
-    const unsigned long long n = equals == std::string::npos ? 0 : std::strtoull(item.c_str() + equals + 1, &end, 10);
-    if (equals == std::string::npos || equals + 1 == item.size() || *end) return "'" + item + "' is not KEY=NUMBER";
-    const std::string key = item.substr(0, equals);
+    const unsigned long long n = std::strtoull(value.c_str(), &end, 10);
+    if (*end) return "'" + item + "' is not KEY=NUMBER";
     if (key == "max_queue_delay_us") policy->max_queue_delay = std::chrono::microseconds(n);
     else if (key == "max_queued_queries") policy->max_queued_queries = n;
     else if (key == "max_client_queued_queries") policy->max_client_queued_queries = n;
     else if (key == "timeout_ms") policy->timeout = std::chrono::milliseconds(n);
     else return "unknown key '" + key + "'";
-    begin = comma + 1;
   }
   return "";
 }

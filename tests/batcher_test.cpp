@@ -263,6 +263,57 @@ TEST(Batcher, JobsQueuedPastTheTimeoutAreRejected) {
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
 }
 
+// Triton's DELAY action: a job that queued past the timeout stays queued but goes behind a job that has not
+// timed out, where fair share alone would launch it first (it queued first, with the same service).
+TEST(Batcher, TimedOutJobsGoBehindUnderTheDelayAction) {
+  batching::BatcherOptions options;
+  options.max_batch_queries = 2000;  // one job per launch, so the launch order shows the schedule
+  options.bulk.timeout = std::chrono::milliseconds(150);
+  options.bulk.timeout_action = batching::QueuePolicy::TimeoutAction::kDelay;
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  // A gate holds the batcher's thread before its launch (in the poll of `cancelled`) until released, so
+  // the others' waiting times are set by this test, not by how fast the device is.
+  std::promise<void> entered, release;
+  std::shared_future<void> released = release.get_future().share();
+  auto gate = MakeJob("velvet", 16);
+  gate->job->priority = batching::Priority::kBulk;
+  gate->job->client = "gate";
+  gate->job->cancelled = [&entered, released] {
+    entered.set_value();
+    released.wait();
+    return false;
+  };
+  ASSERT_EQ(batcher.Submit(gate->job), Batcher::Refusal::kNone);
+  entered.get_future().wait();
+  std::mutex mutex;
+  std::vector<std::string> order;
+  auto submit = [&](const std::string& client) {
+    auto s = MakeJob("velvet", 2000);
+    s->job->priority = batching::Priority::kBulk;
+    s->job->client = client;
+    auto done = s->job->done;
+    s->job->done = [&, client, done](JobResult r) {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        order.push_back(client);
+      }
+      done(std::move(r));
+    };
+    EXPECT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
+    return s;
+  };
+  auto late = submit("late");
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));  // past the timeout
+  auto fresh = submit("fresh");
+  release.set_value();
+  EXPECT_EQ(late->result.get().status, JobStatus::kOk);  // delayed, not rejected
+  EXPECT_EQ(fresh->result.get().status, JobStatus::kOk);
+  EXPECT_EQ(gate->result.get().status, JobStatus::kOk);
+  ASSERT_EQ(order.size(), 2u);
+  EXPECT_EQ(order[0], "fresh");
+  EXPECT_EQ(order[1], "late");
+}
+
 TEST(Batcher, SubmitAfterStopSaysStopping) {
   batching::Batcher batcher(&testing::SharedRuntime(), {});
   batcher.Stop();

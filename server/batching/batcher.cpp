@@ -1,6 +1,7 @@
 #include "server/batching/batcher.h"
 
 #include <algorithm>
+#include <tuple>
 
 namespace loomlight::batching {
 namespace {
@@ -128,6 +129,12 @@ std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
   std::vector<std::shared_ptr<Job>> batch;
   PriorityQueue& queue = queue_[queue_[0].empty() ? 1 : 0];
   size_t queries = 0;
+  const Clock::time_point now = Clock::now();
+  const QueuePolicy& policy = options_.policy(&queue == &queue_[0] ? Priority::kInteractive : Priority::kBulk);
+  // Under the kDelay timeout action a timed-out job goes behind every job that has not timed out.
+  const auto delayed = [&](const Job& job) {
+    return policy.timeout_action == QueuePolicy::TimeoutAction::kDelay && policy.TimedOut(job.enqueued, now);
+  };
   // Job by job, each from the client served least so far (ties: the longest waiting) among those with a job
   // that fits: fair within a launch too, so coalescing never gives one client's many jobs a ride ahead of
   // another's.
@@ -142,8 +149,10 @@ std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
           return SameKernel(*batch.front(), *job) && queries + job->n <= options_.max_batch_queries;
         });
       if (fits == jobs.end()) continue;
-      const bool better = chosen == queue.clients.end() || client->second.served < chosen->second.served ||
-                          (client->second.served == chosen->second.served && (*fits)->enqueued < (*chosen_job)->enqueued);
+      const auto rank = [&](decltype(client) c, const Job& job) {
+        return std::make_tuple(delayed(job), c->second.served, job.enqueued);
+      };
+      const bool better = chosen == queue.clients.end() || rank(client, **fits) < rank(chosen, **chosen_job);
       if (better) {
         chosen = client;
         chosen_job = fits;
@@ -191,10 +200,11 @@ void Batcher::Launch(std::vector<std::shared_ptr<Job>> batch) {
   std::vector<std::shared_ptr<Job>> live;
   for (auto& job : batch) {
     const bool cancelled = job->cancelled && job->cancelled();
-    const auto timeout = options_.policy(job->priority).timeout;
+    const QueuePolicy& policy = options_.policy(job->priority);
+    const auto timeout = policy.timeout;
     if (job->deadline <= now || (cancelled && job->deadline <= now + kDeadlineSlack))
       job->done(Failed(JobStatus::kDeadlineExceeded, "deadline passed while queued"));
-    else if (timeout.count() > 0 && now - job->enqueued > timeout)
+    else if (policy.timeout_action == QueuePolicy::TimeoutAction::kReject && policy.TimedOut(job->enqueued, now))
       job->done(Failed(JobStatus::kResourceExhausted,
                        std::string("queued longer than the ") + PriorityName(job->priority) + " queue's timeout of " +
                            std::to_string(timeout.count()) + " ms: the server is overloaded; retry later"));

@@ -74,9 +74,16 @@ struct QueuePolicy {
   std::chrono::microseconds max_queue_delay{0};  // 0: batch whatever queued while the last launch ran
   size_t max_queued_queries = size_t{1} << 23;   // beyond this Submit refuses (RESOURCE_EXHAUSTED)
   size_t max_client_queued_queries = size_t{1} << 22;  // one client's share of them
-  // A job queued longer than this fails RESOURCE_EXHAUSTED (the server is overloaded: retry) instead of
-  // waiting on; 0: it waits until its call's deadline.
+  // What happens to a job queued longer than `timeout` (0: nothing; it waits until its call's deadline).
   std::chrono::milliseconds timeout{0};
+  // Triton's timeout actions: kReject fails it RESOURCE_EXHAUSTED (the server is overloaded: retry); kDelay
+  // keeps it queued but behind every job of its priority that has not timed out.
+  enum class TimeoutAction { kReject, kDelay };
+  TimeoutAction timeout_action = TimeoutAction::kReject;
+  // Whether a job enqueued at `enqueued` has timed out at `now`.
+  bool TimedOut(Clock::time_point enqueued, Clock::time_point now) const {
+    return timeout.count() > 0 && now - enqueued > timeout;
+  }
 };
 
 struct BatcherOptions {

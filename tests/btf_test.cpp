@@ -636,5 +636,37 @@ TEST_F(BtfRpcTest, StalledUploadsHoldOnlyWhatTheySent) {
   for (auto& w : writers) EXPECT_FALSE(w->Finish().ok());
 }
 
+// A client that sends its header and then nothing is cut off after the idle limit, giving back its long-call
+// slot: with one slot in the server, a CreateBtf behind the stalled upload is admitted once the limit passes
+// (with the upload holding its slot until its deadline, it is refused RESOURCE_EXHAUSTED throughout).
+TEST_F(BtfRpcTest, AnUploadThatStopsSendingIsCancelledAndFreesItsSlot) {
+  api::ServerOptions options;
+  options.data_dir = DataDir();
+  options.limits.max_long_running_calls = 1;
+  options.limits.upload_idle_timeout = std::chrono::seconds(1);
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  grpc::ClientContext stalled;
+  v1::BtfAssetInfo unused;
+  auto writer = stub->UploadBtf(&stalled, &unused);
+  v1::UploadBtfMessage header;
+  *header.mutable_header() = UploadHeader("stalled", 16);
+  ASSERT_TRUE(writer->Write(header));
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the server admits the header
+  const v1::CreateBtfRequest create = TwillRequest("behind");
+  v1::BtfAssetInfo info;
+  EXPECT_EQ(Create(*stub, create, &info).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);  // the slot is held
+  grpc::Status created;
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (std::chrono::steady_clock::now() < until) {
+    created = Create(*stub, create, &info);
+    if (created.error_code() != grpc::StatusCode::RESOURCE_EXHAUSTED) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  EXPECT_TRUE(created.ok()) << created.error_message();
+  EXPECT_EQ(writer->Finish().error_code(), grpc::StatusCode::CANCELLED);  // the server cancelled it
+}
+
 }  // namespace
 }  // namespace loomlight

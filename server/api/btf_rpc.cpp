@@ -291,12 +291,13 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
  public:
   UploadBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, v1::BtfAssetInfo* response)
       : deps_(deps), context_(context), response_(response), received_(Clock::now()),
-        deadline_(CallDeadline(context, received_)) {
+        deadline_(CallDeadline(context, received_)), idle_(deps.idle_uploads->Watch(context)) {
     StartRead(&message_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) return EndOfStream();
+    idle_->Touch();
     const grpc::Status s = images_seen_ < 0 ? Header() : Image();
     if (!s.ok()) return Finish(s);
     message_.Clear();
@@ -380,6 +381,13 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
 
   // The client closed its side (or went away): everything arrived, or the call fails saying what is missing.
   void EndOfStream() {
+    deps_.idle_uploads->Forget(idle_);  // nothing more to receive: compressing is not idling
+    if (idle_->cut_off())
+      return Finish({grpc::StatusCode::DEADLINE_EXCEEDED,
+                     "the client sent nothing for " +
+                         std::to_string(std::chrono::duration_cast<std::chrono::seconds>(
+                                            deps_.idle_uploads->limit()).count()) +
+                         " s: the upload was cancelled"});
     if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return Finish(s);
     if (images_seen_ < 0) return Finish(Invalid("no header: the stream was empty"));
     const size_t n = job_.grid.size();
@@ -411,6 +419,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   }
 
   void Finish(const grpc::Status& s) {
+    deps_.idle_uploads->Forget(idle_);  // an error before the end of the stream
     deps_.metrics->Call(kUploadRpc, s.error_code(), SecondsSince(received_));
     grpc::ServerReadReactor<v1::UploadBtfMessage>::Finish(s);
   }
@@ -419,6 +428,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   grpc::CallbackServerContext* const context_;
   v1::BtfAssetInfo* const response_;
   const Clock::time_point received_, deadline_;
+  const std::shared_ptr<IdleStreams::Stream> idle_;
   Admission admission_;
   BtfJob job_;
   double scale_ = 1, threads_per_tile_ = 1;

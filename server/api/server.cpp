@@ -113,6 +113,7 @@ void LoomlightServer::Watch() {
     metrics_->Resources({memory_->in_use(), memory_->limit(), long_calls_->in_use(), long_calls_->limit(),
                          service_->materials().bytes(), warm_ && !stuck_});
     metrics_->Queues(batcher_->Stats());
+    service_->CancelIdleUploads();
     const auto now = batching::Clock::now();
     std::string reason;
     const std::pair<const char*, batching::Clock::time_point> busy[] = {

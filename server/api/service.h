@@ -9,6 +9,7 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/admission.h"
 #include "server/api/host_worker.h"
+#include "server/api/idle_streams.h"
 #include "server/api/metrics.h"
 #include "server/assets/btf_store.h"
 #include "server/assets/environment_maps.h"
@@ -39,6 +40,8 @@ struct ServiceLimits {
   size_t max_long_running_calls = 16;            // TextureSlice, Tabulate and Render calls at once
   size_t max_long_calls_per_client = 8;          // of them, one client's (its name, else its connection)
   size_t material_cache_bytes = size_t{64} << 20;
+  // A client-streaming call (UploadBtf) that sends nothing for this long is cancelled (server/api/idle_streams.h).
+  std::chrono::milliseconds upload_idle_timeout{60000};
 };
 
 // What the streaming and long-running RPC handlers (TextureSlice, Tabulate, Render) need from the service;
@@ -57,6 +60,7 @@ struct ServiceDeps {
   ClientSlots* client_long_calls = nullptr;  // and each client's share of them
   assets::EnvironmentMaps* environments = nullptr;
   assets::BtfStore* btf_store = nullptr;  // null: the server keeps no BTF assets
+  IdleStreams* idle_uploads = nullptr;     // UploadBtf calls, cut off when they stop sending
 };
 
 // Packs a material its handler checked with MaterialCache::Peek; on a worker, never on a gRPC thread (packing
@@ -94,6 +98,8 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   batching::Clock::time_point preparer_busy_since() const { return preparer_.busy_since(); }
   batching::Clock::time_point geometry_busy_since() const { return geometry_.busy_since(); }
   const models::MaterialCache& materials() const { return materials_; }
+  // Cancels the uploads that stopped sending (the watchdog's round).
+  void CancelIdleUploads() { idle_uploads_.CancelIdle(); }
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
                                        v1::ListModelsResponse* response) override;
@@ -134,6 +140,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   ServiceDeps deps_;
   models::MaterialCache materials_;
   ClientSlots client_long_calls_;
+  IdleStreams idle_uploads_;
   std::atomic<bool> serving_{false};
   // Declared last, so destroyed first (the preparer and the loader before the worker): their remaining tasks
   // may still use the members above.

@@ -193,6 +193,34 @@ TEST(Batcher, SmallInteractiveJobsRunBesideALongLaunch) {
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
 }
 
+// Bulk jobs of 2,000 queries from named clients, recording which client's job each finished launch served.
+class LaunchOrder {
+ public:
+  std::unique_ptr<Submitted> Submit(Batcher& batcher, const std::string& client) {
+    auto s = MakeJob("velvet", 2000);
+    s->job->priority = batching::Priority::kBulk;
+    s->job->client = client;
+    auto done = s->job->done;
+    s->job->done = [this, client, done](JobResult r) {
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        clients_.push_back(client);
+      }
+      done(std::move(r));
+    };
+    EXPECT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
+    return s;
+  }
+  std::vector<std::string> clients() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return clients_;
+  }
+
+ private:
+  std::mutex mutex_;
+  std::vector<std::string> clients_;
+};
+
 TEST(Batcher, ClientsShareTheDeviceFairly) {
   batching::BatcherOptions options;
   options.max_batch_queries = 2000;  // one job per launch, so the launch order shows the schedule
@@ -200,29 +228,15 @@ TEST(Batcher, ClientsShareTheDeviceFairly) {
   auto blocker = Blocker();
   ASSERT_EQ(batcher.Submit(blocker->job), Batcher::Refusal::kNone);
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  std::mutex mutex;
-  std::vector<std::string> order;
-  auto submit = [&](const std::string& client) {
-    auto s = MakeJob("velvet", 2000);
-    s->job->priority = batching::Priority::kBulk;
-    s->job->client = client;
-    auto done = s->job->done;
-    s->job->done = [&, client, done](JobResult r) {
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        order.push_back(client);
-      }
-      done(std::move(r));
-    };
-    EXPECT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
-    return s;
-  };
+  LaunchOrder launches;
+  auto submit = [&](const std::string& client) { return launches.Submit(batcher, client); };
   std::vector<std::unique_ptr<Submitted>> jobs;
   for (int i = 0; i < 6; ++i) jobs.push_back(submit("many"));
   jobs.push_back(submit("one"));  // queued last
   for (auto& j : jobs) EXPECT_EQ(j->result.get().status, JobStatus::kOk);
   // First come, first served would run it seventh; fair share, second (after the first of the six, which
   // queued first with the same service).
+  const std::vector<std::string> order = launches.clients();
   ASSERT_EQ(order.size(), 7u);
   EXPECT_EQ(std::find(order.begin(), order.end(), "one") - order.begin(), 1);
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
@@ -285,23 +299,8 @@ TEST(Batcher, TimedOutJobsGoBehindUnderTheDelayAction) {
   };
   ASSERT_EQ(batcher.Submit(gate->job), Batcher::Refusal::kNone);
   entered.get_future().wait();
-  std::mutex mutex;
-  std::vector<std::string> order;
-  auto submit = [&](const std::string& client) {
-    auto s = MakeJob("velvet", 2000);
-    s->job->priority = batching::Priority::kBulk;
-    s->job->client = client;
-    auto done = s->job->done;
-    s->job->done = [&, client, done](JobResult r) {
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        order.push_back(client);
-      }
-      done(std::move(r));
-    };
-    EXPECT_EQ(batcher.Submit(s->job), Batcher::Refusal::kNone);
-    return s;
-  };
+  LaunchOrder launches;
+  auto submit = [&](const std::string& client) { return launches.Submit(batcher, client); };
   auto late = submit("late");
   std::this_thread::sleep_for(std::chrono::milliseconds(400));  // past the timeout
   auto fresh = submit("fresh");
@@ -309,6 +308,7 @@ TEST(Batcher, TimedOutJobsGoBehindUnderTheDelayAction) {
   EXPECT_EQ(late->result.get().status, JobStatus::kOk);  // delayed, not rejected
   EXPECT_EQ(fresh->result.get().status, JobStatus::kOk);
   EXPECT_EQ(gate->result.get().status, JobStatus::kOk);
+  const std::vector<std::string> order = launches.clients();
   ASSERT_EQ(order.size(), 2u);
   EXPECT_EQ(order[0], "fresh");
   EXPECT_EQ(order[1], "late");

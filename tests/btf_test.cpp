@@ -170,6 +170,47 @@ TEST(BtfKernels, OpenClFloatAndDoubleAgreeWithTheDoubleReference) {
   }
 }
 
+// An asset larger than 2^24 values, whose tile-mean block starts at an offset a float32 table cannot hold (the
+// packed material is kept as float32): read from the header, the tile means came one value off, in the kernels
+// and the double reference alike (its table is made from the float one). The tile mean, the BRDF, must still
+// be the mean of the BTF over the texel centres (as in BrdfIsTheMeanOfTheBtfOverTheTile), in both.
+TEST(BtfKernels, OffsetsBeyondWhatAFloatHoldsAreExact) {
+  const BtfImages im = LowRankImages(SmallGrid(), 232, 6, 11);
+  auto asset = Register(models::btf::Compress(im, {.max_components = 6}, nullptr, nullptr), "test_large");
+  ASSERT_TRUE(asset);
+  const models::PackedMaterial m = Pack(*asset, 6);
+  // The tile means' offset by the layout (kernels/models/btf.h), from the header's small integers.
+  const double* header = m.values64();
+  const double n_dirs = header[4], kept = header[0];
+  const double means_offset =
+      8 + 3 * header[3] + n_dirs * n_dirs * kept + n_dirs * header[1] * header[2] * 3 * (1 + kept);
+  ASSERT_NE(double(float(means_offset)), means_offset) << "the test needs an offset a float cannot hold";
+  const size_t texels = size_t(im.width) * im.height;
+  std::vector<float> wi, wo, uv;
+  for (int t = 0; t < im.width * im.height; ++t)
+    uv.insert(uv.end(), {float((t % im.width + 0.5) / im.width), float((t / im.width + 0.5) / im.height)});
+  const float pairs[3][6] = {{0, 0, 1, 0, 0, 1}, {0.6f, 0, 0.8f, 0, 0.6f, 0.8f}, {-0.28f, 0.48f, 0.83f, 0.5f, 0.1f, 0.86f}};
+  for (const auto& pair : pairs) {
+    wi.assign(3 * texels, 0.0f);
+    wo.assign(3 * texels, 0.0f);
+    for (size_t t = 0; t < texels; ++t)
+      for (int c = 0; c < 3; ++c) wi[3 * t + c] = pair[c], wo[3 * t + c] = pair[3 + c];
+    std::vector<double> btf(3 * texels);
+    BtfModel().ReferenceEval(m, wi.data(), wo.data(), uv.data(), texels, btf.data());
+    double mean[3] = {0, 0, 0};
+    for (size_t t = 0; t < texels; ++t)
+      for (int c = 0; c < 3; ++c) mean[c] += btf[3 * t + c] / double(texels);
+    double reference[3];
+    BtfModel().ReferenceEval(m, pair, pair + 3, nullptr, 1, reference);
+    const std::vector<double> kernel =
+        testing::RunKernel(BtfModel(), m, false, {pair, pair + 3}, {pair + 3, pair + 6}, {});
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(reference[c], mean[c], 1e-4 * mean[c]) << "double reference, channel " << c;
+      EXPECT_NEAR(kernel[c], mean[c], 1e-4 * mean[c]) << "OpenCL fp32, channel " << c;
+    }
+  }
+}
+
 // Without uv the model is the BTF's mean over the tile (DESIGN.md: BRDF = average of BTF): at texel centres
 // the bilinear filter returns texels, so the mean over centres is the tile mean exactly.
 TEST(BtfKernels, BrdfIsTheMeanOfTheBtfOverTheTile) {

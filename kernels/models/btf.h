@@ -8,7 +8,8 @@
 //
 // Packed material (array of scalar), BT_HEADER_SIZE values, then the rings, then three blocks:
 //   [0] K, the components kept   [1] texels along u   [2] texels along v   [3] rings   [4] directions N
-//   [5] offset of the weights    [6] offset of the texels   [7] offset of the tile means
+//   [5] offset of the weights    [6] offset of the texels   [7] offset of the tile means (informative: the
+//   kernels compute them, bt_means_offset)
 //   rings:      per ring: theta (radians), count, first direction
 //   weights:    [view][light][k], k < K: the PCA coefficient of component k for that light (Eq. 1's p_ikj)
 //   texels:     [view][texel t = iv * texels_u + iu][channel][1 + K]: the view's mean, then its K components
@@ -61,6 +62,47 @@ LL_INLINE void bt_neighbours(LL_GLOBAL const scalar* mat, scalar x, scalar y, sc
   }
 }
 
+// The blocks' offsets, computed from the header's small integers rather than read from [5]-[7]: in a float32
+// table those can exceed 2^24, beyond which a float does not hold every integer (a large asset's tile means
+// would be read one value off).
+LL_INLINE int bt_weights_offset(LL_GLOBAL const scalar* mat) { return BT_HEADER_SIZE + BT_RING_STRIDE * (int)mat[3]; }
+LL_INLINE int bt_texels_offset(LL_GLOBAL const scalar* mat) {
+  const int n = (int)mat[4];
+  return bt_weights_offset(mat) + n * n * (int)mat[0];
+}
+LL_INLINE int bt_means_offset(LL_GLOBAL const scalar* mat) {
+  return bt_texels_offset(mat) + (int)mat[4] * (int)mat[1] * (int)mat[2] * 3 * (1 + (int)mat[0]);
+}
+
+// Where a query reads its texels: the bilinear footprint of (u, v) over the wrapped tile (it repeats), or the
+// tile-mean block's one "texel" when not textured. Gives the texels' indices and weights, the block's offset in
+// the packed material and one view slot's stride in it; returns how many texels (4 or 1).
+LL_INLINE int bt_footprint(LL_GLOBAL const scalar* mat, int textured, scalar u, scalar v, int* texel, scalar* texel_w,
+                           int* block, int* view_stride) {
+  const int kept = (int)mat[0], nu = (int)mat[1], nv = (int)mat[2];
+  const int texel_stride = 3 * (1 + kept);
+  if (!textured) {
+    texel[0] = 0, texel_w[0] = 1;
+    *block = bt_means_offset(mat);
+    *view_stride = texel_stride;
+    return 1;
+  }
+  const scalar x = (u - floor(u)) * (scalar)nu - (scalar)0.5, y = (v - floor(v)) * (scalar)nv - (scalar)0.5;
+  const scalar x0 = floor(x), y0 = floor(y);
+  const scalar ax = x - x0, ay = y - y0;
+  int iu0 = (int)x0, iv0 = (int)y0;
+  iu0 = iu0 < 0 ? iu0 + nu : iu0;  // x0 is -1 left of the first centre
+  iv0 = iv0 < 0 ? iv0 + nv : iv0;
+  const int iu1 = iu0 + 1 == nu ? 0 : iu0 + 1, iv1 = iv0 + 1 == nv ? 0 : iv0 + 1;
+  texel[0] = iv0 * nu + iu0, texel_w[0] = (1 - ax) * (1 - ay);
+  texel[1] = iv0 * nu + iu1, texel_w[1] = ax * (1 - ay);
+  texel[2] = iv1 * nu + iu0, texel_w[2] = (1 - ax) * ay;
+  texel[3] = iv1 * nu + iu1, texel_w[3] = ax * ay;
+  *block = bt_texels_offset(mat);
+  *view_stride = nu * nv * texel_stride;
+  return 4;
+}
+
 // f of one query (scalar code: each query reads its own view slots and texels, so a work-item's lanes share
 // nothing to vectorise but the loops over components). textured = 0: the tile's mean (u, v unused).
 LL_INLINE void bt_eval_one(LL_GLOBAL const scalar* mat, int c, scalar wix, scalar wiy, scalar wiz, scalar wox,
@@ -70,39 +112,19 @@ LL_INLINE void bt_eval_one(LL_GLOBAL const scalar* mat, int c, scalar wix, scala
   wix /= ni, wiy /= ni, wiz /= ni;
   wox /= no, woy /= no, woz /= no;
   if (!(wiz > (scalar)1e-7) || !(woz > (scalar)1e-7)) return;  // a reflection model (SPEC.md section 1)
-  const int kept = (int)mat[0], nu = (int)mat[1], nv = (int)mat[2], n = (int)mat[4];
+  const int kept = (int)mat[0], n = (int)mat[4];
   c = c < kept ? (c < 0 ? 0 : c) : kept;
   const int stride = 1 + kept;
-  LL_GLOBAL const scalar* weights = mat + (int)mat[5];
+  LL_GLOBAL const scalar* weights = mat + bt_weights_offset(mat);
   int view[4], light[4];
   scalar view_w[4], light_w[4];
   bt_neighbours(mat, wox, woy, woz, view, view_w);
   bt_neighbours(mat, wix, wiy, wiz, light, light_w);
-  // The bilinear texel footprint (wrapped: the tile repeats), or the tile-mean block.
-  int texel[4];
+  int texel[4], block_offset, view_stride;
   scalar texel_w[4];
-  int texels = 1;
-  LL_GLOBAL const scalar* block = mat + (int)mat[7];  // tile means: one "texel" per view
-  int texel_stride = 3 * stride;
-  int view_stride = 3 * stride;
-  if (textured) {
-    const scalar x = (u - floor(u)) * (scalar)nu - (scalar)0.5, y = (v - floor(v)) * (scalar)nv - (scalar)0.5;
-    const scalar x0 = floor(x), y0 = floor(y);
-    const scalar ax = x - x0, ay = y - y0;
-    int iu0 = (int)x0, iv0 = (int)y0;
-    iu0 = iu0 < 0 ? iu0 + nu : iu0;  // x0 is -1 left of the first centre
-    iv0 = iv0 < 0 ? iv0 + nv : iv0;
-    const int iu1 = iu0 + 1 == nu ? 0 : iu0 + 1, iv1 = iv0 + 1 == nv ? 0 : iv0 + 1;
-    texel[0] = iv0 * nu + iu0, texel_w[0] = (1 - ax) * (1 - ay);
-    texel[1] = iv0 * nu + iu1, texel_w[1] = ax * (1 - ay);
-    texel[2] = iv1 * nu + iu0, texel_w[2] = (1 - ax) * ay;
-    texel[3] = iv1 * nu + iu1, texel_w[3] = ax * ay;
-    texels = 4;
-    block = mat + (int)mat[6];
-    view_stride = nu * nv * 3 * stride;
-  } else {
-    texel[0] = 0, texel_w[0] = 1;
-  }
+  const int texels = bt_footprint(mat, textured, u, v, texel, texel_w, &block_offset, &view_stride);
+  LL_GLOBAL const scalar* block = mat + block_offset;
+  const int texel_stride = 3 * stride;
   scalar acc[3] = {0, 0, 0};
   scalar gamma[BT_MAX_COMPONENTS];
   scalar sum[1 + BT_MAX_COMPONENTS];

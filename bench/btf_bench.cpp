@@ -11,7 +11,9 @@
 #include <thread>
 
 #include "bench/bench.h"
+#include "bench/in_process.h"
 #include "bench/kernel_runs.h"
+#include "bench/render_client.h"
 #include "bench/report.h"
 #include "bench/stats.h"
 #include "server/models/btf/btf_asset.h"
@@ -146,6 +148,94 @@ std::string Smallest(const BtfAsset& a, const std::function<bool(const models::b
   return "none up to " + std::to_string(a.components);
 }
 
+// One Render request of the asset on the cylinders (the built-in sky with its sun: the scene's default lighting).
+v1::RenderRequest CylindersRequest(const std::string& asset, v1::BtfEnvironment mode, uint32_t side, uint32_t spp,
+                                   uint64_t seed) {
+  v1::RenderRequest r;
+  r.mutable_material()->set_model("btf");
+  v1::Param* p = r.mutable_material()->add_params();
+  p->set_name("asset");
+  p->set_text(asset);
+  r.set_scene(v1::SCENE_CYLINDERS);
+  r.set_width(side);
+  r.set_height(side);
+  r.set_samples_per_pixel(spp);
+  r.set_format(v1::RENDER_FORMAT_EXR);
+  r.set_seed(seed);
+  r.set_btf_environment(mode);
+  return r;
+}
+
+// Folded environment lighting (Eq. 10) against sampled: renders of the asset on the cylinders, each against the
+// mean of many SAMPLED renders. LOOMLIGHT_BTF_IMAGES=DIR also writes each image there as EXR, to look at.
+std::string FoldedEnvironmentBlock(const std::string& asset, const Sizes& sizes) {
+  const uint32_t side = sizes.quick ? 64 : 256, reference_spp = sizes.quick ? 64 : 256;
+  auto server = StartServer(api::ServerOptions{});
+  auto stub = Connect(server->port(), 0);
+  Progress("btf: folded environment, reference of %u spp at %ux%u\n", reference_spp, side, side);
+  const Clock::time_point reference_start = Clock::now();
+  const std::vector<float> reference =
+      MeanRender(*stub, CylindersRequest(asset, v1::BTF_ENVIRONMENT_SAMPLED, side, 1, 0), reference_spp, 1000);
+  const double reference_seconds = SecondsSince(reference_start);
+  const char* dir = std::getenv("LOOMLIGHT_BTF_IMAGES");
+  const auto keep = [&](const std::string& name, const std::string& bytes) {
+    if (!dir) return;
+    if (FILE* f = std::fopen((std::string(dir) + "/" + name + ".exr").c_str(), "wb")) {
+      std::fwrite(bytes.data(), 1, bytes.size(), f);
+      std::fclose(f);
+    }
+  };
+  double mean_reference = 0;
+  for (float v : reference) mean_reference += v / double(reference.size());
+  Table table({"mode", "spp", "seconds", "PSNR (dB)", "relative MSE", "image mean / reference's", "queries"});
+  std::string fold_reason;
+  std::vector<std::pair<double, double>> sampled_curve;  // (PSNR, seconds)
+  double folded4_psnr = 0, folded4_seconds = 0;
+  for (const v1::BtfEnvironment mode : {v1::BTF_ENVIRONMENT_FOLDED, v1::BTF_ENVIRONMENT_SAMPLED}) {
+    const bool folded = mode == v1::BTF_ENVIRONMENT_FOLDED;
+    for (const uint32_t spp : folded ? std::vector<uint32_t>{1, 4, 16} : std::vector<uint32_t>{1, 4, 16, 64}) {
+      Progress("btf: %s at %u spp\n", folded ? "folded" : "sampled", spp);
+      const RenderResult r = TimeRender(*stub, CylindersRequest(asset, mode, side, spp, 7), 1, spp == 1);
+      keep(std::string(folded ? "folded" : "sampled") + "_" + std::to_string(spp), r.last.image());
+      const ImageError e = Compare(r.image, reference);
+      double mean = 0;
+      for (float v : r.image) mean += v / double(r.image.size());
+      table.Add({folded ? "FOLDED" : "SAMPLED", std::to_string(spp), Fixed(r.client_seconds, 2), Fixed(e.psnr_db, 2),
+                 Sci(e.relative_mse), Fixed(mean / mean_reference, 4), Count(r.last.queries())});
+      if (folded && fold_reason.empty())
+        for (const v1::FidelityChoice& c : r.last.fidelity(1).choices())
+          if (c.aspect() == "btf_environment") fold_reason = c.reason();
+      if (folded && spp == 4) folded4_psnr = e.psnr_db, folded4_seconds = r.client_seconds;
+      if (!folded) sampled_curve.push_back({e.psnr_db, r.client_seconds});
+    }
+  }
+  // SAMPLED's time to FOLDED's 4-spp PSNR: between the two sampled renders around it, log-linear in time (the
+  // error of a Monte Carlo image falls 3 dB per doubling of samples).
+  std::string sampled_to_match = "more than " + Fixed(sampled_curve.back().second, 1) + " s (beyond 64 spp)";
+  for (size_t i = 0; i + 1 < sampled_curve.size(); ++i) {
+    const auto [p0, t0] = sampled_curve[i];
+    const auto [p1, t1] = sampled_curve[i + 1];
+    if (folded4_psnr >= p0 && folded4_psnr <= p1 && p1 > p0)
+      sampled_to_match = Fixed(t0 * std::pow(t1 / t0, (folded4_psnr - p0) / (p1 - p0)), 2) + " s";
+  }
+  if (!sampled_curve.empty() && folded4_psnr < sampled_curve.front().first) sampled_to_match = "less than 1 spp";
+  if (sampled_curve.size() > 1 && folded4_psnr > sampled_curve.back().first) {
+    // Beyond the measured curve: 3 dB per doubling from 64 spp.
+    const double doublings = (folded4_psnr - sampled_curve.back().first) / 3.0;
+    sampled_to_match = "about " + Fixed(sampled_curve.back().second * std::pow(2.0, doublings), 0) +
+                       " s (extrapolated at 3 dB per doubling of samples from 64 spp)";
+  }
+  return TableBlock("folded environment lighting (Eq. 10) against sampled, cylinders " + std::to_string(side) + " x " +
+                        std::to_string(side) + " under the built-in sky and sun; each image against the mean of " +
+                        std::to_string(reference_spp) + " spp of SAMPLED renders (" + Fixed(reference_seconds, 1) +
+                        " s), so PSNR above ~" + Fixed(10 * std::log10(double(reference_spp)), 0) +
+                        " dB over 1 spp's is the reference's own noise; seconds: the client's, whole call; higher "
+                        "PSNR is better.",
+                    table) +
+         "**The fold (cylinder 2's report):** " + fold_reason + ". **FOLDED at 4 spp: " + Fixed(folded4_psnr, 2) +
+         " dB in " + Fixed(folded4_seconds, 2) + " s; SAMPLED needs " + sampled_to_match + " for the same PSNR.**\n\n";
+}
+
 }  // namespace
 
 std::string BtfSection(runtime::ClRuntime& rt, const Sizes& sizes) {
@@ -263,6 +353,7 @@ std::string BtfSection(runtime::ClRuntime& rt, const Sizes& sizes) {
     if (r.fp64_error) add("OpenCL fp64", *r.fp64_error);
     add("native fp32", r.native_error);
   }
+  const std::string folded_block = FoldedEnvironmentBlock(asset->name, sizes);
   models::btf::Assets::Global().Remove(asset->id);
 
   const std::string method =
@@ -304,7 +395,8 @@ std::string BtfSection(runtime::ClRuntime& rt, const Sizes& sizes) {
       (btf_fp32 >= 10e6 ? "target met" : "target of 10 M missed") + ").**\n\n" +
       TableBlock("errors against the double reference, relative to its peak; OpenCL fp32 and native agree: the "
                  "float arithmetic's rounding in the component sums.",
-                 error);
+                 error) +
+      folded_block;
   return Section("11. BTF assets: synthesis, compression, error against storage, reconstruction", method, body);
 }
 

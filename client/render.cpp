@@ -137,6 +137,8 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
   if (auto v = enum_option(options, "fiber-occlusion", "FIBER_OCCLUSION_", v1::FiberOcclusion_Parse))
     request.set_fiber_occlusion(*v);
   if (auto ambient = options.last("ambient")) request.set_ambient(parse_number(*ambient, "--ambient"));
+  if (auto v = enum_option(options, "btf-environment", "BTF_ENVIRONMENT_", v1::BtfEnvironment_Parse))
+    request.set_btf_environment(*v);
   request.set_format(output_format(options, out));
   return request;
 }
@@ -200,6 +202,7 @@ OptionList render_options() {
       {"fiber-shadows", "auto|traced|slices", "fiber scenes: light through the fibers traced, or the self-shadow slices"},
       {"fiber-occlusion", "auto|traced|texture|distance", "fiber scenes: ambient occlusion traced or approximated"},
       {"ambient", "X", "fiber scenes: constant ambient radiance (default: the scene's with default lighting)"},
+      {"btf-environment", "auto|sampled|folded", "btf materials: the environment map sampled, or folded into the BTF"},
       {"size", "WxH", "image size in pixels (default 256x256)"},
       {"spp", "N", "samples per pixel (default 16)"},
       {"seed", "N", "random seed (default 0): the same request and seed give the same image"},

@@ -11,7 +11,9 @@
 #include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
 #include "server/models/material.h"
+#include "server/models/btf/environment_fold.h"
 #include "server/render/fidelity.h"
+#include "server/render/folded_environment.h"
 #include "server/render/shading.h"
 #include "server/render/tone_map.h"
 #include "server/api/yarn_rpc.h"
@@ -366,29 +368,86 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
     s.fiber_shadows = plan_.fiber_shadows;
     s.fiber_occlusion = plan_.fiber_occlusion;
+    ChooseBtfEnvironment();
     // Surfaces sample their material too (weighed against the environment's samples by MIS). A material's table
     // is built on its first render, on the asset loader (not on the host worker every streaming call shares),
-    // and kept with it in the material cache.
+    // and kept with it in the material cache; so is the folded environment, when requested.
     std::vector<const models::PreparedMaterial*> unbuilt;
     for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
       if (const models::PreparedMaterial* m = SampledMaterial(o); m && !m->SamplerBuilt()) unbuilt.push_back(m);
-    if (unbuilt.empty()) return StartRendering();
+    if (unbuilt.empty() && !folding_) return StartRendering();
     loading_ = true;
     deps_.loader->Post([this, unbuilt] {
+      std::shared_ptr<const render::FoldedEnvironment> folded;
+      grpc::Status status = folding_ ? FoldEnvironment(&folded) : grpc::Status::OK;
       for (const models::PreparedMaterial* m : unbuilt) {
         m->Sampler();
         deps_.materials->ChargeSampler(*m);
       }
-      Post([this] {
+      Post([this, status, folded] {
         loading_ = false;
-        StartRendering();
+        if (!status.ok()) {
+          if (status_.ok()) status_ = status;
+        } else {
+          setup_.folded_environment = folded;
+          ReportFold();
+          StartRendering();
+        }
         Pump();
       });
     });
   }
 
-  // The material whose sampler object o's hits draw from (null: it samples lights only, as fibers do).
+  // Whether the environment light of the `btf` objects is folded (btf_environment FOLDED; validated: a `btf`
+  // material, environment lighting, not a fiber scene) or sampled, in the fidelity report of every object whose
+  // material is a `btf` asset lit by an environment.
+  void ChooseBtfEnvironment() {
+    const v1::RenderRequest& r = request_;
+    if (!setup_.environment || !material_->model->folds_environment()) return;
+    folding_ = r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED && !r.force_full_fidelity() && !material_->transmission;
+    const std::string reason = r.force_full_fidelity()                                ? "force_full_fidelity"
+                               : r.btf_environment() == v1::BTF_ENVIRONMENT_SAMPLED  ? "requested"
+                               : r.btf_environment() == v1::BTF_ENVIRONMENT_AUTO
+                                   ? "btf_environment AUTO: sampled (the fold is used only when requested)"
+                                   : "";  // FOLDED: filled in once folded (ReportFold)
+    for (size_t o = 0; o < plan_.fidelity.size(); ++o)
+      if (!setup_.scene.objects[o].fibers)
+        plan_.fidelity[o].choices.push_back({"btf_environment", folding_ ? "folded" : "sampled", "sampled", 0, reason});
+  }
+
+  // The fold's vertices, cells, bytes and time in each folded object's report.
+  void ReportFold() {
+    for (size_t o = 0; o < plan_.fidelity.size(); ++o)
+      for (render::FidelityChoice& c : plan_.fidelity[o].choices)
+        if (c.aspect == "btf_environment" && setup_.folded_environment)
+          c.reason = setup_.folded_environment->Describe(int(o));
+  }
+
+  // On the asset loader: each object's `btf` material (as its kernel path reads it: the chosen components, BTF
+  // or BRDF) folded with the environment, within the deadline, while the client is there, and within the
+  // memory budget.
+  grpc::Status FoldEnvironment(std::shared_ptr<const render::FoldedEnvironment>* out) {
+    std::vector<render::FoldedEnvironment::Material> materials(plan_.objects.size());
+    for (size_t o = 0; o < plan_.objects.size(); ++o) {
+      const int e = plan_.objects[o].evaluator;
+      if (e < 0) continue;
+      const render::Evaluator& evaluator = plan_.evaluators[e];
+      materials[o] = {evaluator.material->packed.tables, evaluator.material->packed.uniform, evaluator.with_uv};
+    }
+    const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
+    const auto admit = [this](uint64_t bytes) { return admission_.bytes.Grow(size_t(bytes)); };
+    bool refused = false;
+    const std::string e = render::FoldedEnvironment::Build(setup_, materials, int(kTraceThreads), stop, admit, &refused, out);
+    if (e.empty()) return grpc::Status::OK;
+    if (grpc::Status stopped = StopStatus(context_, deadline_); !stopped.ok()) return stopped;
+    if (refused) return {grpc::StatusCode::RESOURCE_EXHAUSTED, "btf_environment: " + e};
+    return {grpc::StatusCode::INTERNAL, "btf_environment: " + e};
+  }
+
+  // The material whose sampler object o's hits draw from (null: it samples lights only, as fibers do and as
+  // objects with a folded environment do).
   const models::PreparedMaterial* SampledMaterial(size_t o) const {
+    if (folding_) return nullptr;
     const int e = plan_.objects[o].evaluator;
     return e >= 0 && !plan_.evaluators[e].fiber_axis ? plan_.evaluators[e].material : nullptr;
   }
@@ -455,21 +514,33 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   }
 
   // Traces pixels [begin, end) of the chunk: their queries into `buckets`, what needs none into chunk.direct.
+  // Hits on objects with a folded environment get its radiance too, evaluated on the host for the range at once.
   void TraceRange(Chunk& chunk, uint64_t begin, uint64_t end, std::vector<render::QueryBucket>* buckets) const {
     render::ShadingPoint point;
+    std::vector<render::FoldedEnvironment::Query> folded;
+    std::vector<uint64_t> folded_pixel;
     for (uint64_t p = begin; p < end; ++p) {
       const uint64_t pixel = chunk.first_pixel + p;
       Rgb direct;
       for (uint32_t s = 0; s < setup_.samples_per_pixel; ++s) {
         render::TracePixelSample(setup_, pixel, s, &point);
-        if (point.object < 0)
+        if (point.object < 0) {
           direct = direct + point.background;
-        else
-          direct = direct + render::AppendQueries(point, plan_.objects[point.object], plan_.evaluators,
-                                                  static_cast<uint32_t>(p), buckets);
+          continue;
+        }
+        direct = direct + render::AppendQueries(point, plan_.objects[point.object], plan_.evaluators,
+                                                static_cast<uint32_t>(p), buckets);
+        if (point.environment_folded) {
+          folded.push_back(setup_.folded_environment->QueryOf(point));
+          folded_pixel.push_back(p);
+        }
       }
       chunk.direct[p] = direct;
     }
+    if (folded.empty()) return;
+    std::vector<Rgb> radiance;
+    setup_.folded_environment->Radiance(folded, &radiance);
+    for (size_t q = 0; q < folded.size(); ++q) chunk.direct[folded_pixel[q]] = chunk.direct[folded_pixel[q]] + radiance[q];
   }
 
   // Sends the next chunk's jobs when none is in flight.
@@ -643,6 +714,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   std::shared_ptr<const yarn::YarnVisibility> fiber_visibility_;
   uint64_t fiber_count_ = 0;
   bool loading_ = false;  // the asset loader is reading the environment map
+  bool folding_ = false;  // the `btf` objects' environment light is folded (ChooseBtfEnvironment)
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
 
   render::RenderSetup setup_;
@@ -726,6 +798,15 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
     return "fiber_shadows: unknown value " + std::to_string(r.fiber_shadows());
   if (!v1::FiberOcclusion_IsValid(r.fiber_occlusion()))
     return "fiber_occlusion: unknown value " + std::to_string(r.fiber_occlusion());
+  if (!v1::BtfEnvironment_IsValid(r.btf_environment()))
+    return "btf_environment: unknown value " + std::to_string(r.btf_environment());
+  if (r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED) {
+    if (IsFiberScene(r.scene())) return "btf_environment: FOLDED is for `btf` materials, not the fiber scenes";
+    const bool default_sky = r.lights().empty() && !r.has_environment() &&
+                             render::MakeScene(ToSceneKind(r.scene())).default_environment;
+    if (!r.has_environment() && !default_sky)
+      return "btf_environment: FOLDED folds the environment map, and this request's lighting has none";
+  }
   if (!std::isfinite(r.ambient()) || r.ambient() < 0 || r.ambient() > kMaxLightValue)
     return "ambient: " + std::to_string(r.ambient()) + " must be finite in 0.." + std::to_string(kMaxLightValue);
   if (!IsFiberScene(r.scene())) {
@@ -744,6 +825,10 @@ grpc::Status CheckRenderRequest(const models::Registry& registry, const v1::Rend
   if (std::string error = ValidateRenderRequest(request); !error.empty()) return Invalid(error);
   if (request.precision() == v1::PRECISION_FP64 && !has_fp64)
     return {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"};
+  if (request.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED &&
+      (!model.folds_environment() || request.material().has_transmission()))
+    return Invalid("btf_environment: FOLDED needs a material whose model is `btf` (an asset) without a layer, not '" +
+                   model.name() + "'" + (request.material().has_transmission() ? " with a layer" : ""));
   if (!IsFiberScene(request.scene())) return grpc::Status::OK;
   *fiber_job = std::make_unique<YarnJob>();
   if (std::string error = FiberJobOf(registry, request, fiber_job->get()); !error.empty()) return Invalid(error);

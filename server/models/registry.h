@@ -174,6 +174,9 @@ class Model {
   // Threads across one repeat of the material's pattern, the larger of its two directions (the fidelity
   // chooser compares a thread's width with a pixel's footprint); 1 for materials without a pattern.
   virtual double ThreadsPerRepeat(const ParamValues& values) const { return 1; }
+  // Models whose packed material is a BTF asset's layout (kernels/models/btf.h) let a renderer fold an
+  // environment map into it once (server/models/btf/environment_fold.h) instead of sampling the map per hit.
+  virtual bool folds_environment() const { return false; }
 
   const ParamSpec* FindParam(const std::string& name) const;
   // Defaults completed with the preset's values.

@@ -249,6 +249,37 @@ Environment::Sample Environment::Draw(Component component, double u1, double u2)
   return sample;
 }
 
+std::vector<Environment::Cell> Environment::Cells(int width, int height, size_t max_bright) const {
+  std::vector<Cell> out;
+  if (!map_) return out;
+  const Map& map = *map_;
+  const int cw = std::clamp(width, 1, width_), ch = std::clamp(height, 1, height_);
+  const bool bright_apart = map.bright_pixels.size() <= max_bright;
+  std::vector<Cell> grid(size_t(cw) * ch);  // sums: direction and radiance times solid angle
+  for (int y = 0; y < height_; ++y) {
+    // The pixel's exact solid angle: its longitude span times the difference of cos(theta) over its row.
+    const double solid_angle = 2 * kPi / width_ * (std::cos(kPi * y / height_) - std::cos(kPi * (y + 1) / height_));
+    for (int x = 0; x < width_; ++x) {
+      const float* p = &map.rgb[3 * (size_t(y) * width_ + x)];
+      const Vec3 direction = FromImage(x + 0.5, y + 0.5);
+      const Rgb radiance = Pixel(x, y);
+      if (bright_apart && Luminance({p[0], p[1], p[2]}) > map.bright_luminance) {
+        out.push_back({direction, solid_angle, radiance});
+        continue;
+      }
+      Cell& cell = grid[size_t(y) * ch / height_ * cw + size_t(x) * cw / width_];
+      cell.direction = cell.direction + solid_angle * direction;
+      cell.solid_angle += solid_angle;
+      cell.radiance = cell.radiance + solid_angle * radiance;
+    }
+  }
+  for (Cell& cell : grid) {
+    if (!(cell.solid_angle > 0) || Length(cell.direction) <= 0) continue;
+    out.push_back({Normalize(cell.direction), cell.solid_angle, (1 / cell.solid_angle) * cell.radiance});
+  }
+  return out;
+}
+
 Environment::Found Environment::Lookup(Vec3 direction) const {
   Found found;
   if (!map_) return found;

@@ -69,6 +69,19 @@ class Environment {
   };
   Found Lookup(Vec3 direction) const;
 
+  // The map as directions for quadrature (e.g. the BTF's folded environment lighting): its pixels box-filtered
+  // into a width x height latitude-longitude grid of cells (fewer where the map has fewer pixels), each at its
+  // pixels' mean direction weighted by solid angle, with their solid angle and mean radiance (so each cell
+  // carries its pixels' power exactly); the bright component's pixels (the sun) each a cell of their own at
+  // full resolution when there are at most max_bright of them (else they join the grid). Cells of no solid
+  // angle are left out.
+  struct Cell {
+    Vec3 direction;
+    double solid_angle = 0;
+    Rgb radiance;
+  };
+  std::vector<Cell> Cells(int width, int height, size_t max_bright) const;
+
   bool black() const { return !map_ || map_->total_weight[kBright] + map_->total_weight[kRest] <= 0; }
 
  private:

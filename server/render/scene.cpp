@@ -28,6 +28,40 @@ bool NearestRoot(double a, double b, double c, double lo, double hi, Accept acce
   return false;
 }
 
+// The surface at a point on the shape: its normal, tangents and surface coordinates (s, t).
+void SurfaceAt(const Shape& shape, Vec3 position, Hit* hit) {
+  hit->position = position;
+  switch (shape.kind) {
+    case Shape::Kind::kSphere: {
+      hit->normal = Normalize(position - shape.centre);
+      const Vec3 n = hit->normal;
+      Vec3 around = Cross({0, 1, 0}, n);  // east; undefined at the poles
+      if (Length(around) < 1e-9) around = {1, 0, 0};
+      hit->tangent_s = Normalize(around);
+      hit->tangent_t = Cross(n, hit->tangent_s);
+      hit->s = shape.radius * std::atan2(n.x, n.z);
+      hit->t = shape.radius * std::asin(std::clamp(n.y, -1.0, 1.0));
+      return;
+    }
+    case Shape::Kind::kCylinder: {
+      const Vec3 radial = position - shape.centre;
+      hit->normal = Normalize({radial.x, 0, radial.z});
+      hit->tangent_s = {hit->normal.z, 0, -hit->normal.x};  // (+y) x n: around the axis
+      hit->tangent_t = {0, 1, 0};
+      hit->s = shape.radius * std::atan2(hit->normal.x, hit->normal.z);
+      hit->t = radial.y;
+      return;
+    }
+    case Shape::Kind::kQuad:
+      hit->normal = Cross(shape.axis_s, shape.axis_t);
+      hit->tangent_s = shape.axis_s;
+      hit->tangent_t = shape.axis_t;
+      hit->s = Dot(position - shape.centre, shape.axis_s);
+      hit->t = Dot(position - shape.centre, shape.axis_t);
+      return;
+  }
+}
+
 bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hit* hit) {
   switch (shape.kind) {
     case Shape::Kind::kSphere: {
@@ -37,15 +71,7 @@ bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hi
                        [](double) { return true; }, &t))
         return false;
       hit->distance = t;
-      hit->position = o + t * d;
-      hit->normal = Normalize(hit->position - shape.centre);
-      const Vec3 n = hit->normal;
-      Vec3 around = Cross({0, 1, 0}, n);  // east; undefined at the poles
-      if (Length(around) < 1e-9) around = {1, 0, 0};
-      hit->tangent_s = Normalize(around);
-      hit->tangent_t = Cross(n, hit->tangent_s);
-      hit->s = shape.radius * std::atan2(n.x, n.z);
-      hit->t = shape.radius * std::asin(std::clamp(n.y, -1.0, 1.0));
+      SurfaceAt(shape, o + t * d, hit);
       return true;
     }
     case Shape::Kind::kCylinder: {
@@ -56,13 +82,7 @@ bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hi
                        lo, hi, within, &t))
         return false;
       hit->distance = t;
-      hit->position = o + t * d;
-      const Vec3 radial = hit->position - shape.centre;
-      hit->normal = Normalize({radial.x, 0, radial.z});
-      hit->tangent_s = {hit->normal.z, 0, -hit->normal.x};  // (+y) x n: around the axis
-      hit->tangent_t = {0, 1, 0};
-      hit->s = shape.radius * std::atan2(hit->normal.x, hit->normal.z);
-      hit->t = radial.y;
+      SurfaceAt(shape, o + t * d, hit);
       return true;
     }
     case Shape::Kind::kQuad: {
@@ -75,12 +95,7 @@ bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hi
       const double s = Dot(p - shape.centre, shape.axis_s), v = Dot(p - shape.centre, shape.axis_t);
       if (std::fabs(s) > shape.half_width || std::fabs(v) > shape.half_height) return false;
       hit->distance = t;
-      hit->position = p;
-      hit->normal = n;
-      hit->tangent_s = shape.axis_s;
-      hit->tangent_t = shape.axis_t;
-      hit->s = s;
-      hit->t = v;
+      SurfaceAt(shape, p, hit);
       return true;
     }
   }
@@ -108,6 +123,20 @@ Shape Quad(Vec3 centre, Vec3 axis_s, Vec3 axis_t, double half_width, double half
 }
 
 }  // namespace
+
+Hit PointOnShape(const Shape& shape, double s, double t) {
+  Vec3 position = shape.centre + s * shape.axis_s + t * shape.axis_t;  // a quad
+  if (shape.kind != Shape::Kind::kQuad) {
+    // SurfaceAt's arc lengths inverted: s around +y from +z toward +x; t up (a sphere's latitude times r).
+    const double around = s / shape.radius, up = shape.kind == Shape::Kind::kSphere ? t / shape.radius : 0.0;
+    const Vec3 normal{std::cos(up) * std::sin(around), std::sin(up), std::cos(up) * std::cos(around)};
+    const Vec3 along{0, shape.kind == Shape::Kind::kCylinder ? t : 0.0, 0};
+    position = shape.centre + shape.radius * normal + along;
+  }
+  Hit hit;
+  SurfaceAt(shape, position, &hit);
+  return hit;
+}
 
 PinholeCamera::PinholeCamera(const CameraSpec& spec, int width, int height)
     : position_(spec.position), width_(width), height_(height) {

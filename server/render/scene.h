@@ -82,6 +82,11 @@ struct Hit {
   bool fiber_core = false;  // a ply's core fiber (standing for its inner fibers)
 };
 
+// The surface point of a (non-fiber) shape at surface coordinates (s, t), as a hit there would report it
+// (distance 0, object -1): s around the axis and t along it on spheres (latitude) and cylinders, along the
+// axes on quads.
+Hit PointOnShape(const Shape& shape, double s, double t);
+
 struct Scene {
   std::vector<SceneObject> objects;
   CameraSpec default_camera;

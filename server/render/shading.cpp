@@ -5,22 +5,16 @@
 #include <numbers>
 
 #include "server/models/material_plan.h"
+#include "server/render/folded_environment.h"
 
 namespace loomlight::render {
 namespace {
 
 constexpr double kDegree = std::numbers::pi / 180;
-// Shadow rays start this far off the surface (scene units ~1), on the light's side.
-constexpr double kRayOffset = 1e-6;
 // Light samples this close to the surface plane carry no light (f is 0 there for every model).
 constexpr double kMinCosine = 1e-6;
 // SamplePoints' dimension pairs: the pixel position, then one per sampling strategy.
 enum Pair : uint32_t { kPixelPair, kBrightPair, kRestPair, kMaterialPair, kMaterialChoicePair, kAmbientPair };
-
-struct Frame {
-  Vec3 x, y, n;
-  Vec3 ToLocal(Vec3 w) const { return {Dot(w, x), Dot(w, y), Dot(w, n)}; }
-};
 
 float WrapUnit(double t) {
   const float f = static_cast<float>(t - std::floor(t));
@@ -44,11 +38,12 @@ double PowerHeuristic(double a, double b) {
 }
 
 // Calls add(direction toward the light, distance to it, incident radiance over pdf times the MIS weight) for
-// every light, and one direction from each component of the environment (its bright regions, the rest) as
-// seen from `position`. material_pdf(direction) is the density the material sampling strategy has toward a
-// direction (0 where there is none), against which the environment's samples are weighed.
+// every light, and (with_environment) one direction from each component of the environment (its bright regions,
+// the rest) as seen from `position`. material_pdf(direction) is the density the material sampling strategy has
+// toward a direction (0 where there is none), against which the environment's samples are weighed.
 template <class MaterialPdf, class Add>
-void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& points, MaterialPdf material_pdf, Add add) {
+void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& points, MaterialPdf material_pdf, Add add,
+                  bool with_environment = true) {
   for (const Light& light : setup.lights) {
     if (light.type == Light::Type::kDirectional) {
       add(light.direction, INFINITY, light.rgb);
@@ -60,7 +55,7 @@ void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& p
       add((1.0 / d) * to_light, d, (1.0 / d2) * light.rgb);
     }
   }
-  if (!setup.environment) return;
+  if (!setup.environment || !with_environment) return;
   for (const Environment::Component component : {Environment::kBright, Environment::kRest}) {
     if (!setup.environment->Has(component)) continue;
     const std::array<double, 2> u = points.Get2D(component == Environment::kBright ? kBrightPair : kRestPair);
@@ -145,8 +140,17 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
 
 }  // namespace
 
+Frame ShadingFrame(const RenderSetup& setup, int object, const Hit& hit, float* u, float* v) {
+  const double angle = (setup.scene.objects[object].thread_angle_deg + setup.texture_rotation_deg) * kDegree;
+  const double c = std::cos(angle), s = std::sin(angle);
+  if (u) *u = WrapUnit(setup.texture_scale * (c * hit.s + s * hit.t));
+  if (v) *v = WrapUnit(setup.texture_scale * (-s * hit.s + c * hit.t));
+  return {c * hit.tangent_s + s * hit.tangent_t, -s * hit.tangent_s + c * hit.tangent_t, hit.normal};
+}
+
 void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoints& points, ShadingPoint* point) {
   point->object = -1;
+  point->environment_folded = false;
   point->background = {};
   point->lights.clear();
   point->fiber = false;
@@ -162,12 +166,7 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
   point->fiber = hit.fiber;
   point->footprint = hit.distance * setup.camera.pixel_angle();
   if (hit.fiber) return ShadeFiber(setup, hit, direction, points, point);
-  const SceneObject& object = setup.scene.objects[hit.object];
-  const double angle = (object.thread_angle_deg + setup.texture_rotation_deg) * kDegree;
-  const double c = std::cos(angle), s = std::sin(angle);
-  const Frame frame{c * hit.tangent_s + s * hit.tangent_t, -s * hit.tangent_s + c * hit.tangent_t, hit.normal};
-  point->u = WrapUnit(setup.texture_scale * (c * hit.s + s * hit.t));
-  point->v = WrapUnit(setup.texture_scale * (-s * hit.s + c * hit.t));
+  const Frame frame = ShadingFrame(setup, hit.object, hit, &point->u, &point->v);
 
   // The cloth is two-sided: seen from behind, both directions are mirrored through the surface (as
   // Evaluate does for a curtain's back), so wo is always in the upper hemisphere.
@@ -175,6 +174,12 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
   const double mirror = wo.z < 0 ? -1.0 : 1.0;
   wo.z *= mirror;
   point->wo = wo;
+  // A folded object's environment light comes from the fold (added by the renderer), not from samples.
+  const bool folded = setup.folded_environment && setup.folded_environment->Covers(hit.object);
+  point->environment_folded = folded;
+  point->back = mirror < 0;
+  point->s = hit.s;
+  point->t = hit.t;
 
   const bool transmits = hit.object < static_cast<int>(setup.object_transmits.size()) && setup.object_transmits[hit.object];
   if (transmits) {
@@ -197,7 +202,8 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
   };
   // The material's own sampling strategy (when the object has one and there is an environment to find).
   const models::DirectionSampler* sampler =
-      setup.environment && hit.object < static_cast<int>(setup.object_samplers.size()) ? setup.object_samplers[hit.object] : nullptr;
+      setup.environment && !folded && hit.object < static_cast<int>(setup.object_samplers.size()) ? setup.object_samplers[hit.object]
+                                                                                                   : nullptr;
   models::DirectionSampler::Conditional material;
   if (sampler) material = sampler->At({wo.x, wo.y, wo.z});
   const auto material_pdf = [&](Vec3 wi_world) {
@@ -205,7 +211,7 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
     const Vec3 wi = to_local(wi_world);
     return material.Pdf({wi.x, wi.y, wi.z});
   };
-  ForEachLight(setup, hit.position, points, material_pdf, add);
+  ForEachLight(setup, hit.position, points, material_pdf, add, !folded);
   if (sampler) {
     const std::array<double, 2> u = points.Get2D(kMaterialPair);
     const models::DirectionSampler::Sample sample = material.Draw(points.Get2D(kMaterialChoicePair)[0], u[0], u[1]);

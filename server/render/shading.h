@@ -21,6 +21,17 @@
 
 namespace loomlight::render {
 
+class FoldedEnvironment;  // server/render/folded_environment.h
+
+// Shadow rays start this far off the surface (scene units ~1), on the light's side.
+constexpr double kRayOffset = 1e-6;
+
+// A shading frame in world space: x = thread 1 = texture u, y = thread 2 = texture v, z = n (SPEC.md section 1).
+struct Frame {
+  Vec3 x, y, n;
+  Vec3 ToLocal(Vec3 w) const { return {Dot(w, x), Dot(w, y), Dot(w, n)}; }
+};
+
 // Everything a render needs that does not change while it runs.
 struct RenderSetup {
   Scene scene;
@@ -45,6 +56,10 @@ struct RenderSetup {
   yarn::OcclusionMethod fiber_occlusion = yarn::OcclusionMethod::kTraced;
   // The request left the method to the fidelity chooser (FidelityPlan says which it took).
   bool choose_fiber_shadows = false, choose_fiber_occlusion = false;
+  // Objects whose environment light is folded into their material (a `btf` asset; server/render/
+  // folded_environment.h): their hits draw no environment or material samples (analytic lights as ever), and
+  // the renderer adds FoldedEnvironment::Radiance instead. Null: every object samples the environment.
+  std::shared_ptr<const FoldedEnvironment> folded_environment;
   // Fiber scenes: the level of detail the geometry was generated at, for the fidelity report.
   struct FiberDetail {
     std::string chosen, full, reason;
@@ -69,7 +84,16 @@ struct ShadingPoint {
   bool fiber = false;
   Vec3 axis;
   Rgb ambient;
+  // A hit on an object whose environment light is folded (setup.folded_environment): its surface coordinates
+  // and the side seen (back: wo was mirrored), for FoldedEnvironment::Radiance.
+  bool environment_folded = false;
+  bool back = false;
+  double s = 0, t = 0;
 };
+
+// The shading frame of a hit on (non-fiber) object `object`, the threads turned by the object's and the request's
+// angle; with u and v, its texture coordinates (pattern repeats, wrapped into [0, 1)).
+Frame ShadingFrame(const RenderSetup& setup, int object, const Hit& hit, float* u = nullptr, float* v = nullptr);
 
 // Casts the ray through image position (px, py) and samples the lights: point and directional lights, one
 // direction from each of the environment's components and one from the hit's material (setup.object_samplers),

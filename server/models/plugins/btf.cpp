@@ -44,6 +44,8 @@ class BtfModel : public Model {
     return asset ? asset->threads_per_tile : 1;
   }
 
+  bool folds_environment() const override { return true; }
+
   AccuracyKnob accuracy_knob() const override {
     return {"components", {1, 2, 4, 8, 16, 32, 64},
             "RMSE of the reconstruction against the asset's stored images relative to their RMS, recorded when "

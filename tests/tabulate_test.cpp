@@ -1,8 +1,8 @@
 // Tabulate end to end against a real server, for every model in ListModels: a MERL .binary read back by a
 // reader written here from the format's description, EXR, RAW and CSV tables equal Evaluate at the
-// documented bin centres; progress is monotone and ends at the total; cancellation and deadlines stop the
-// work (the server's tabulated-cell counter proves it); bad fields are named; and the client's `tab`
-// command and plot views write files that decode.
+// documented bin centres; progress is monotone and ends at the total; a table keeps two chunks queued at once;
+// cancellation and deadlines stop the work (the server's tabulated-cell counter proves it); bad fields are
+// named; and the client's `tab` command and plot views write files that decode.
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
@@ -415,6 +415,46 @@ TEST_F(TabulateTest, DeadlineStopsTabulation) {
   EXPECT_EQ(t.status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << t.status.error_message();
   std::this_thread::sleep_for(std::chrono::milliseconds(800));
   EXPECT_LT(server_->metrics().tabulated_cells() - before, uint64_t{90 * 90 * 180} / 4);
+}
+
+// A metric's value in Prometheus' text format; NAN when absent.
+double MetricValue(const std::string& text, const std::string& name) {
+  const size_t at = text.find("\n" + name + " ");
+  return at == std::string::npos ? NAN : std::stod(text.substr(at + name.size() + 2));
+}
+
+// Issue 15: a table keeps its next chunk queued while one runs, or it misses every launch that starts while its
+// next chunk is on its way, however fair the batcher is. Here the bulk queue holds a launch until two chunks
+// have queued (or the first has waited 30 s), so the two chunks of this table ride one launch only if both
+// are queued at once; with one chunk in flight each waits out the delay and launches alone.
+TEST(TabulateChunks, TwoChunksOfOneTableAreQueuedAtOnce) {
+  api::ServerOptions options;
+  options.metrics_address = "127.0.0.1:0";
+  options.batcher.max_batch_queries = 2 * api::kTabulateChunkQueries;
+  options.batcher.bulk.max_queue_delay = std::chrono::seconds(30);
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
+  auto stub = testing::Connect(server->port());
+  v1::Material material;
+  material.set_preset("linen_plain");
+  const std::vector<double> theta_i = {20, 60};  // one chunk each
+  const uint32_t theta_o_count = static_cast<uint32_t>(api::kTabulateChunkQueries);
+  v1::TabulateRequest r = Request(material, v1::TABLE_FORMAT_RAW);
+  r.mutable_in_plane()->mutable_theta_i_deg()->Add(theta_i.begin(), theta_i.end());
+  r.mutable_in_plane()->set_theta_o_count(theta_o_count);
+  const Table t = Tabulate(*stub, r);
+  ASSERT_TRUE(t.status.ok()) << t.status.error_message();
+  // Each chunk's job records the launch it rode in before the table's last bytes are sent.
+  const std::string text = testing::HttpGet(server->metrics_port(), "/metrics");
+  EXPECT_EQ(MetricValue(text, "loomlight_launch_requests_count"), 2.0) << text;
+  EXPECT_EQ(MetricValue(text, "loomlight_launch_requests_sum"), 4.0) << "each chunk launched alone";
+  // Encoded in query order, as Evaluate answers.
+  const Queries q = InPlaneQueries(theta_i, theta_o_count, 0, false);
+  ASSERT_EQ(t.file.size(), api::kRawHeaderBytes + 4 * 3 * q.size());
+  const std::vector<float> f = Evaluate(*stub, material, v1::PRECISION_FP32, q);
+  ASSERT_EQ(f.size(), 3 * q.size());
+  for (size_t i = 0; i < f.size(); ++i)
+    ExpectClose(ReadLe<float>(t.file, api::kRawHeaderBytes + 4 * i), f[i], 1e-6, "value " + std::to_string(i));
 }
 
 TEST_F(TabulateTest, DefaultPhiHSamplesFollowTheModelsIsotropy) {

@@ -1,6 +1,7 @@
 #include "server/api/tabulate.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <cstdio>
@@ -192,14 +193,24 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
 
 
  private:
-  // The one step of the state machine: notice cancellation, keep one job in flight while the output
-  // buffer allows, keep one write in flight while there is something to say, finish when all is done.
+  // One chunk of queries from its submission until its cells are encoded (then emptied).
+  struct Chunk {
+    std::vector<float> wi, wo;  // the batcher reads them until the chunk's done callbacks
+    std::unique_ptr<models::EvaluationPlan> plan;  // its parts (a curtain: reflection and layer)
+    std::vector<double> f;  // merged from its parts
+    uint64_t first_query = 0;
+    size_t jobs_in_flight = 0;
+  };
+
+  // The one step of the state machine: notice cancellation, keep kTabulateChunksInFlight chunks in flight
+  // while the output buffer allows, keep one write in flight while there is something to say, finish when all
+  // is done.
   void Pump() override {
     if (finished_) return;
     NoticeStop();
     MaybeSubmit();  // does nothing once stopping
     if (!status_.ok()) {
-      if (jobs_in_flight_ == 0 && !write_in_flight_) FinishCall(status_);
+      if (!JobsInFlight() && !write_in_flight_) FinishCall(status_);
       return;
     }
     if (write_in_flight_) return;
@@ -211,68 +222,80 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
 
   size_t Unsent() const { return pending_.size() - pending_begin_; }
 
-  // Sends the next chunk's jobs (one per part of its plan: a curtain's reflection and layer) when none is in
-  // flight and the output buffer allows.
+  // Chunk number s (in query order) lives in slot s % kTabulateChunksInFlight; those from chunks_encoded_ to
+  // chunks_submitted_ are in flight.
+  Chunk& Slot(uint64_t number) { return chunks_[number % kTabulateChunksInFlight]; }
+
+  bool JobsInFlight() const {
+    return std::any_of(chunks_.begin(), chunks_.end(), [](const Chunk& c) { return c.jobs_in_flight > 0; });
+  }
+
+  // Sends the next chunks' jobs (one per part of a chunk's plan: a curtain's reflection and layer) while a slot
+  // is free and the output buffer allows.
   void MaybeSubmit() {
-    if (!status_.ok() || jobs_in_flight_ > 0 || next_query_ >= grid_.queries() || Unsent() > kMaxBufferedBytes)
-      return;
-    chunk_first_ = next_query_;
-    const size_t count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, grid_.queries() - chunk_first_));
-    wi_.resize(3 * count);
-    wo_.resize(3 * count);
-    for (size_t i = 0; i < count; ++i) grid_.Directions(chunk_first_ + i, &wi_[3 * i], &wo_[3 * i]);
-    plan_ = std::make_unique<models::EvaluationPlan>(*material_, wi_.data(), wo_.data(), nullptr, count);
-    chunk_f_.assign(3 * count, 0.0);
+    while (status_.ok() && chunks_submitted_ - chunks_encoded_ < kTabulateChunksInFlight &&
+           next_query_ < grid_.queries() && Unsent() <= kMaxBufferedBytes)
+      Submit(chunks_submitted_++);
+  }
+
+  // Fills the next queries' directions into chunk `number`'s slot and queues its jobs.
+  void Submit(uint64_t number) {
+    Chunk& chunk = Slot(number);
+    chunk.first_query = next_query_;
+    const size_t count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, grid_.queries() - next_query_));
+    chunk.wi.resize(3 * count);
+    chunk.wo.resize(3 * count);
+    for (size_t i = 0; i < count; ++i) grid_.Directions(next_query_ + i, &chunk.wi[3 * i], &chunk.wo[3 * i]);
+    chunk.plan = std::make_unique<models::EvaluationPlan>(*material_, chunk.wi.data(), chunk.wo.data(), nullptr, count);
+    chunk.f.assign(3 * count, 0.0);
     next_query_ += count;
-    jobs_in_flight_ = plan_->parts();
-    SubmitPlan(deps_.batcher, *plan_, runtime::ResultSink{.f64 = chunk_f_.data()}, fp64_, batching::Priority::kBulk,
-               deadline_, context_, [this](size_t k, batching::JobResult result) {
-                 Post([this, k, result = std::move(result)] { OnJobDone(k, result); });
+    chunk.jobs_in_flight = chunk.plan->parts();
+    SubmitPlan(deps_.batcher, *chunk.plan, runtime::ResultSink{.f64 = chunk.f.data()}, fp64_,
+               batching::Priority::kBulk, deadline_, context_, [this, &chunk](size_t k, batching::JobResult result) {
+                 Post([this, &chunk, k, result = std::move(result)] { OnJobDone(chunk, k, result); });
                });
   }
 
-  // A part of the chunk in flight returned; when it was the last, the next chunk goes to the device first,
-  // then this one is averaged and encoded while it runs.
-  void OnJobDone(size_t part, const batching::JobResult& result) {
-    --jobs_in_flight_;
+  // A part of a chunk in flight returned: the chunks that are complete are encoded in query order (a later
+  // chunk that finishes first waits for the earlier one), each slot freed for the next chunk.
+  void OnJobDone(Chunk& chunk, size_t part, const batching::JobResult& result) {
+    --chunk.jobs_in_flight;
     if (result.status != batching::JobStatus::kOk) {
       if (status_.ok()) status_ = ToStatus(result);
       return Pump();
     }
     if (result.batch_queries > 0)
-      deps_.metrics->Evaluated(plan_->model(part).name(), fp64_, plan_->size(part), result.batch_queries,
+      deps_.metrics->Evaluated(chunk.plan->model(part).name(), fp64_, chunk.plan->size(part), result.batch_queries,
                                result.batch_requests, result.queue_seconds, result.kernel_seconds);
     kernel_seconds_ += result.kernel_seconds;
-    if (jobs_in_flight_ > 0 || !status_.ok()) return Pump();
-    std::vector<double> f;
-    f.swap(chunk_f_);  // the next chunk reuses the buffers
-    const uint64_t first = chunk_first_;
-    NoticeStop();
-    MaybeSubmit();
-    if (status_.ok()) {
-      if (std::string error = AddCells(first, f.size() / 3, f); !error.empty())
+    NoticeStop();  // a stopped call encodes no more
+    while (status_.ok() && chunks_encoded_ < chunks_submitted_ && Slot(chunks_encoded_).jobs_in_flight == 0) {
+      Chunk& oldest = Slot(chunks_encoded_++);
+      if (std::string error = AddCells(oldest.first_query, oldest.f.size() / 3, oldest.f); !error.empty())
         status_ = {grpc::StatusCode::INTERNAL, error};
+      oldest = Chunk();  // a call held back by a slow reader keeps no chunk buffers
     }
-    Pump();
+    Pump();  // submits into the freed slots
   }
 
-  // Means over each cell's queries, encoded. Returns "" or what is wrong with the kernel's output.
-  std::string AddCells(uint64_t first_query, size_t count, const std::vector<double>& f) {
+  // Means over each cell's queries, encoded. The means replace the front of f: a cell's queries lie at or after
+  // its mean's place, so each is read before it is overwritten. Returns "" or what is wrong with the output.
+  std::string AddCells(uint64_t first_query, size_t count, std::vector<double>& f) {
     if (f.size() != 3 * count)
       return "kernel returned " + std::to_string(f.size()) + " values for " + std::to_string(count) + " queries";
     const uint32_t per_cell = grid_.queries_per_cell();
     const uint64_t first_cell = first_query / per_cell;
     const size_t cells = count / per_cell;
-    cell_rgb_.assign(3 * cells, 0.0);
-    for (size_t q = 0; q < count; ++q)
-      for (int c = 0; c < 3; ++c) cell_rgb_[3 * (q / per_cell) + c] += f[3 * q + c];
-    for (size_t i = 0; i < cell_rgb_.size(); ++i) {
-      cell_rgb_[i] /= per_cell;
-      if (!std::isfinite(cell_rgb_[i]))
-        return "model '" + material_->model->name() + "' returned a non-finite value in cell " +
-               std::to_string(first_cell + i / 3);
-    }
-    encoder_->AddCells(first_cell, cell_rgb_.data(), cells, &pending_);
+    for (size_t cell = 0; cell < cells; ++cell)
+      for (int c = 0; c < 3; ++c) {
+        double sum = 0;
+        for (size_t q = cell * per_cell; q < (cell + 1) * per_cell; ++q) sum += f[3 * q + c];
+        f[3 * cell + c] = sum / per_cell;
+        if (!std::isfinite(f[3 * cell + c]))
+          return "model '" + material_->model->name() + "' returned a non-finite value in cell " +
+                 std::to_string(first_cell + cell);
+      }
+    encoder_->AddCells(first_cell, f.data(), cells, &pending_);
     cells_done_ += cells;
     deps_.metrics->Tabulated(material_->model->name(), fp64_, cells);
     if (cells_done_ == grid_.cells()) {
@@ -319,17 +342,13 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
   const std::unique_ptr<TableEncoder> encoder_;
   const uint64_t chunk_queries_;
 
-  std::vector<float> wi_, wo_;  // the chunk in flight (the batcher reads them until its done callbacks)
-  std::unique_ptr<models::EvaluationPlan> plan_;  // the chunk's parts (a curtain: reflection and layer)
-  std::vector<double> chunk_f_;  // the chunk's f, merged from its parts
-  uint64_t chunk_first_ = 0;
-  std::vector<double> cell_rgb_;
+  std::array<Chunk, kTabulateChunksInFlight> chunks_;  // see Slot
+  uint64_t chunks_submitted_ = 0, chunks_encoded_ = 0;
   uint64_t next_query_ = 0, cells_done_ = 0, cells_sent_ = 0;
   std::string pending_;  // encoded bytes; those from pending_begin_ on are not sent yet
   size_t pending_begin_ = 0;
   v1::TabulateChunk chunk_;  // the write in flight
   double kernel_seconds_ = 0;
-  size_t jobs_in_flight_ = 0;
   bool sent_first_ = false;
   bool complete_ = false;       // every cell encoded, the file's end in pending_
 };
@@ -487,10 +506,13 @@ std::unique_ptr<TableEncoder> MakeTableEncoder(v1::TableFormat format, const Tab
 
 size_t TabulateBytes(const v1::TabulateRequest& request, const TabulationGrid& grid) {
   const uint64_t chunk = std::min<uint64_t>(kTabulateChunkQueries, grid.queries());
-  // The chunk in flight: directions (24 per query; a curtain's parts copy them, with a scale and a
-  // transmittance: 40), the kernels' results and their copy (48), cell means (24);
-  // unsent bytes up to the flow-control bound plus one chunk message; what the encoder keeps to the end.
-  size_t bytes = chunk * 136 + kMaxBufferedBytes + 2 * kMaxChunkDataBytes;
+  // Per chunk in flight: directions (24 per query; a curtain's parts copy them, with a scale and a
+  // transmittance: 40) and the kernels' results (24, then the cell means in place);
+  // unsent bytes up to the flow-control bound, plus a chunk message's bytes for what each chunk in flight may
+  // encode past it (RAW: 12 bytes a cell, 3 MiB) and for the message being written; what the encoder keeps to
+  // the end.
+  size_t bytes = chunk * kTabulateChunksInFlight * 88 + kMaxBufferedBytes +
+                 (kTabulateChunksInFlight + 1) * kMaxChunkDataBytes;
   if (request.format() == v1::TABLE_FORMAT_EXR) bytes += grid.cells() * 24;   // the image, then its encoding
   if (request.format() == v1::TABLE_FORMAT_MERL) bytes += grid.cells() * 16;  // G and B until the end
   return bytes;

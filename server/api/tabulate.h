@@ -29,6 +29,7 @@ constexpr double kMaxAngleDeg = 360.0;                       // |phi_plane_deg|;
 // Queries per batcher job (whole cells): a quarter of one Evaluate call, as a render's chunks, so that an
 // interactive call queued behind a bulk launch waits for a short one (server/batching/batcher.h).
 constexpr size_t kTabulateChunkQueries = kMaxQueriesPerCall / 4;
+constexpr size_t kTabulateChunksInFlight = 2;  // one queued while one runs: a job waits whenever a launch ends
 constexpr size_t kMaxChunkDataBytes = size_t{4} << 20;       // per TabulateChunk, well under kMaxMessageBytes
 // Encoded bytes waiting to be sent beyond which no further chunk is evaluated (flow control: a slow reader
 // holds the evaluation, not the server's memory).

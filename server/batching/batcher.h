@@ -90,7 +90,10 @@ struct BatcherOptions {
   size_t max_batch_queries = size_t{1} << 20;     // a larger single request still runs, alone
   bool coalesce = true;                           // false: one request per launch (for comparison)
   std::chrono::milliseconds bulk_slice{20};       // a bulk launch's slices take about this long each
-  QueuePolicy interactive, bulk;
+  QueuePolicy interactive;
+  // Bulk work queues twice as deep: a Tabulate call keeps two chunks in flight (server/api/tabulate.h), so a
+  // client's eight long calls (a curtain's two parts each) fit its share, and sixteen calls the queue.
+  QueuePolicy bulk{.max_queued_queries = size_t{1} << 24, .max_client_queued_queries = size_t{1} << 23};
   const QueuePolicy& policy(Priority p) const { return p == Priority::kInteractive ? interactive : bulk; }
 };
 

@@ -277,6 +277,63 @@ TEST(Batcher, JobsQueuedPastTheTimeoutAreRejected) {
   EXPECT_EQ(blocker->result.get().status, JobStatus::kOk);
 }
 
+// Holds the batcher's thread before a launch (in the poll of a bulk job's `cancelled`) until opened, so what
+// queues meanwhile, and how long it waits, is set by the test, not by how fast the device is.
+class Gate {
+ public:
+  explicit Gate(Batcher& batcher) : job_(MakeJob("velvet", 16)), released_(release_.get_future().share()) {
+    job_->job->priority = batching::Priority::kBulk;
+    job_->job->client = "gate";
+    job_->job->cancelled = [this, released = released_] {
+      entered_.set_value();
+      released.wait();
+      return false;
+    };
+    EXPECT_EQ(batcher.Submit(job_->job), Batcher::Refusal::kNone);
+    entered_.get_future().wait();
+  }
+  ~Gate() { EXPECT_EQ(job_->result.get().status, JobStatus::kOk); }
+  void Open() { release_.set_value(); }
+
+ private:
+  std::unique_ptr<Submitted> job_;
+  std::promise<void> entered_, release_;
+  std::shared_future<void> released_;
+};
+
+// A client with one job queued beside another's many shares each launch one job each: its jobs do not all ride
+// one launch while the other's wait (a Tabulate call keeps two chunks in flight: with both in one launch it
+// would have none queued for the next).
+TEST(Batcher, WhileClientsShareAKernelALaunchTakesOneJobEach) {
+  batching::BatcherOptions options;
+  options.max_batch_queries = 10000;  // room for all five
+  batching::Batcher batcher(&testing::SharedRuntime(), options);
+  Gate gate(batcher);
+  std::vector<std::unique_ptr<Submitted>> many;
+  for (int i = 0; i < 4; ++i) {
+    many.push_back(MakeJob("velvet", 2000));
+    many.back()->job->priority = batching::Priority::kBulk;
+    many.back()->job->client = "many";
+    ASSERT_EQ(batcher.Submit(many.back()->job), Batcher::Refusal::kNone);
+  }
+  auto few = MakeJob("velvet", 2000);
+  few->job->priority = batching::Priority::kBulk;
+  few->job->client = "few";
+  ASSERT_EQ(batcher.Submit(few->job), Batcher::Refusal::kNone);
+  gate.Open();
+  const JobResult shared = few->result.get();
+  EXPECT_EQ(shared.status, JobStatus::kOk);
+  EXPECT_EQ(shared.batch_requests, 2u);  // its job and one of the other client's, not all five
+  // Alone, the other client's jobs coalesce again: the remaining three in one launch.
+  size_t most = 0;
+  for (auto& m : many) {
+    const JobResult r = m->result.get();
+    EXPECT_EQ(r.status, JobStatus::kOk);
+    most = std::max(most, r.batch_requests);
+  }
+  EXPECT_EQ(most, 3u);
+}
+
 // Triton's DELAY action: a job that queued past the timeout stays queued but goes behind a job that has not
 // timed out, where fair share alone would launch it first (it queued first, with the same service).
 TEST(Batcher, TimedOutJobsGoBehindUnderTheDelayAction) {
@@ -285,29 +342,15 @@ TEST(Batcher, TimedOutJobsGoBehindUnderTheDelayAction) {
   options.bulk.timeout = std::chrono::milliseconds(150);
   options.bulk.timeout_action = batching::QueuePolicy::TimeoutAction::kDelay;
   batching::Batcher batcher(&testing::SharedRuntime(), options);
-  // A gate holds the batcher's thread before its launch (in the poll of `cancelled`) until released, so
-  // the others' waiting times are set by this test, not by how fast the device is.
-  std::promise<void> entered, release;
-  std::shared_future<void> released = release.get_future().share();
-  auto gate = MakeJob("velvet", 16);
-  gate->job->priority = batching::Priority::kBulk;
-  gate->job->client = "gate";
-  gate->job->cancelled = [&entered, released] {
-    entered.set_value();
-    released.wait();
-    return false;
-  };
-  ASSERT_EQ(batcher.Submit(gate->job), Batcher::Refusal::kNone);
-  entered.get_future().wait();
+  Gate gate(batcher);
   LaunchOrder launches;
   auto submit = [&](const std::string& client) { return launches.Submit(batcher, client); };
   auto late = submit("late");
   std::this_thread::sleep_for(std::chrono::milliseconds(400));  // past the timeout
   auto fresh = submit("fresh");
-  release.set_value();
+  gate.Open();
   EXPECT_EQ(late->result.get().status, JobStatus::kOk);  // delayed, not rejected
   EXPECT_EQ(fresh->result.get().status, JobStatus::kOk);
-  EXPECT_EQ(gate->result.get().status, JobStatus::kOk);
   const std::vector<std::string> order = launches.clients();
   ASSERT_EQ(order.size(), 2u);
   EXPECT_EQ(order[0], "fresh");

@@ -137,11 +137,16 @@ std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
   };
   // Job by job, each from the client served least so far (ties: the longest waiting) among those with a job
   // that fits: fair within a launch too, so coalescing never gives one client's many jobs a ride ahead of
-  // another's.
+  // another's. While another client has a job of the launch's kernel, a launch takes one job per client: a
+  // client with few jobs in flight (a Tabulate call's two chunks) would otherwise see them all ride one launch,
+  // have nothing queued when it ends, and miss the next, which the others then fill whole.
+  std::vector<std::string> in_batch;
+  bool sharing = false;  // another client had a job of the launch's kernel when it began
   while (true) {
     auto chosen = queue.clients.end();
     std::deque<std::shared_ptr<Job>>::iterator chosen_job;
     for (auto client = queue.clients.begin(); client != queue.clients.end(); ++client) {
+      if (sharing && std::find(in_batch.begin(), in_batch.end(), client->first) != in_batch.end()) continue;
       auto& jobs = client->second.jobs;
       auto fits = jobs.begin();
       if (!batch.empty())
@@ -159,7 +164,15 @@ std::vector<std::shared_ptr<Job>> Batcher::TakeBatch() {
       }
     }
     if (chosen == queue.clients.end()) break;
-    if (batch.empty()) queue.virtual_time = chosen->second.served;
+    if (batch.empty()) {
+      queue.virtual_time = chosen->second.served;
+      const Job& first = **chosen_job;
+      sharing = std::count_if(queue.clients.begin(), queue.clients.end(), [&](const auto& client) {
+                  return std::any_of(client.second.jobs.begin(), client.second.jobs.end(),
+                                     [&](const std::shared_ptr<Job>& job) { return SameKernel(first, *job); });
+                }) > 1;
+    }
+    in_batch.push_back(chosen->first);
     queries += (*chosen_job)->n;
     batch.push_back(*chosen_job);
     Remove(queue, chosen, chosen_job);

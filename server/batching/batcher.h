@@ -9,7 +9,8 @@
 // Each priority has its own queue policy (limits, timeout, queueing delay, in the spirit of Triton's), so
 // bulk work can never fill the queue interactive calls need. Within a priority, clients share the device
 // fairly: start-time fair queuing by queries, so a client's next job goes ahead of another's that has been
-// served more, and one client's many jobs cannot make another's wait behind all of them.
+// served more, and one client's many jobs cannot make another's wait behind all of them; while several clients
+// have jobs of one kernel queued, a launch takes one job of each.
 #pragma once
 
 #include <atomic>

@@ -796,11 +796,12 @@ TEST(Batching, ExpiredRequestsAreDroppedBeforeLaunch) {
   std::atomic<bool> big_done{false};
   std::thread big = StartBlockingCall(*stub, &big_done);
   // Small calls with a 50 ms deadline succeed until the long call holds the device (its 24 MB request may
-  // take a while to arrive on a loaded machine); then one expires.
+  // take a while to arrive on a loaded machine); then one expires. 1,000 queries: more than the small-launch
+  // device takes (256), which would run them beside the long call instead of behind it.
   grpc::Status s;
   EvaluateResponse resp;
   while (!big_done) {
-    s = Call(*stub, Request("velvet", 100, 2), &resp, 0.05);
+    s = Call(*stub, Request("velvet", 1000, 2), &resp, 0.05);
     if (!s.ok()) break;
   }
   EXPECT_EQ(s.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);

@@ -1,13 +1,14 @@
 // Render end to end against an in-process server: images decode at the requested size in every format,
 // the same seed gives the same bytes, the error against a many-sample reference falls with samples, a
 // back-lit curtain is brighter with transmission, the fidelity chooser picks the BRDF far away and the
-// BTF close up (and fewer tangent samples within the target), cancellation stops the work, concurrent
+// BTF close up (and fewer tangent samples within the target; a curtain layer's knob too), cancellation stops the work, concurrent
 // Evaluate calls are served during a render, every bad field is named; and `loomlight render`.
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -21,6 +22,9 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/render_rpc.h"
 #include "server/api/server.h"
+#include "server/models/material_cache.h"
+#include "server/render/environment.h"
+#include "server/render/fidelity.h"
 #include "server/render/shading.h"
 #include "server/yarn/fiber_scene.h"
 #include "tests/testing.h"
@@ -218,6 +222,101 @@ TEST_F(RenderTest, BackLitCurtainIsBrighterWithTransmission) {
   EXPECT_EQ(off->chosen(), "off");
   EXPECT_EQ(off->estimated_error(), 0);
   EXPECT_NE(off->reason().find("back"), std::string::npos) << off->reason();
+}
+
+// The curtain scene with its default lighting (a low sun behind it and the built-in sky), as Render sets it up.
+render::RenderSetup CurtainSetup(int width, int height) {
+  render::RenderSetup setup;
+  setup.scene = render::MakeScene(render::SceneKind::kCurtain);
+  setup.width = width;
+  setup.height = height;
+  setup.camera = render::PinholeCamera(setup.scene.default_camera, width, height);
+  setup.lights = setup.scene.default_lights;
+  auto sky = std::make_shared<render::Environment>(render::Environment::Builtin());
+  sky->SetTransform(setup.scene.default_environment_intensity, 0);
+  setup.environment = std::move(sky);
+  setup.texture_scale = setup.scene.default_texture_scale;
+  setup.seed = 7;
+  setup.object_transmits.assign(setup.scene.objects.size(), true);
+  return setup;
+}
+
+// A back-lit curtain's layer knob (its model's declared accuracy knob, whichever it is): within a loose target
+// the chooser takes a setting cheaper than the exact one, reports it with its measured error within the target,
+// and renders with it; force_full_fidelity keeps the exact setting.
+TEST(FidelityChooser, CurtainLayerKnobIsTheCheapestWithinTheTarget) {
+  v1::Material material;
+  material.set_preset("linen_plain");
+  material.mutable_transmission()->set_preset("cotton_curtain");
+  models::MaterialCache cache(size_t{256} << 20);
+  render::CachedVariants variants(material, models::Registry::Global(), cache);
+  const models::PreparedMaterial* requested = variants.Requested();
+  ASSERT_NE(requested, nullptr);
+  ASSERT_NE(requested->transmission, nullptr);
+  const models::AccuracyKnob knob = requested->transmission->model->accuracy_knob();
+  ASSERT_GE(knob.settings.size(), 2u) << "the layer's model declares no knob to choose from";
+  const std::string aspect = "transmission." + knob.param;
+  const render::MaterialInfo info{requested->model, requested->values, true};
+  const render::RenderSetup setup = CurtainSetup(32, 40);
+  // The index of the setting the plan renders the (only) object's layer with.
+  const auto rendered_setting = [&](const render::FidelityPlan& plan) {
+    const models::PreparedMaterial* m = plan.evaluators[plan.objects[0].evaluator].material;
+    const double value = m->transmission->values.at(knob.param).at(0);
+    return std::find(knob.settings.begin(), knob.settings.end(), value) - knob.settings.begin();
+  };
+  const auto layer_choice = [&](const render::FidelityPlan& plan) -> const render::FidelityChoice* {
+    for (const render::FidelityChoice& c : plan.fidelity[0].choices)
+      if (c.aspect == aspect) return &c;
+    return nullptr;
+  };
+
+  constexpr double kLooseTarget = 0.5;
+  render::FidelityPlan loose;
+  ASSERT_EQ(render::ChooseFidelity(setup, info, variants, kLooseTarget, false, &loose), "");
+  const render::FidelityChoice* chosen = layer_choice(loose);
+  ASSERT_NE(chosen, nullptr);
+  for (const render::FidelityChoice& c : loose.fidelity[0].choices)
+    std::printf("%s: %s (full %s), estimated error %.3g: %s\n", c.aspect.c_str(), c.chosen.c_str(), c.full.c_str(),
+                c.estimated_error, c.reason.c_str());
+  EXPECT_LT(rendered_setting(loose), static_cast<long>(knob.settings.size()) - 1);
+  EXPECT_NE(chosen->chosen, chosen->full);
+  EXPECT_GT(chosen->estimated_error, 0);  // the back-lit curtain's light goes through the layer
+  EXPECT_LE(chosen->estimated_error, kLooseTarget);
+
+  // A target below that error takes a costlier setting: the choice is measured, not assumed.
+  render::FidelityPlan tight;
+  ASSERT_EQ(render::ChooseFidelity(setup, info, variants, chosen->estimated_error / 2, false, &tight), "");
+  EXPECT_GT(rendered_setting(tight), rendered_setting(loose));
+
+  render::FidelityPlan full;
+  ASSERT_EQ(render::ChooseFidelity(setup, info, variants, kLooseTarget, true, &full), "");
+  ASSERT_NE(layer_choice(full), nullptr);
+  EXPECT_EQ(layer_choice(full)->chosen, layer_choice(full)->full);
+  EXPECT_EQ(layer_choice(full)->estimated_error, 0);
+  EXPECT_EQ(rendered_setting(full), static_cast<long>(knob.settings.size()) - 1);
+}
+
+// End to end: a curtain render reports its layer's knob choice, and force_full_fidelity keeps it exact.
+TEST_F(RenderTest, CurtainRenderReportsItsLayerKnob) {
+  RenderRequest request = Request("linen_plain", v1::SCENE_CURTAIN, 32, 40, 2);
+  request.mutable_material()->mutable_transmission()->set_preset("cotton_curtain");
+  request.set_error_target(0.5);
+  for (const bool force_full : {false, true}) {
+    request.set_force_full_fidelity(force_full);
+    const Rendered r = Render(*stub_, request);
+    ASSERT_TRUE(r.status.ok()) << r.status.error_message();
+    ASSERT_EQ(r.last().fidelity_size(), 1);
+    const v1::FidelityChoice* layer = nullptr;
+    for (const v1::FidelityChoice& c : r.last().fidelity(0).choices())
+      if (c.aspect().rfind("transmission.", 0) == 0) layer = &c;
+    ASSERT_NE(layer, nullptr) << "no transmission.<knob> choice reported";
+    if (force_full) {
+      EXPECT_EQ(layer->chosen(), layer->full());
+    } else {
+      EXPECT_NE(layer->chosen(), layer->full()) << layer->reason();
+      EXPECT_LE(layer->estimated_error(), 0.5);
+    }
+  }
 }
 
 TEST_F(RenderTest, ChooserPicksTheBrdfForADistantSwatchAndTheBtfForACloseUp) {

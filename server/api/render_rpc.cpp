@@ -153,31 +153,6 @@ void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderS
   }
 }
 
-// The request's material (with its curtain layer) with parameters of its model overridden, packed through the
-// service's cache (which validates and keeps them, and packs a shared layer once); the variants stay alive as
-// long as this object.
-class CachedVariants final : public render::MaterialVariants {
- public:
-  CachedVariants(const v1::Material& material, const models::Registry& registry, models::MaterialCache& cache)
-      : registry_(registry), cache_(cache), base_(material) {}
-  const models::PreparedMaterial* Requested() override { return Get(base_); }
-  const models::PreparedMaterial* WithParam(const std::string& name, double value) override {
-    return Get(models::WithParam(base_, false, name, value));
-  }
-
- private:
-  const models::PreparedMaterial* Get(const v1::Material& material) {
-    std::shared_ptr<const models::PreparedMaterial> entry;
-    if (!cache_.Get(material, registry_, &entry).empty()) return nullptr;
-    kept_.push_back(entry);
-    return entry.get();
-  }
-  const models::Registry& registry_;
-  models::MaterialCache& cache_;
-  v1::Material base_;
-  std::vector<std::shared_ptr<const models::PreparedMaterial>> kept_;
-};
-
 // One Render call in flight, on the host worker (server/api/stream_call.h); batcher completions post there
 // too. The call is finished only when no batcher job and no write is outstanding.
 //
@@ -359,7 +334,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     info.values = material_->values;
     info.layered = material_->transmission != nullptr;
     s.object_transmits.assign(s.scene.objects.size(), render::Transmits(info));
-    variants_ = std::make_unique<CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
+    variants_ = std::make_unique<render::CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
     error_target_ = r.error_target() > 0 ? r.error_target() : render::kDefaultErrorTarget;
     if (std::string e = render::ChooseFidelity(s, info, *variants_, error_target_, r.force_full_fidelity(), &plan_);
         !e.empty()) {
@@ -718,7 +693,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
 
   render::RenderSetup setup_;
-  std::unique_ptr<CachedVariants> variants_;  // owns the packed variants the plan points at
+  std::unique_ptr<render::CachedVariants> variants_;  // owns the packed variants the plan points at
   render::FidelityPlan plan_;
   double error_target_ = render::kDefaultErrorTarget;
   Chunk chunks_[2];

@@ -20,26 +20,36 @@ std::string Format(const char* format, ...) {
 }
 
 struct Knob {
-  std::string name;
-  std::vector<double> candidates;  // ascending, all below full
+  std::string aspect, name;        // the report's aspect; the parameter ("": no knob)
+  std::vector<double> candidates;  // cheapest first, all below full
   double full = 0;
 };
 
-// The model's declared accuracy knob (models::AccuracyKnob), or a knob with an empty name.
-Knob FindKnob(const models::Model& model) {
+// The model's declared accuracy knob (models::AccuracyKnob), reported as aspect_prefix + its parameter, or a
+// knob with an empty name.
+Knob FindKnob(const models::Model& model, const std::string& aspect_prefix) {
   const models::AccuracyKnob declared = model.accuracy_knob();
   if (declared.param.empty() || declared.settings.empty()) return {};
-  Knob knob{declared.param, declared.settings, declared.settings.back()};
+  Knob knob{aspect_prefix + declared.param, declared.param, declared.settings, declared.settings.back()};
   knob.candidates.pop_back();
   return knob;
 }
 
+// The reflection material's knob and its curtain layer's.
+struct Knobs {
+  Knob reflection, layer;
+};
+
 // One object's modelling choice during the search.
 struct Config {
   bool btf = false;
-  double knob = 0;
+  double knob = 0, layer_knob = 0;
   bool transmission = false;
 };
+
+MaterialVariants::Setting SettingOf(const Knob& knob, double value) {
+  return knob.name.empty() ? MaterialVariants::Setting{} : MaterialVariants::Setting{knob.name, value};
+}
 
 int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e) {
   for (size_t i = 0; i < evaluators->size(); ++i) {
@@ -53,10 +63,10 @@ int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e) {
 }
 
 // The evaluator and shading of one object under `config`; false when a variant cannot be packed.
-bool MakeShading(const MaterialInfo& m, MaterialVariants& variants, const Knob& knob, const Config& config,
+bool MakeShading(const MaterialInfo& m, MaterialVariants& variants, const Knobs& knobs, const Config& config,
                  std::vector<Evaluator>* evaluators, ObjectShading* out) {
-  const models::PreparedMaterial* material =
-      knob.name.empty() ? variants.Requested() : variants.WithParam(knob.name, config.knob);
+  const models::PreparedMaterial* material = variants.WithSettings(SettingOf(knobs.reflection, config.knob),
+                                                                   SettingOf(knobs.layer, config.layer_knob));
   if (!material) return false;
   out->evaluator = EvaluatorIndex(
       evaluators, {material, config.btf && m.model->spatially_varying(), config.transmission && Transmits(m)});
@@ -101,10 +111,10 @@ void AddHostRadiance(const std::vector<Evaluator>& evaluators, const std::vector
 
 // Radiance (R + G + B) of each pilot point of one object under `config`, evaluated on the host.
 bool PilotRadiance(const std::vector<ShadingPoint>& points, const MaterialInfo& m, MaterialVariants& variants,
-                   const Knob& knob, const Config& config, std::vector<double>* radiance) {
+                   const Knobs& knobs, const Config& config, std::vector<double>* radiance) {
   std::vector<Evaluator> evaluators;
   ObjectShading shading;
-  if (!MakeShading(m, variants, knob, config, &evaluators, &shading)) return false;
+  if (!MakeShading(m, variants, knobs, config, &evaluators, &shading)) return false;
   std::vector<QueryBucket> buckets(evaluators.size());
   radiance->assign(points.size(), 0.0);
   for (size_t i = 0; i < points.size(); ++i) {
@@ -132,6 +142,31 @@ double Median(std::vector<double> v) {
 }
 
 std::string KnobText(double v) { return Format("%g", v); }
+
+// Sets one knob (the `setting` of *chosen) to its cheapest setting whose pilot radiance is within the target of
+// its full setting's, the rest of *chosen as it is, and says so in *choice. False when a variant cannot be packed.
+bool ChooseKnob(const std::vector<ShadingPoint>& points, const MaterialInfo& m, MaterialVariants& variants,
+                const Knobs& knobs, const Knob& knob, double Config::*setting, double target, Config* chosen,
+                FidelityChoice* choice) {
+  std::vector<double> reference, candidate;
+  if (!PilotRadiance(points, m, variants, knobs, *chosen, &reference)) return false;
+  choice->reason = Format("no cheaper %s is within the target of %g", knob.name.c_str(), knob.full);
+  for (double value : knob.candidates) {
+    Config cheaper = *chosen;
+    cheaper.*setting = value;
+    if (!PilotRadiance(points, m, variants, knobs, cheaper, &candidate)) return false;
+    const double error = RelativeL1(candidate, reference);
+    if (error <= target) {
+      chosen->*setting = value;
+      choice->chosen = KnobText(value);
+      choice->estimated_error = error;
+      choice->reason = Format("%s %g: pilot radiance within %.2g of %g (relative L1)", knob.name.c_str(), value,
+                              error, knob.full);
+      break;
+    }
+  }
+  return true;
+}
 
 // The fiber object's total pilot radiance (R + G + B over every pilot pixel and repeat) with the given
 // visibility methods: each pilot pixel centre traced kFiberPilotRepeats times (own random streams: the light and
@@ -223,14 +258,31 @@ void ChooseFiberVisibility(const RenderSetup& setup, const std::vector<Evaluator
 
 }  // namespace
 
+const models::PreparedMaterial* CachedVariants::WithSettings(const Setting& reflection, const Setting& layer) {
+  v1::Material variant = base_;
+  if (!reflection.param.empty()) variant = models::WithParam(variant, false, reflection.param, reflection.value);
+  if (!layer.param.empty()) variant = models::WithParam(variant, true, layer.param, layer.value);
+  return Get(variant);
+}
+
+const models::PreparedMaterial* CachedVariants::Get(const v1::Material& material) {
+  std::shared_ptr<const models::PreparedMaterial> entry;
+  if (!cache_.Get(material, registry_, &entry).empty()) return nullptr;
+  kept_.push_back(entry);
+  return entry.get();
+}
+
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, MaterialVariants& variants,
                            double target, bool force_full, FidelityPlan* plan) {
-  const Knob knob = FindKnob(*m.model);
+  const std::string failed = "cannot pack a variant of the material for the fidelity choice";
+  const models::PreparedMaterial* requested = variants.Requested();
+  if (!requested) return failed;
+  const Knobs knobs{FindKnob(*m.model, ""),
+                    requested->transmission ? FindKnob(*requested->transmission->model, "transmission.") : Knob{}};
   const bool varying = m.model->spatially_varying(), transmits = Transmits(m);
-  const Config full{varying, knob.full, transmits};
+  const Config full{varying, knobs.reflection.full, knobs.layer.full, transmits};
   const double segment = 1.0 / (setup.texture_scale * m.model->ThreadsPerRepeat(m.values));  // scene units
   const Pilot pilot(setup);
-  const std::string failed = "cannot pack a variant of the material for the fidelity choice";
 
   plan->evaluators.clear();
   plan->objects.clear();
@@ -240,13 +292,11 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
     if (setup.scene.objects[o].fibers) {
       // Fibers span pixels here: each fiber is shaded by the fiber model about its own axis, plus the ambient
       // term; the geometry's level of detail was chosen from the pixel footprint when it was generated.
-      const models::PreparedMaterial* material = variants.Requested();
-      if (!material) return failed;
       ObjectShading shading;
-      shading.evaluator = EvaluatorIndex(&plan->evaluators, {material, false, false, true});
+      shading.evaluator = EvaluatorIndex(&plan->evaluators, {requested, false, false, true});
       if (setup.ambient > 0 && m.model->has_ambient())
         shading.ambient_evaluator =
-            EvaluatorIndex(&plan->evaluators, {material, false, false, true, models::Quantity::kAmbient});
+            EvaluatorIndex(&plan->evaluators, {requested, false, false, true, models::Quantity::kAmbient});
       const RenderSetup::FiberDetail& d = setup.fiber_detail;
       out.choices.push_back({"geometry", d.chosen, d.full, 0, d.reason});
       ChooseFiberVisibility(setup, plan->evaluators, shading, target, force_full, plan, &out);
@@ -258,7 +308,9 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
     Config chosen = full;
     FidelityChoice path{"path", varying ? "BTF" : "BRDF", varying ? "BTF" : "BRDF", 0,
                         varying ? "" : "not spatially varying: the BRDF is the model's only path"};
-    FidelityChoice accuracy{knob.name, KnobText(knob.full), KnobText(knob.full), 0, ""};
+    FidelityChoice accuracy{knobs.reflection.aspect, KnobText(knobs.reflection.full),
+                            KnobText(knobs.reflection.full), 0, ""};
+    FidelityChoice layer_accuracy{knobs.layer.aspect, KnobText(knobs.layer.full), KnobText(knobs.layer.full), 0, ""};
     FidelityChoice transmission{"transmission", transmits ? "on" : "off", transmits ? "on" : "off", 0,
                                 transmits ? "" : "the material does not transmit"};
     std::string common;  // a reason shared by every choice
@@ -284,8 +336,8 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
         } else {
           Config brdf = full;
           brdf.btf = false;
-          if (!PilotRadiance(points, m, variants, knob, full, &reference) ||
-              !PilotRadiance(points, m, variants, knob, brdf, &candidate))
+          if (!PilotRadiance(points, m, variants, knobs, full, &reference) ||
+              !PilotRadiance(points, m, variants, knobs, brdf, &candidate))
             return failed;
           path.estimated_error = RelativeL1(candidate, reference, &filtered);
           if (path.estimated_error <= target) {
@@ -300,24 +352,9 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
           }
         }
       }
-      if (!knob.name.empty()) {
-        if (!PilotRadiance(points, m, variants, knob, chosen, &reference)) return failed;
-        accuracy.reason = Format("no smaller %s is within the target of %g", knob.name.c_str(), knob.full);
-        for (double value : knob.candidates) {
-          Config cheaper = chosen;
-          cheaper.knob = value;
-          if (!PilotRadiance(points, m, variants, knob, cheaper, &candidate)) return failed;
-          const double error = RelativeL1(candidate, reference);
-          if (error <= target) {
-            chosen.knob = value;
-            accuracy.chosen = KnobText(value);
-            accuracy.estimated_error = error;
-            accuracy.reason = Format("%s %g: pilot radiance within %.2g of %g (relative L1)", knob.name.c_str(), value,
-                                     error, knob.full);
-            break;
-          }
-        }
-      }
+      if (!knobs.reflection.name.empty() &&
+          !ChooseKnob(points, m, variants, knobs, knobs.reflection, &Config::knob, target, &chosen, &accuracy))
+        return failed;
       if (transmits) {
         bool back_lit = false;
         for (const ShadingPoint& p : points) {
@@ -331,8 +368,8 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
         } else {
           Config off = chosen;
           off.transmission = false;
-          if (!PilotRadiance(points, m, variants, knob, chosen, &reference) ||
-              !PilotRadiance(points, m, variants, knob, off, &candidate))
+          if (!PilotRadiance(points, m, variants, knobs, chosen, &reference) ||
+              !PilotRadiance(points, m, variants, knobs, off, &candidate))
             return failed;
           const double error = RelativeL1(candidate, reference);
           if (error <= target) {
@@ -345,15 +382,19 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
           }
         }
       }
+      // After the transmission: the layer's approximation is measured on the light the render will take.
+      if (!knobs.layer.name.empty() && !ChooseKnob(points, m, variants, knobs, knobs.layer, &Config::layer_knob,
+                                                   target, &chosen, &layer_accuracy))
+        return failed;
     }
-    for (FidelityChoice* c : {&path, &accuracy, &transmission}) {
-      if (c->aspect.empty()) continue;  // the model has no accuracy knob
+    for (FidelityChoice* c : {&path, &accuracy, &transmission, &layer_accuracy}) {
+      if (c->aspect.empty()) continue;  // no such knob
       if (c->reason.empty()) c->reason = common;
       out.estimated_error += c->estimated_error;
       out.choices.push_back(*c);
     }
     ObjectShading shading;
-    if (!MakeShading(m, variants, knob, chosen, &plan->evaluators, &shading)) return failed;
+    if (!MakeShading(m, variants, knobs, chosen, &plan->evaluators, &shading)) return failed;
     plan->objects.push_back(shading);
     plan->fidelity.push_back(std::move(out));
   }

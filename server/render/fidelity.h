@@ -1,24 +1,28 @@
 // The Render RPC's fidelity chooser: per object, the cheapest model path whose estimated error stays within
-// the request's target (README "Render: fidelity"). Three decisions, each measured on a pilot (a sparse grid
+// the request's target (README "Render: fidelity"). Its decisions, each measured on a pilot (a sparse grid
 // of pixel centres traced with the render's own code and evaluated on the host with the native build of the
 // kernels' source):
 // - path: a spatially varying model's BTF where its threads span more than a pixel, else its analytic BRDF
 //   (the BTF's mean) when the texture the pixel would average away is within the target;
-// - an accuracy parameter of the model (a small table by parameter name, e.g. microcylinder tangent
-//   samples): the smallest value whose pilot radiance is within the target of the schema's maximum;
+// - the model's accuracy knob (Model::accuracy_knob, e.g. microcylinder tangent samples): the cheapest setting
+//   whose pilot radiance is within the target of the exact setting's;
 // - transmission: evaluated only when the light reaching the back of the cloth matters;
+// - a curtain layer's accuracy knob (its model's accuracy_knob, e.g. the thin layer's scattering orders), chosen
+//   as the reflection's, reported as "transmission.<param>";
 // - fiber scenes' shadows and ambient occlusion: rays traced through the fibers, or the yarn cross-section's
 //   approximations (Wu and Yuksel Sec. 4.1-4.2) when the pilot's radiance with them is within the target of
 //   the traced one. The approximations are statistical (a fiber gets the mean visibility at its place in the
 //   cross-section, not its own), so the error is that of the pilot's total radiance over a finer grid of its
 //   own (kFiberPilotGrid, kFiberPilotRepeats samples per pixel: the fibers' positions vary more than the rays).
-// Models are told apart by their properties (spatially_varying(), transmission()) and parameter names,
-// never by model name.
+// Models are told apart by their declared properties (spatially_varying(), transmission(), accuracy_knob()),
+// never by model or parameter name.
 #pragma once
 
+#include <memory>
 #include <string>
 #include <vector>
 
+#include "server/models/material_cache.h"
 #include "server/models/registry.h"
 #include "server/render/shading.h"
 
@@ -30,7 +34,7 @@ constexpr int kFiberPilotGrid = 64;           // the fiber visibility choice's p
 constexpr int kFiberPilotRepeats = 2;         // 2 samples each
 
 struct FidelityChoice {
-  std::string aspect;  // "path", an accuracy parameter's name, "transmission"
+  std::string aspect;  // "path", an accuracy knob's parameter, "transmission", "transmission.<layer knob>"
   std::string chosen, full;
   double estimated_error = 0;
   std::string reason;
@@ -50,13 +54,36 @@ struct MaterialInfo {
   bool layered = false;
 };
 
-// Packs the reflection material with one parameter overridden; made by the caller (through its material
-// cache, which keeps the result alive for the call). Returns null when that is not possible.
+// The requested material and its variants with accuracy knobs set, packed for the chooser (and then the render);
+// each returns null when that is not possible.
 class MaterialVariants {
  public:
+  // One parameter set to a value; an empty param leaves that part as the request gave it.
+  struct Setting {
+    std::string param;
+    double value = 0;
+  };
   virtual ~MaterialVariants() = default;
-  virtual const models::PreparedMaterial* WithParam(const std::string& name, double value) = 0;
   virtual const models::PreparedMaterial* Requested() = 0;  // as the request gave it
+  // The material with one parameter of its own and one of its curtain layer set.
+  virtual const models::PreparedMaterial* WithSettings(const Setting& reflection, const Setting& layer) = 0;
+};
+
+// Variants packed through a material cache (which validates them, and packs a layer shared by several variants
+// once); each stays alive as long as this object.
+class CachedVariants final : public MaterialVariants {
+ public:
+  CachedVariants(const v1::Material& material, const models::Registry& registry, models::MaterialCache& cache)
+      : registry_(registry), cache_(cache), base_(material) {}
+  const models::PreparedMaterial* Requested() override { return Get(base_); }
+  const models::PreparedMaterial* WithSettings(const Setting& reflection, const Setting& layer) override;
+
+ private:
+  const models::PreparedMaterial* Get(const v1::Material& material);
+  const models::Registry& registry_;
+  models::MaterialCache& cache_;
+  const v1::Material base_;
+  std::vector<std::shared_ptr<const models::PreparedMaterial>> kept_;
 };
 
 struct FidelityPlan {

@@ -1,5 +1,5 @@
-// loomlight_bench [--out FILE] [--quick] [--only SECTIONS]: measures the kernels, the tangent-sample trade-off
-// and the gRPC service, then writes the markdown report (default bench/report.md in the source tree) and prints it.
+// loomlight_bench [--out FILE] [--quick] [--only SECTIONS]: measures every model's kernels, the accuracy knobs'
+// speed against error and the gRPC service, then writes the markdown report (default bench/report.md in the source tree) and prints it.
 #include "bench/bench.h"
 
 #include <absl/synchronization/mutex.h>
@@ -11,6 +11,7 @@
 #include <iostream>
 #include <set>
 #include <sstream>
+#include <utility>
 
 #include "bench/report.h"
 #include "bench/stats.h"
@@ -55,23 +56,27 @@ struct Args {
 };
 
 // Section names for --only, in report order.
-const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "woven",
-                                     "slice", "transmission", "tabulate", "render", "noise",
-                                     "fair-share", "btf"};
+const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "slice", "tabulate",
+                                     "render", "noise", "fair-share", "btf"};
+// Sections merged into another, still accepted by their old names: "kernel" measures every model.
+const std::pair<const char*, const char*> kSectionAliases[] = {{"woven", "kernel"}, {"transmission", "kernel"}};
 
-bool KnownSection(const std::string& name) {
+// The section's own name (an alias resolved), or "" when there is none.
+std::string SectionName(const std::string& name) {
+  for (const auto& [alias, section] : kSectionAliases)
+    if (name == alias) return section;
   for (const char* n : kSectionNames)
-    if (name == n) return true;
-  return false;
+    if (name == n) return n;
+  return "";
 }
 
 void Usage(const char* argv0, const Args& defaults) {
   std::fprintf(stderr,
                "usage: %s [--out FILE] [--quick] [--only SECTIONS]\n  --out FILE  report path (default %s)\n"
                "  --quick     small sizes, a smoke run of a few seconds\n"
-               "  --only SECTIONS  comma-separated, of: kernel, sweep, service, service-cpu, woven, slice,\n"
-               "              transmission, tabulate, render, noise, fair-share, btf (a partial report: give it its\n"
-               "              own --out)\n",
+               "  --only SECTIONS  comma-separated, of: kernel (every model; aliases woven, transmission), sweep\n"
+               "              (accuracy knobs), service, service-cpu, slice, tabulate, render, noise, fair-share, btf\n"
+               "              (a partial report: give it its own --out)\n",
                argv0, defaults.out.c_str());
 }
 
@@ -84,11 +89,12 @@ bool ParseArgs(int argc, char** argv, Args* args) {
     } else if (!std::strcmp(argv[i], "--only") && i + 1 < argc) {
       std::istringstream names(argv[++i]);
       for (std::string name; std::getline(names, name, ',');) {
-        if (!KnownSection(name)) {
+        const std::string section = SectionName(name);
+        if (section.empty()) {
           std::fprintf(stderr, "unknown section '%s'\n", name.c_str());
           return false;
         }
-        args->only.insert(name);
+        args->only.insert(section);
       }
     } else if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
       args->help = true;
@@ -134,23 +140,18 @@ int main(int argc, char** argv) {
   const CpuSnapshot start = CpuSnapshot::Now();
   auto want = [&args](const char* name) { return args.only.empty() || args.only.count(name) > 0; };
 
-  std::string machine, sections, woven, transmission, btf;
+  std::string machine, sections, btf;
   {
     std::unique_ptr<loomlight::runtime::ClRuntime> rt = StartRuntime();
     if (!rt) return 1;
     machine = MachineDescription(rt->platform_name(), rt->device_name(), sizes.quick);
     if (want("kernel")) sections += KernelSection(*rt, sizes);
-    if (want("sweep")) sections += TangentSweepSection(*rt, sizes);
-    // numbered after the service section, which was there first
-    if (want("woven")) woven = WovenSection(*rt, sizes);
-    if (want("transmission")) transmission = TransmissionSection(*rt, sizes);
+    if (want("sweep")) sections += KnobSweepSection(*rt, sizes);
     if (want("btf")) btf = BtfSection(*rt, sizes);  // last in the report, the newest section
   }
   if (want("service")) sections += ServiceSection(sizes);
   if (want("service-cpu")) sections += ServiceCpuSection(sizes);
-  sections += woven;
   if (want("slice")) sections += SliceSection(sizes);
-  sections += transmission;
   if (want("tabulate")) sections += TabulateSection(sizes);
   if (want("render")) sections += RenderSection(sizes);
   if (want("noise")) sections += NoiseSection(sizes);

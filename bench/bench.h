@@ -14,8 +14,8 @@ struct Sizes {
   size_t kernel_queries = 1000000;   // direction pairs timed per preset and implementation
   size_t kernel_error_queries = 1000000;  // prefix of those compared with the double reference
   size_t reference_threads = 2;      // the double reference is split over this many threads
-  size_t sweep_queries = 200000;     // direction pairs timed per tangent-sample count
-  size_t sweep_error_queries = 100000;  // subset compared with the T = 256 reference
+  size_t sweep_queries = 200000;     // direction pairs timed per accuracy knob setting
+  size_t sweep_error_queries = 100000;  // subset compared with the exact setting's double reference
   double service_seconds = 2.5;      // per service configuration (clients stop starting calls after it)
   size_t service_max_calls = 20000;  // per client and configuration, whichever comes first
   size_t big_call_queries = size_t{1} << 20;
@@ -36,15 +36,11 @@ struct Sizes {
 // Logs progress to stderr (the report goes to stdout and the file at the end).
 void Progress(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
 
-// Section 1: OpenCL fp32 / fp64 and the native baseline per preset, throughput and error.
+// Section 1: every registered model and preset (BRDF and, where spatially varying, BTF): OpenCL fp32 / fp64 and
+// the native baseline, throughput and error.
 std::string KernelSection(runtime::ClRuntime& rt, const Sizes& sizes);
-// Woven cotton presets: BRDF and BTF, OpenCL fp32 / fp64 and the native baseline, throughput and error.
-std::string WovenSection(runtime::ClRuntime& rt, const Sizes& sizes);
-// Thin layer (single scattering, all orders) and fiber (simple, R + TT) presets: throughput and error, with
-// the thin layer's naive formulas next to the stable ones.
-std::string TransmissionSection(runtime::ClRuntime& rt, const Sizes& sizes);
-// Section 2: throughput and convergence against tangent samples per thread.
-std::string TangentSweepSection(runtime::ClRuntime& rt, const Sizes& sizes);
+// Section 2: every declared accuracy knob, each setting's throughput against its error.
+std::string KnobSweepSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Section 3: the gRPC service in process, concurrent clients, batching on and off, one maximal call.
 std::string ServiceSection(const Sizes& sizes);
 // Section 3b: server CPU per Evaluate call (1 and 64 queries) against a health Check, the real server binary

@@ -27,6 +27,17 @@ double PhiOf(const Dir& w) {
   return phi < 0 ? phi + 2 * kPi : phi;
 }
 
+// The monotone map of cos theta in [-1, 1], odd, linear on [0, from] and on [from, 1], taking from to `to`; its
+// slope at z in *slope. A density moved by it is divided by the slope.
+double MoveZ(double z, double from, double to, double* slope) {
+  const double a = std::fabs(z);
+  *slope = a <= from ? to / from : (1 - to) / (1 - from);
+  return std::copysign(a <= from ? a * *slope : to + (a - from) * *slope, z);
+}
+
+// How far moved densities reach toward the pole and the horizon: a wo beyond it moves them as far as this.
+constexpr double kMoveZMargin = 1e-3;
+
 }  // namespace
 
 bool DirectionSampler::Fiber(const Model& model) { return !model.fiber_axis_param().empty(); }
@@ -196,26 +207,27 @@ Dir DirectionSampler::DrawCosine(double u1, double u2) const {
   return w;
 }
 
-double DirectionSampler::NodePdf(int node, const Dir& w) const {
+double DirectionSampler::NodePdf(int node, double z, double phi) const {
   const Node& n = nodes_[node];
   const double total = n.row_cdf.back();
   if (!(total > 0)) return -1;
-  if (w[2] < z_min_) return 0;
+  if (z < z_min_) return 0;
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
-  const int r = std::clamp(int((w[2] - z_min_) / dz), 0, wi_rows_ - 1);
-  const int c = std::clamp(int(PhiOf(w) / dphi), 0, res_.wi_phi - 1);
+  const int r = std::clamp(int((z - z_min_) / dz), 0, wi_rows_ - 1);
+  const int c = std::clamp(int(phi / dphi), 0, res_.wi_phi - 1);
   const double* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
   return (column[c + 1] - column[c]) / total / (dz * dphi);  // dz dphi is the cell's solid angle
 }
 
-Dir DirectionSampler::DrawNode(int node, double u1, double u2) const {
+void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, double* phi) const {
   const Node& n = nodes_[node];
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
   double fz, fp;
   const int r = SearchCdf(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
   const double* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
   const int c = SearchCdf(column, res_.wi_phi, u2 * column[res_.wi_phi], &fp);
-  return FromZPhi(z_min_ + (r + fz) * dz, (c + fp) * dphi);
+  *z = z_min_ + (r + fz) * dz;
+  *phi = (c + fp) * dphi;
 }
 
 DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in) const {
@@ -225,7 +237,11 @@ DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in) const {
   c.mirror_ = !wo_sphere_ && wo[2] < 0 ? -1 : 1;  // two-sided cloth: sample for the mirrored wo
   wo[2] *= c.mirror_;
   Nodes(wo, c.index_, c.weight_);
-  if (fiber_) {
+  if (!fiber_) {
+    c.moved_ = true;
+    const double z_wo = std::clamp(wo[2], kMoveZMargin, 1 - kMoveZMargin);
+    for (int k = 0; k < 4; ++k) c.move_[k] = {(c.index_[k] / res_.wo_phi + 0.5) / res_.wo_z, z_wo};
+  } else {
     const double r = std::hypot(wo[0], wo[1]);
     if (r > 0) {
       c.cos_o_ = wo[0] / r;
@@ -260,7 +276,14 @@ DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u
         break;
       }
     }
-    wi = s.nodes_[index_[k]].row_cdf.back() > 0 ? s.DrawNode(index_[k], u1, u2) : s.DrawCosine(u1, u2);
+    if (s.nodes_[index_[k]].row_cdf.back() > 0) {
+      double z, phi, slope;
+      s.DrawNode(index_[k], u1, u2, &z, &phi);
+      if (moved_) z = MoveZ(z, move_[k].z_node, move_[k].z_wo, &slope);
+      wi = FromZPhi(z, phi);
+    } else {
+      wi = s.DrawCosine(u1, u2);
+    }
   }
   wi = FromWoFrame(wi);
   Sample sample;
@@ -280,10 +303,18 @@ double DirectionSampler::Conditional::TablePdf(const Dir& wi_table) const {
   const DirectionSampler& s = *sampler_;
   const Dir wi = ToWoFrame(wi_table);
   const double cosine = s.CosinePdf(wi);
+  const double phi = PhiOf(wi);
   double table = 0;
   for (int i = 0; i < 4; ++i) {
     if (weight_[i] <= 0) continue;
-    const double p = s.NodePdf(index_[i], wi);
+    double p;
+    if (moved_) {  // the node's density where the move came from, divided by the move's slope
+      double slope;
+      const double z = MoveZ(wi[2], move_[i].z_wo, move_[i].z_node, &slope);  // the inverse map; slope = 1 / its
+      p = s.NodePdf(index_[i], z, phi) * slope;
+    } else {
+      p = s.NodePdf(index_[i], wi[2], phi);
+    }
     table += weight_[i] * (p < 0 ? cosine : p);
   }
   return kCosineFraction * cosine + (1 - kCosineFraction) * table;

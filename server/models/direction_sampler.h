@@ -4,7 +4,14 @@
 // The density is a tabulated one built from the material itself: at a grid of wo nodes, f(wi, wo) |cos theta_i|
 // (averaged over the pattern's tile for spatially varying models) at the centres of equal-area cells of wi
 // (uniform in cos theta and phi); between nodes the node densities are blended bilinearly (a mixture, so its
-// density is the same blend), and a fraction kCosineFraction of a cosine density is mixed in, so every
+// density is the same blend). Surfaces: each node's density is first moved to wo's elevation, its cos theta
+// mapped by the piecewise linear map of [0, 1] taking the node's cos theta_o to wo's (odd over the sphere), so a
+// narrow lobe that follows wo's elevation (a highlight, most of all at grazing angles) lies where wo's does
+// rather than split between its neighbours'; the map's slope makes the moved density exact. (Turning nodes
+// about the normal by phi_o - phi_node too, everywhere or only near the horizon, was tried: it helps one grazing
+// azimuth of the satin and hurts others, as a microcylinder's highlight is a cone about the thread, not a lobe
+// that turns with wo.)
+// A fraction kCosineFraction of a cosine density is mixed in, so every
 // direction where f may be non-zero has a non-zero density even where the table's cell centres missed it.
 // Piecewise constant within a cell, so pdf() is exactly the density Draw() samples, whatever the table's error;
 // the table only decides how much variance is left. Surface models: wo and wi about the normal (z), wi over the
@@ -58,6 +65,12 @@ class DirectionSampler {
    private:
     friend class DirectionSampler;
     double TablePdf(const Dir& wi_table) const;  // wi in the table frame, mirrored with wo
+    // Surfaces: node k's density moved to wo's elevation (cos theta mapped from z_node to z_wo).
+    struct Move {
+      double z_node = 0.5, z_wo = 0.5;
+    };
+    bool moved_ = false;
+    Move move_[4];
     // Fibers: the table frame rotated about its axis so that wo's azimuth is 0 (identity for surfaces).
     Dir ToWoFrame(const Dir& w) const;
     Dir FromWoFrame(const Dir& w) const;
@@ -87,10 +100,10 @@ class DirectionSampler {
   // The four wo nodes around wo (table frame, sign already mirrored) and their bilinear weights.
   void Nodes(const Dir& wo, int index[4], double weight[4]) const;
   double CosinePdf(const Dir& wi_table) const;
-  double NodePdf(int node, const Dir& wi_table) const;
+  double NodePdf(int node, double z, double phi) const;  // phi in [0, 2 pi)
   // The density in the table frame (wo mirrored to its side), given wo's nodes.
   double Pdf(const Dir& wo_table, const Dir& wi_table, const int index[4], const double weight[4]) const;  // < 0: the node is empty (use the cosine density)
-  Dir DrawNode(int node, double u1, double u2) const;
+  void DrawNode(int node, double u1, double u2, double* z, double* phi) const;
   Dir DrawCosine(double u1, double u2) const;
 
   Resolution res_;

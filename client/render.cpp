@@ -139,6 +139,7 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
   if (auto ambient = options.last("ambient")) request.set_ambient(parse_number(*ambient, "--ambient"));
   if (auto v = enum_option(options, "btf-environment", "BTF_ENVIRONMENT_", v1::BtfEnvironment_Parse))
     request.set_btf_environment(*v);
+  if (auto v = enum_option(options, "sampling", "SAMPLING_", v1::Sampling_Parse)) request.set_sampling(*v);
   request.set_format(output_format(options, out));
   return request;
 }
@@ -188,6 +189,9 @@ int run_render(const ParsedOptions& options) {
               last.width(), last.height(), format_name(last.format()), ProgressBar::grouped(last.samples_total()).c_str(),
               ProgressBar::grouped(last.queries()).c_str(), last.total_seconds(), last.setup_seconds(),
               last.kernel_seconds(), last.exposure(), out->c_str());
+  if (last.adaptive_sampling())
+    std::printf("adaptive sampling: %u to %u samples per pixel, by each pixel's noise in a first pass\n",
+                last.min_samples_per_pixel(), last.max_samples_per_pixel());
   print_fidelity(last);
   return 0;
 }
@@ -204,7 +208,8 @@ OptionList render_options() {
       {"ambient", "X", "fiber scenes: constant ambient radiance (default: the scene's with default lighting)"},
       {"btf-environment", "auto|sampled|folded", "btf materials: the environment map sampled, or folded into the BTF"},
       {"size", "WxH", "image size in pixels (default 256x256)"},
-      {"spp", "N", "samples per pixel (default 16)"},
+      {"spp", "N", "samples per pixel (default 16); adaptive sampling: their work, spent where pixels are noisy"},
+      {"sampling", "auto|uniform|adaptive", "spread the samples evenly or by noise (auto: adaptive from 8 spp)"},
       {"seed", "N", "random seed (default 0): the same request and seed give the same image"},
       {"texture-scale", "X", "pattern repeats per scene unit (default: the scene's)"},
       {"texture-rotation", "DEG", "rotates the threads in the surface"},

@@ -12,6 +12,7 @@
 #include "server/imaging/image_encode.h"
 #include "server/models/material.h"
 #include "server/models/btf/environment_fold.h"
+#include "server/render/adaptive_sampling.h"
 #include "server/render/fidelity.h"
 #include "server/render/folded_environment.h"
 #include "server/render/shading.h"
@@ -156,10 +157,12 @@ void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderS
 // One Render call in flight, on the host worker (server/api/stream_call.h); batcher completions post there
 // too. The call is finished only when no batcher job and no write is outstanding.
 //
-// Pixels are rendered in chunks of whole pixels; two chunk buffers alternate: while one chunk's jobs are
-// on the device, the worker accumulates the previous chunk and traces the next. Every pixel's sum is taken
-// in a fixed order (evaluators in order, then queries in sample order), so the image does not depend on
-// timing or on how launches were batched.
+// Pixels are rendered in chunks of whole pixels (all of a pixel's samples of the pass); two chunk buffers
+// alternate: while one chunk's jobs are on the device, the worker accumulates the previous chunk and traces the
+// next. Every pixel sample's sum is taken in a fixed order (evaluators in order, then queries in order), and a
+// pixel's in sample order, so the image does not depend on timing or on how launches were batched. Sampling
+// uniformly is one pass of samples_per_pixel; adaptively (server/render/adaptive_sampling.h), a first pass of a
+// few samples per pixel measures each pixel's noise, and a second gives pixel p its samples up to counts_[p].
 class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
@@ -197,8 +200,11 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  private:
   struct Chunk {
     uint64_t first_pixel = 0, pixels = 0;     // pixels 0: nothing prepared
-    std::vector<render::QueryBucket> buckets;  // per evaluator; tag = pixel within the chunk
-    std::vector<Rgb> direct;                   // per pixel: radiance summed without a query
+    // Per pixel of the chunk (and one past the last): its first slot, one slot per pixel sample.
+    std::vector<uint32_t> slot_begin;
+    std::vector<render::QueryBucket> buckets;  // per evaluator; tag = slot
+    std::vector<Rgb> value;                    // per slot: the radiance needing no query, then the sample's all
+    std::vector<uint16_t> slot_queries;        // adaptive first pass: per slot, its queries (the sample's work)
     std::vector<std::vector<double>> f;        // per evaluator: the kernel's results
     std::vector<std::unique_ptr<models::EvaluationPlan>> plans;  // per evaluator: its kernel parts
     size_t jobs_in_flight = 0;
@@ -434,9 +440,17 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
       if (const models::PreparedMaterial* m = SampledMaterial(o)) s.object_samplers[o] = &m->Sampler();
     total_pixels_ = uint64_t(s.width) * s.height;
-    const size_t per_pixel = std::max<size_t>(1, render::MaxQueriesPerSample(s)) * s.samples_per_pixel;
-    chunk_pixels_ = std::max<uint64_t>(1, kRenderChunkQueries / per_pixel);
+    chunk_slots_ = std::max<uint64_t>(1, kRenderChunkQueries / std::max<size_t>(1, render::MaxQueriesPerSample(s)));
     sums_.assign(total_pixels_, Rgb{});
+    const uint32_t spp = s.samples_per_pixel;
+    adaptive_ = request_.sampling() == v1::SAMPLING_ADAPTIVE ||
+                (request_.sampling() == v1::SAMPLING_AUTO && spp >= render::kAutoAdaptiveSamples);
+    first_pass_ = adaptive_ ? render::FirstPassSamples(spp) : spp;
+    samples_total_ = total_pixels_ * spp;
+    if (adaptive_) {
+      squares_.assign(total_pixels_, 0.0);
+      pixel_queries_.assign(total_pixels_, 0.0f);
+    }
     setup_seconds_ = SecondsSince(received_);
     for (Chunk& c : chunks_) Prepare(c);
   }
@@ -454,68 +468,81 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     if (write_in_flight_) return;
     if (complete_ && !final_sent_) return WriteUpdate(true);
     if (final_sent_) return FinishCall(grpc::Status::OK);
-    if (!sent_first_ || pixels_done_ > pixels_sent_) WriteUpdate(false);
+    if (!sent_first_ || samples_done_ > samples_sent_) WriteUpdate(false);
   }
 
   bool JobsInFlight() const { return chunks_[0].jobs_in_flight + chunks_[1].jobs_in_flight > 0; }
 
-  // Traces the next pixels into a free chunk buffer (none left: pixels = 0).
+  // The samples of `pixel` this pass traces: [begin, end).
+  std::pair<uint32_t, uint32_t> PassSamples(uint64_t pixel) const {
+    return pass_ == 0 ? std::pair{0u, first_pass_} : std::pair{first_pass_, counts_[pixel]};
+  }
+
+  // Traces the next pixels of the pass (at most chunk_slots_ samples, or one pixel) into a free chunk buffer
+  // (none left: pixels = 0).
   void Prepare(Chunk& chunk) {
     chunk.first_pixel = next_pixel_;
-    chunk.pixels = std::min(chunk_pixels_, total_pixels_ - next_pixel_);
-    next_pixel_ += chunk.pixels;
+    chunk.slot_begin.assign(1, 0);
+    uint64_t slots = 0;
+    for (; next_pixel_ < total_pixels_; ++next_pixel_) {
+      const auto [begin, end] = PassSamples(next_pixel_);
+      if (chunk.slot_begin.size() > 1 && slots + (end - begin) > chunk_slots_) break;
+      slots += end - begin;
+      chunk.slot_begin.push_back(static_cast<uint32_t>(slots));
+    }
+    chunk.pixels = next_pixel_ - chunk.first_pixel;
     chunk.buckets.resize(plan_.evaluators.size());
     for (render::QueryBucket& b : chunk.buckets) b.Clear();
-    chunk.direct.assign(chunk.pixels, Rgb{});
+    chunk.value.assign(slots, Rgb{});
     chunk.queries = 0;
     // Chunks are traced on kTraceThreads threads (casting rays and sampling lights and materials is the host's
-    // share of a render), each a contiguous run of pixels into its own buckets, appended in pixel order: every
-    // pixel's queries stay in sample order and the image does not depend on the split.
+    // share of a render), each a contiguous run of pixels with about as many samples into its own buckets,
+    // appended in pixel order: every pixel's queries stay in sample order and the image does not depend on the split.
     const uint64_t threads = std::clamp<uint64_t>(chunk.pixels, 1, kTraceThreads);
+    std::vector<uint64_t> split(threads + 1, chunk.pixels);
+    split[0] = 0;
+    for (uint64_t t = 1; t < threads; ++t)
+      split[t] = std::lower_bound(chunk.slot_begin.begin(), chunk.slot_begin.end() - 1, slots * t / threads) -
+                 chunk.slot_begin.begin();
     std::vector<std::vector<render::QueryBucket>> parts(threads > 1 ? threads - 1 : 0,
                                                         std::vector<render::QueryBucket>(plan_.evaluators.size()));
     std::vector<std::thread> workers;
-    const uint64_t per_thread = (chunk.pixels + threads - 1) / threads;
     for (uint64_t t = 1; t < threads; ++t)
-      workers.emplace_back([this, &chunk, &parts, t, per_thread] {
-        TraceRange(chunk, std::min(chunk.pixels, t * per_thread), std::min(chunk.pixels, (t + 1) * per_thread),
-                   &parts[t - 1]);
-      });
-    TraceRange(chunk, 0, std::min(chunk.pixels, per_thread), &chunk.buckets);
+      workers.emplace_back([this, &chunk, &parts, &split, t] { TraceRange(chunk, split[t], split[t + 1], &parts[t - 1]); });
+    TraceRange(chunk, split[0], split[1], &chunk.buckets);
     for (std::thread& w : workers) w.join();
     for (const std::vector<render::QueryBucket>& part : parts)
       for (size_t e = 0; e < part.size(); ++e) chunk.buckets[e].Append(part[e]);
     for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
   }
 
-  // Traces pixels [begin, end) of the chunk: their queries into `buckets`, what needs none into chunk.direct.
+  // Traces pixels [begin, end) of the chunk: their queries into `buckets`, what needs none into chunk.value.
   // Hits on objects with a folded environment get its radiance too, evaluated on the host for the range at once.
   void TraceRange(Chunk& chunk, uint64_t begin, uint64_t end, std::vector<render::QueryBucket>* buckets) const {
     render::ShadingPoint point;
     std::vector<render::FoldedEnvironment::Query> folded;
-    std::vector<uint64_t> folded_pixel;
+    std::vector<uint32_t> folded_slot;
     for (uint64_t p = begin; p < end; ++p) {
       const uint64_t pixel = chunk.first_pixel + p;
-      Rgb direct;
-      for (uint32_t s = 0; s < setup_.samples_per_pixel; ++s) {
+      uint32_t slot = chunk.slot_begin[p];
+      const auto [first, last] = PassSamples(pixel);
+      for (uint32_t s = first; s < last; ++s, ++slot) {
         render::TracePixelSample(setup_, pixel, s, &point);
         if (point.object < 0) {
-          direct = direct + point.background;
+          chunk.value[slot] = point.background;
           continue;
         }
-        direct = direct + render::AppendQueries(point, plan_.objects[point.object], plan_.evaluators,
-                                                static_cast<uint32_t>(p), buckets);
+        chunk.value[slot] = render::AppendQueries(point, plan_.objects[point.object], plan_.evaluators, slot, buckets);
         if (point.environment_folded) {
           folded.push_back(setup_.folded_environment->QueryOf(point));
-          folded_pixel.push_back(p);
+          folded_slot.push_back(slot);
         }
       }
-      chunk.direct[p] = direct;
     }
     if (folded.empty()) return;
     std::vector<Rgb> radiance;
     setup_.folded_environment->Radiance(folded, &radiance);
-    for (size_t q = 0; q < folded.size(); ++q) chunk.direct[folded_pixel[q]] = chunk.direct[folded_pixel[q]] + radiance[q];
+    for (size_t q = 0; q < folded.size(); ++q) chunk.value[folded_slot[q]] = chunk.value[folded_slot[q]] + radiance[q];
   }
 
   // Sends the next chunk's jobs when none is in flight.
@@ -577,29 +604,81 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     if (status_.ok()) {
       MaybeSubmit();
       Accumulate(chunk);
-      Prepare(chunk);
-      if (pixels_done_ == total_pixels_) Encode();
+      if (pass_pixels_done_ == total_pixels_ && pass_ == 0 && adaptive_) {
+        // Both buffers are free: the other holds nothing (the pass is done), and this one was just accumulated.
+        AllocateSamples();
+        Prepare(chunks_[next_chunk_]);
+        Prepare(chunk);
+        MaybeSubmit();
+      } else {
+        Prepare(chunk);
+      }
+      if (pass_pixels_done_ == total_pixels_) Encode();
     }
     Pump();
   }
 
-  void Accumulate(const Chunk& chunk) {
+  // After an adaptive render's first pass: each pixel's samples (render::AllocateSamples), from the spread of
+  // its first samples and their work (queries); then the second pass begins.
+  void AllocateSamples() {
+    render::PixelNoise noise;
+    noise.variance.resize(total_pixels_);
+    noise.cost.resize(total_pixels_);
+    const double n = first_pass_;
+    for (uint64_t p = 0; p < total_pixels_; ++p) {
+      const Rgb& sum = sums_[p];
+      // The unbiased sample variance, summed over the channels: (sum x^2 - (sum x)^2 / n) / (n - 1).
+      noise.variance[p] = std::max(0.0, squares_[p] - (sum.x * sum.x + sum.y * sum.y + sum.z * sum.z) / n) / (n - 1);
+      noise.cost[p] = render::kSampleCostWithoutQueries + pixel_queries_[p] / n;
+    }
+    counts_ = render::AllocateSamples(setup_.width, setup_.height, noise, first_pass_, setup_.samples_per_pixel,
+                                      MostSamples());
+    samples_total_ = 0;
+    for (uint32_t c : counts_) samples_total_ += c;
+    squares_ = {};
+    pixel_queries_ = {};
+    pass_ = 1;
+    next_pixel_ = 0;
+    pass_pixels_done_ = 0;
+  }
+
+  // The most samples an adaptive render gives one pixel.
+  uint32_t MostSamples() const {
+    return static_cast<uint32_t>(std::min<uint64_t>(8 * uint64_t{setup_.samples_per_pixel}, chunk_slots_));
+  }
+
+  uint32_t PixelSamples(uint64_t pixel) const { return pass_ == 1 ? counts_[pixel] : setup_.samples_per_pixel; }
+
+  // Each sample's radiance (its queries' weight x f added to what needed none), then each pixel's sum; the first
+  // pass of an adaptive render also keeps each pixel's sum of squares and its queries.
+  void Accumulate(Chunk& chunk) {
+    const bool measure = adaptive_ && pass_ == 0;
+    if (measure) chunk.slot_queries.assign(chunk.value.size(), 0);
     for (size_t e = 0; e < chunk.buckets.size(); ++e) {
       const render::QueryBucket& b = chunk.buckets[e];
       const std::vector<double>& f = chunk.f[e];
       for (size_t q = 0; q < b.size(); ++q) {
-        Rgb& sum = sums_[chunk.first_pixel + b.tag[q]];
+        Rgb& sample = chunk.value[b.tag[q]];
         for (int c = 0; c < 3; ++c) {
           const double value = double(b.weight[3 * q + c]) * f[3 * q + c];
-          if (std::isfinite(value)) (c == 0 ? sum.x : c == 1 ? sum.y : sum.z) += value;
+          if (std::isfinite(value)) (c == 0 ? sample.x : c == 1 ? sample.y : sample.z) += value;
         }
+        if (measure) ++chunk.slot_queries[b.tag[q]];
       }
     }
     for (uint64_t p = 0; p < chunk.pixels; ++p) {
-      Rgb& sum = sums_[chunk.first_pixel + p];
-      sum = sum + chunk.direct[p];
+      const uint64_t pixel = chunk.first_pixel + p;
+      Rgb& sum = sums_[pixel];
+      for (uint32_t slot = chunk.slot_begin[p]; slot < chunk.slot_begin[p + 1]; ++slot) {
+        const Rgb& v = chunk.value[slot];
+        sum = sum + v;
+        if (!measure) continue;
+        squares_[pixel] += v.x * v.x + v.y * v.y + v.z * v.z;
+        pixel_queries_[pixel] += chunk.slot_queries[slot];
+      }
     }
-    pixels_done_ += chunk.pixels;
+    samples_done_ += chunk.value.size();
+    pass_pixels_done_ += chunk.pixels;
   }
 
   void Encode() {
@@ -610,7 +689,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     double mean[3] = {0, 0, 0};
     for (uint64_t p = 0; p < total_pixels_; ++p)
       for (int c = 0; c < 3; ++c) {
-        double v = sums_[p][c] / setup_.samples_per_pixel;
+        double v = sums_[p][c] / PixelSamples(p);
         if (!std::isfinite(v) || v < 0) v = 0;  // never NaN or Inf in an image
         image.rgb[3 * p + c] = static_cast<float>(v);
         mean[c] += v / total_pixels_;
@@ -667,10 +746,19 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
     if (last || !sent_first_) AddFidelity(&update_);
     sent_first_ = true;
-    update_.set_samples_done(pixels_done_ * setup_.samples_per_pixel);
-    update_.set_samples_total(total_pixels_ * setup_.samples_per_pixel);
-    pixels_sent_ = pixels_done_;
+    update_.set_samples_done(samples_done_);
+    update_.set_samples_total(samples_total_);
+    samples_sent_ = samples_done_;
     if (last) {
+      update_.set_adaptive_sampling(adaptive_);
+      uint32_t fewest = setup_.samples_per_pixel, most = fewest;
+      if (adaptive_) {
+        const auto range = std::minmax_element(counts_.begin(), counts_.end());
+        fewest = *range.first;
+        most = *range.second;
+      }
+      update_.set_min_samples_per_pixel(fewest);
+      update_.set_max_samples_per_pixel(most);
       update_.set_queries(queries_);
       update_.set_setup_seconds(setup_seconds_);
       update_.set_kernel_seconds(kernel_seconds_);
@@ -699,8 +787,17 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   Chunk chunks_[2];
   bool submitted_[2] = {false, false};
   int next_chunk_ = 0;  // the chunk to submit next (chunks alternate)
-  uint64_t total_pixels_ = 0, chunk_pixels_ = 1, next_pixel_ = 0, pixels_done_ = 0, pixels_sent_ = 0;
+  uint64_t total_pixels_ = 0, chunk_slots_ = 1, next_pixel_ = 0, pass_pixels_done_ = 0;
+  uint64_t samples_done_ = 0, samples_sent_ = 0, samples_total_ = 0;
   std::vector<Rgb> sums_;  // per pixel: the sum over its samples
+  // Sampling: pass 0 gives every pixel first_pass_ samples (all of samples_per_pixel when uniform); an adaptive
+  // render's pass 1 then gives pixel p its samples up to counts_[p].
+  bool adaptive_ = false;
+  uint32_t first_pass_ = 0;
+  int pass_ = 0;
+  std::vector<uint32_t> counts_;
+  std::vector<double> squares_;      // adaptive, pass 0: per pixel, its samples' squared radiance summed over channels
+  std::vector<float> pixel_queries_;  // adaptive, pass 0: per pixel, its samples' queries
   uint64_t queries_ = 0;
   double setup_seconds_ = 0, kernel_seconds_ = 0;
   v1::RenderUpdate update_;  // the write in flight
@@ -712,13 +809,15 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
 
 size_t RenderBytes(const v1::RenderRequest& r) {
   const size_t pixels = size_t{r.width()} * r.height();
-  // Per pixel: the sums (24), the linear image (12) and its encoding (at most 16); two chunk buffers of
-  // queries (wi, wo, uv, axis, weight and tag: 60; the kernel's result and its copy: 48); the request's map
-  // bytes. A fiber scene's yarn and BVH are admitted when generated (RenderCall::BuildFibers).
+  // Per pixel: the sums (24), the linear image (12) and its encoding (at most 16), adaptive sampling's counts,
+  // squares, queries and the allocation's arrays (56); two chunk buffers of queries (wi, wo, uv, axis, weight
+  // and tag: 60; the kernel's result and its copy: 48) and of pixel samples (a slot each, at most one per query
+  // of the chunk's bound: radiance, queries and first slot, 30); the request's map bytes. A fiber scene's yarn
+  // and BVH are admitted when generated (RenderCall::BuildFibers).
   size_t fibers = 0;
   if (IsFiberScene(r.scene()))  // the generated curves, held while the BVH is built
     fibers = kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber;
-  return pixels * 52 + 2 * kRenderChunkQueries * 108 + r.environment().data().size() + fibers;
+  return pixels * 108 + 2 * kRenderChunkQueries * 138 + r.environment().data().size() + fibers;
 }
 
 std::string ValidateRenderRequest(const v1::RenderRequest& r) {
@@ -760,6 +859,10 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   if (samples > kMaxRenderSamples)
     return "samples_per_pixel: width x height x samples_per_pixel = " + std::to_string(samples) +
            " exceeds the limit of " + std::to_string(kMaxRenderSamples) + " per call";
+  if (!v1::Sampling_IsValid(r.sampling())) return "sampling: unknown value " + std::to_string(r.sampling());
+  if (r.sampling() == v1::SAMPLING_ADAPTIVE && SamplesPerPixel(r) < render::kMinAdaptiveSamples)
+    return "sampling: ADAPTIVE needs samples_per_pixel >= " + std::to_string(render::kMinAdaptiveSamples) + ", got " +
+           std::to_string(SamplesPerPixel(r));
   if (!v1::RenderFormat_IsValid(r.format())) return "format: unknown value " + std::to_string(r.format());
   if (!std::isfinite(r.exposure()) || r.exposure() < 0)
     return "exposure: " + std::to_string(r.exposure()) + " must be finite and >= 0 (0 = automatic)";

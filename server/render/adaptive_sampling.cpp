@@ -1,0 +1,85 @@
+#include "server/render/adaptive_sampling.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace loomlight::render {
+namespace {
+
+// The mean of `v` over each pixel's 3 x 3 neighbourhood (the part inside the image), as two 1D passes.
+std::vector<double> BoxMean3x3(int width, int height, const std::vector<double>& v) {
+  std::vector<double> rows(v.size()), out(v.size());
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x) {
+      const int x0 = std::max(x - 1, 0), x1 = std::min(x + 1, width - 1);
+      double sum = 0;
+      for (int i = x0; i <= x1; ++i) sum += v[size_t(y) * width + i];
+      rows[size_t(y) * width + x] = sum / (x1 - x0 + 1);
+    }
+  for (int y = 0; y < height; ++y) {
+    const int y0 = std::max(y - 1, 0), y1 = std::min(y + 1, height - 1);
+    for (int x = 0; x < width; ++x) {
+      double sum = 0;
+      for (int j = y0; j <= y1; ++j) sum += rows[size_t(j) * width + x];
+      out[size_t(y) * width + x] = sum / (y1 - y0 + 1);
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+uint32_t FirstPassSamples(uint32_t samples_per_pixel) {
+  uint32_t first = 2;
+  while (first * 2 <= samples_per_pixel / 4 && first < 16) first *= 2;
+  return first;
+}
+
+std::vector<uint32_t> AllocateSamples(int width, int height, const PixelNoise& noise, uint32_t first,
+                                      uint32_t samples_per_pixel, uint32_t most) {
+  const size_t n = size_t(width) * height;
+  std::vector<uint32_t> counts(n, first);
+  if (n == 0 || most <= first) return counts;
+  const std::vector<double> variance = BoxMean3x3(width, height, noise.variance);
+  // score_p = sqrt(v_p / c_p): the optimum gives pixel p lambda * score_p samples.
+  std::vector<double> score(n);
+  double budget = 0, most_work = 0;
+  for (size_t p = 0; p < n; ++p) {
+    const double cost = noise.cost[p];
+    score[p] = std::sqrt(std::max(variance[p], 0.0) / cost);
+    budget += cost * samples_per_pixel;
+    most_work += cost * (score[p] > 0 ? most : first);
+  }
+  const auto count = [&](double lambda, size_t p) {
+    return score[p] > 0 ? std::clamp(lambda * score[p], double(first), double(most)) : double(first);
+  };
+  const auto work = [&](double lambda) {
+    double sum = 0;
+    for (size_t p = 0; p < n; ++p) sum += noise.cost[p] * count(lambda, p);
+    return sum;
+  };
+  double lambda = 0;
+  if (most_work <= budget) {
+    lambda = HUGE_VAL;  // every noisy pixel gets the most (an image almost all background)
+  } else if (work(0) < budget) {
+    // Bisection on the multiplier: work(lambda) is continuous and nondecreasing, work(0) < budget < work(hi).
+    double lo = 0, hi = 1;
+    while (work(hi) < budget) hi *= 2;
+    for (int i = 0; i < 48; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (work(mid) < budget ? lo : hi) = mid;
+    }
+    lambda = lo;
+  }
+  // Rounded with the remainder carried in pixel order, so the counts add up to the real-valued total.
+  double carry = 0;
+  for (size_t p = 0; p < n; ++p) {
+    carry += count(lambda, p);
+    const double whole = std::floor(carry);
+    carry -= whole;
+    counts[p] = static_cast<uint32_t>(std::clamp(whole, double(first), double(most)));
+  }
+  return counts;
+}
+
+}  // namespace loomlight::render

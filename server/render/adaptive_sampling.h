@@ -1,0 +1,43 @@
+// Adaptive sampling: a render's samples spent where its pixels are noisy. A first pass gives every pixel a few
+// samples; their spread estimates each pixel's noise, and the rest of the work goes to the pixels where a sample
+// removes the most squared error per unit of work. For a pixel with one-sample variance v and cost c per sample,
+// the image's summed squared error sum v_p / n_p under a work budget sum c_p n_p = B is least at
+// n_p proportional to sqrt(v_p / c_p) (a Lagrange multiplier), clamped to [first pass, most]. The background,
+// whose samples are cheap and noiseless, keeps its first pass; silhouettes, highlights and shadow edges get more.
+// Deterministic: counts depend only on the first pass's values, which depend only on the request and seed.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+namespace loomlight::render {
+
+// The work of a pixel sample that makes no query (a camera ray and a map lookup), in units of one query's work
+// (the ray casts, light and material draws and the kernel evaluation behind it).
+constexpr double kSampleCostWithoutQueries = 0.1;
+
+// The fewest samples per pixel that can be spent adaptively (a first pass of 2, then as many again on average),
+// and the fewest at which a render samples adaptively unless asked not to (below it the first pass would take
+// most of the budget).
+constexpr uint32_t kMinAdaptiveSamples = 4;
+constexpr uint32_t kAutoAdaptiveSamples = 8;
+
+// Samples per pixel of the first pass when `samples_per_pixel` (at least kMinAdaptiveSamples) are spent
+// adaptively: a power of two (its points are a (0,k,2)-net), about a quarter of the budget, 2 to 16.
+uint32_t FirstPassSamples(uint32_t samples_per_pixel);
+
+// What the first pass measured per pixel: the variance of one sample (summed over R, G and B) and the work of
+// one sample (kSampleCostWithoutQueries plus its queries).
+struct PixelNoise {
+  std::vector<double> variance;
+  std::vector<double> cost;
+};
+
+// Each pixel's total sample count (at least `first`, at most `most`) for the work of `samples_per_pixel` uniform
+// samples in every pixel; the variance is first averaged over each pixel's 3 x 3 neighbourhood, so an estimate
+// from a few samples is steadied by its neighbours' (and an edge's noise reaches the pixels beside it). A noiseless
+// image keeps its first pass (and costs less than the budget).
+std::vector<uint32_t> AllocateSamples(int width, int height, const PixelNoise& noise, uint32_t first,
+                                      uint32_t samples_per_pixel, uint32_t most);
+
+}  // namespace loomlight::render

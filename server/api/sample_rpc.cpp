@@ -8,6 +8,7 @@
 
 #include "server/api/admission.h"
 #include "server/api/job_status.h"
+#include "server/api/unary_call.h"
 #include "server/models/direction_sampler.h"
 #include "server/models/material_plan.h"
 #include "server/render/rng.h"
@@ -21,28 +22,14 @@ float SeedNumber(const render::CounterRng& rng, uint32_t d) {
   return std::min(static_cast<float>(rng.Uniform(d)), 0x1.fffffep-1f);
 }
 
-// One Sample call. The gRPC thread checks what is cheap and admits the bytes; on the preparer, Start gets the
-// material and checks the rest, Draw draws wi chunk by chunk (the first chunk of a new material builds its
-// sampling table), Submit evaluates f(wi, wo) through the batcher as Evaluate does (the kernels write f straight
-// into the response), and Complete turns f into weights and finishes (on the batcher's thread for small calls,
-// else back on the preparer).
-struct SampleCall {
-  const ServiceDeps* deps = nullptr;
-  HostWorker* preparer = nullptr;
-  grpc::CallbackServerContext* context = nullptr;
-  const v1::SampleRequest* request = nullptr;
-  v1::SampleResponse* response = nullptr;
-  grpc::ServerUnaryReactor* reactor = nullptr;
-  batching::Clock::time_point received, deadline;
-  Admission admission;  // the call's bytes, held until the call object goes
-  std::shared_ptr<const models::PreparedMaterial> material;
-  std::unique_ptr<models::EvaluationPlan> plan;  // refers to the request's wo and uv and the response's wi
-  std::string approximation;
-  bool fp64 = false;
+// One Sample call (server/api/unary_call.h). The gRPC thread checks what is cheap and admits the bytes; on the
+// preparer, Start gets the material and checks the rest, Draw draws wi chunk by chunk (the first chunk of a new
+// material builds its sampling table), then f(wi, wo) is evaluated through the batcher as Evaluate does (the
+// kernels write f straight into the response), and Complete turns f into weights and finishes.
+struct SampleCall : PlanCall<v1::SampleRequest, v1::SampleResponse> {
+  using PlanCall::PlanCall;
   size_t n = 0;
   double sampling_seconds = 0;
-
-  PlanOutcome outcome;
 
   static void Start(const std::shared_ptr<SampleCall>& call) {
     const v1::SampleRequest& request = *call->request;
@@ -92,32 +79,14 @@ struct SampleCall {
     }
     call->sampling_seconds += SecondsSince(started);
     if (end < call->n) {
-      call->preparer->Post([call, end] { Draw(call, end); });
+      call->deps->preparer->Post([call, end] { Draw(call, end); });
       return;
     }
-    Submit(call);
-  }
-
-  static void Submit(const std::shared_ptr<SampleCall>& call) {
-    const v1::SampleRequest& request = *call->request;
     call->plan = std::make_unique<models::EvaluationPlan>(*call->material, call->response->wi().data(),
                                                           request.wo().data(),
                                                           request.uv_size() > 0 ? request.uv().data() : nullptr, call->n);
-    call->outcome.Expect(call->plan->parts());
-    float* f = call->response->mutable_f()->mutable_data();
-    SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
-               batching::Priority::kInteractive, call->deadline, call->context,
-               [call](size_t k, batching::JobResult r) { call->PartDone(call, k, std::move(r)); });
-  }
-
-  void PartDone(const std::shared_ptr<SampleCall>& self, size_t k, batching::JobResult r) {
-    if (r.status == batching::JobStatus::kOk && r.batch_queries > 0)
-      deps->metrics->Evaluated(plan->model(k).name(), fp64, plan->size(k), r.batch_queries, r.batch_requests,
-                               r.queue_seconds, r.kernel_seconds);
-    if (!outcome.Add(r)) return;
-    if (outcome.result().status != batching::JobStatus::kOk) return Finish(ToStatus(outcome.result()));
-    if (n <= kInlineSampleWeights) return Complete();
-    preparer->Post([self] { self->Complete(); });
+    SubmitParts(call, call->response->mutable_f()->mutable_data(), call->n <= kInlineSampleWeights,
+                &SampleCall::Complete);
   }
 
   // weight = f cos / pdf per query (0 where pdf is 0 or the product is not finite), then finishes.
@@ -134,22 +103,8 @@ struct SampleCall {
         weight[3 * q + c] = std::isfinite(w) ? static_cast<float>(w) : 0.0f;
       }
     }
+    response->set_sampling_seconds(sampling_seconds);
     Finish(grpc::Status::OK);
-  }
-
-  void Finish(const grpc::Status& status) {
-    if (status.ok()) {
-      response->set_model(material->model->name());
-      response->set_approximation(approximation);
-      response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
-      response->set_sampling_seconds(sampling_seconds);
-      SetLaunchFields(outcome.result(), response);
-      response->set_total_seconds(SecondsSince(received));
-    } else {
-      response->Clear();
-    }
-    deps->metrics->Call("Sample", status.error_code(), SecondsSince(received));
-    reactor->Finish(status);
   }
 };
 
@@ -188,35 +143,19 @@ std::string CheckSampleQueries(const v1::SampleRequest& request, const models::M
   return ValidateSampleRandom(request.random(), n);
 }
 
-grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, HostWorker* preparer,
-                                       grpc::CallbackServerContext* context, const v1::SampleRequest* request,
-                                       v1::SampleResponse* response) {
+grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, grpc::CallbackServerContext* context,
+                                       const v1::SampleRequest* request, v1::SampleResponse* response) {
   const auto received = batching::Clock::now();
-  const auto reject = [&](const grpc::Status& status) {
-    deps.metrics->Call("Sample", status.error_code(), SecondsSince(received));
-    grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-    reactor->Finish(status);
-    return reactor;
-  };
+  const auto reject = [&](const grpc::Status& status) { return AnswerNow(deps.metrics, context, "Sample", received, status); };
   if (grpc::Status s = CheckSampleRequest(*request, deps.has_fp64); !s.ok()) return reject(s);
-  const bool fp64 = request->precision() == v1::PRECISION_FP64;
   const size_t n = request->wo_size() / 3;
-
-  auto call = std::make_shared<SampleCall>();
+  auto call = std::make_shared<SampleCall>(deps, "Sample", context, request, response, received,
+                                           request->precision() == v1::PRECISION_FP64);
   if (grpc::Status s = Admit(deps.memory, nullptr, n * kSampleBytesPerQuery, &call->admission); !s.ok())
     return reject(s);
-  call->deps = &deps;
-  call->preparer = preparer;
-  call->context = context;
-  call->request = request;
-  call->response = response;
-  call->reactor = context->DefaultReactor();
-  call->received = received;
-  call->deadline = CallDeadline(context, received);
-  call->fp64 = fp64;
   call->n = n;
   // Resolving or packing the material, building its sampling table and drawing all go to the preparer.
-  preparer->Post([call] { SampleCall::Start(call); });
+  deps.preparer->Post([call] { SampleCall::Start(call); });
   return call->reactor;
 }
 

@@ -38,9 +38,8 @@ grpc::Status CheckSampleRequest(const v1::SampleRequest& request, bool has_fp64)
 std::string CheckSampleQueries(const v1::SampleRequest& request, const models::Model& model);
 
 // Serves one call (the service has checked that it is serving); the reactor is finished exactly once, with the
-// samples or an error status. `preparer` is the service's preparer worker (LoomlightService::preparer_).
-grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, HostWorker* preparer,
-                                       grpc::CallbackServerContext* context, const v1::SampleRequest* request,
-                                       v1::SampleResponse* response);
+// samples or an error status.
+grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, grpc::CallbackServerContext* context,
+                                       const v1::SampleRequest* request, v1::SampleResponse* response);
 
 }  // namespace loomlight::api

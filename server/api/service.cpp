@@ -11,6 +11,7 @@
 #include "server/api/sample_rpc.h"
 #include "server/api/tabulate.h"
 #include "server/api/texture_slice.h"
+#include "server/api/unary_call.h"
 #include "server/api/yarn_rpc.h"
 #include "server/models/material.h"
 #include "server/models/material_plan.h"
@@ -37,25 +38,12 @@ void AddParams(const models::ParamValues& values, google::protobuf::RepeatedPtrF
   }
 }
 
-// One Evaluate call. Start (inline on the gRPC thread for a small request of a cached material, else on the
-// preparer worker) checks what needs the material, builds the plan (server/models/material_plan.h) and submits
-// one job per part; the kernels write f straight into the response (float; fp64 kernels are rounded there
-// once); the last part done finishes the call (on the batcher's thread: only the response's small fields are
-// left to set).
-struct EvaluateCall {
-  const ServiceDeps* deps = nullptr;
-  grpc::CallbackServerContext* context = nullptr;
-  const v1::EvaluateRequest* request = nullptr;
-  v1::EvaluateResponse* response = nullptr;
-  grpc::ServerUnaryReactor* reactor = nullptr;
-  batching::Clock::time_point received;
-  Admission admission;  // the call's bytes, held until the call object goes
-  std::shared_ptr<const models::PreparedMaterial> material;
-  std::unique_ptr<models::EvaluationPlan> plan;  // refers to the request's arrays (alive until Finish)
-  std::string approximation;  // the knob settings used (EvaluateResponse.approximation)
-  bool fp64 = false;
-
-  PlanOutcome outcome;
+// One Evaluate call (server/api/unary_call.h). Start (inline on the gRPC thread for a small request of a cached
+// material, else on the preparer) checks what needs the material, builds the plan (server/models/material_plan.h)
+// and submits one job per part; the kernels write f straight into the response (float; fp64 kernels are rounded
+// there once); Complete adds the direct transmittance and finishes.
+struct EvaluateCall : PlanCall<v1::EvaluateRequest, v1::EvaluateResponse> {
+  using PlanCall::PlanCall;
 
   // `material` may be null (not cached, or an error target to resolve): it is prepared here.
   static void Start(const std::shared_ptr<EvaluateCall>& call) {
@@ -78,33 +66,12 @@ struct EvaluateCall {
         *call->material, request.wi().data(), request.wo().data(), request.uv_size() > 0 ? request.uv().data() : nullptr,
         n, request.fiber_axis_size() > 0 ? request.fiber_axis().data() : nullptr,
         ambient ? models::Quantity::kAmbient : models::Quantity::kScattering);
-    call->outcome.Expect(call->plan->parts());
-    float* f = call->response->mutable_f()->mutable_data();
-    SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
-               batching::Priority::kInteractive, CallDeadline(call->context, call->received), call->context,
-               [call](size_t k, batching::JobResult r) { call->PartDone(k, std::move(r)); });
+    SubmitParts(call, call->response->mutable_f()->mutable_data(), n <= kInlineEvaluateQueries, &EvaluateCall::Complete);
   }
 
-  void PartDone(size_t k, batching::JobResult r) {
-    if (r.status == batching::JobStatus::kOk && r.batch_queries > 0)
-      deps->metrics->Evaluated(plan->model(k).name(), fp64, plan->size(k), r.batch_queries, r.batch_requests,
-                               r.queue_seconds, r.kernel_seconds);
-    if (outcome.Add(r)) Finish(ToStatus(outcome.result()));
-  }
-
-  void Finish(const grpc::Status& status) {
-    if (status.ok()) {
-      response->mutable_transmittance()->Add(plan->transmittance().begin(), plan->transmittance().end());
-      response->set_model(material->model->name());
-      response->set_approximation(approximation);
-      response->set_precision(fp64 ? v1::PRECISION_FP64 : v1::PRECISION_FP32);
-      SetLaunchFields(outcome.result(), response);
-      response->set_total_seconds(SecondsSince(received));
-    } else {
-      response->Clear();
-    }
-    deps->metrics->Call("Evaluate", status.error_code(), SecondsSince(received));
-    reactor->Finish(status);
+  void Complete() {
+    response->mutable_transmittance()->Add(plan->transmittance().begin(), plan->transmittance().end());
+    Finish(grpc::Status::OK);
   }
 };
 
@@ -121,19 +88,12 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
   deps_.worker = &worker_;
   deps_.loader = &loader_;
   deps_.geometry = &geometry_;
+  deps_.preparer = &preparer_;
 }
 
 grpc::Status LoomlightService::Serving() const {
   if (serving_) return grpc::Status::OK;
   return {grpc::StatusCode::UNAVAILABLE, "the server is not serving (starting up or shutting down); retry"};
-}
-
-grpc::ServerUnaryReactor* LoomlightService::Reply(grpc::CallbackServerContext* context, const char* rpc,
-                                                  batching::Clock::time_point received, grpc::Status status) {
-  deps_.metrics->Call(rpc, status.error_code(), SecondsSince(received));
-  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  reactor->Finish(std::move(status));
-  return reactor;
 }
 
 grpc::Status AdmitLongCall(const ServiceDeps& deps, const grpc::ServerContextBase& context, size_t bytes,
@@ -237,7 +197,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
                                                        const v1::ListModelsRequest*,
                                                        v1::ListModelsResponse* response) {
   const auto received = batching::Clock::now();
-  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "ListModels", received, s);
+  if (grpc::Status s = Serving(); !s.ok()) return AnswerNow(deps_.metrics, context, "ListModels", received, s);
   for (const auto& model : deps_.registry->models()) {
     v1::ModelInfo* info = response->add_models();
     info->set_name(model->name());
@@ -276,29 +236,24 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
   response->set_unit_tolerance(kUnitTolerance);
   for (const std::string& name : deps_.environments->Names()) response->add_environment_maps(name);
   DescribeYarnModel(response->mutable_yarn());
-  return Reply(context, "ListModels", received, grpc::Status::OK);
+  return AnswerNow(deps_.metrics, context, "ListModels", received, grpc::Status::OK);
 }
 
 grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext* context,
                                                      const v1::EvaluateRequest* request,
                                                      v1::EvaluateResponse* response) {
   const auto received = batching::Clock::now();
-  const auto reject = [&](grpc::Status status) { return Reply(context, "Evaluate", received, std::move(status)); };
+  const auto reject = [&](const grpc::Status& status) {
+    return AnswerNow(deps_.metrics, context, "Evaluate", received, status);
+  };
   if (grpc::Status s = Serving(); !s.ok()) return reject(s);
   if (grpc::Status s = CheckEvaluateRequest(*request, deps_.has_fp64); !s.ok()) return reject(s);
-  const bool fp64 = request->precision() == v1::PRECISION_FP64;
   const size_t n = request->wo_size() / 3;
 
-  auto call = std::make_shared<EvaluateCall>();
+  auto call = std::make_shared<EvaluateCall>(deps_, "Evaluate", context, request, response, received,
+                                             request->precision() == v1::PRECISION_FP64);
   if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission); !s.ok())
     return reject(s);
-  call->deps = &deps_;
-  call->context = context;
-  call->request = request;
-  call->response = response;
-  call->reactor = context->DefaultReactor();
-  call->received = received;
-  call->fp64 = fp64;
   // A small request of a cached material starts here; packing, knob errors and large requests' validation
   // and planning go to the preparer, off gRPC's threads.
   if (n <= kInlineEvaluateQueries && request->error_target() == 0 &&
@@ -312,7 +267,7 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
 grpc::ServerUnaryReactor* LoomlightService::TextureSlice(grpc::CallbackServerContext* context,
                                                          const v1::TextureSliceRequest* request,
                                                          v1::TextureSliceResponse* response) {
-  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "TextureSlice", batching::Clock::now(), s);
+  if (grpc::Status s = Serving(); !s.ok()) return AnswerNow(deps_.metrics, context, "TextureSlice", batching::Clock::now(), s);
   return HandleTextureSlice(deps_, context, request, response);
 }
 
@@ -339,8 +294,8 @@ grpc::ServerWriteReactor<v1::YarnGeometryChunk>* LoomlightService::YarnGeometry(
 
 grpc::ServerUnaryReactor* LoomlightService::Sample(grpc::CallbackServerContext* context,
                                                    const v1::SampleRequest* request, v1::SampleResponse* response) {
-  if (grpc::Status s = Serving(); !s.ok()) return Reply(context, "Sample", batching::Clock::now(), s);
-  return HandleSample(deps_, &preparer_, context, request, response);
+  if (grpc::Status s = Serving(); !s.ok()) return AnswerNow(deps_.metrics, context, "Sample", batching::Clock::now(), s);
+  return HandleSample(deps_, context, request, response);
 }
 
 grpc::ServerWriteReactor<v1::CreateBtfProgress>* LoomlightService::CreateBtf(grpc::CallbackServerContext* context,
@@ -360,7 +315,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListBtfs(grpc::CallbackServerContext
   const auto received = batching::Clock::now();
   grpc::Status s = Serving();
   if (s.ok()) s = HandleListBtfs(deps_, response);
-  return Reply(context, "ListBtfs", received, std::move(s));
+  return AnswerNow(deps_.metrics, context, "ListBtfs", received, s);
 }
 
 grpc::ServerUnaryReactor* LoomlightService::DeleteBtf(grpc::CallbackServerContext* context,
@@ -368,7 +323,7 @@ grpc::ServerUnaryReactor* LoomlightService::DeleteBtf(grpc::CallbackServerContex
   const auto received = batching::Clock::now();
   grpc::Status s = Serving();
   if (s.ok()) s = HandleDeleteBtf(deps_, *request);
-  return Reply(context, "DeleteBtf", received, std::move(s));
+  return AnswerNow(deps_.metrics, context, "DeleteBtf", received, s);
 }
 
 }  // namespace loomlight::api

@@ -55,6 +55,8 @@ struct ServiceDeps {
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
   HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
   HostWorker* geometry = nullptr;  // generating yarn geometry, off the host worker
+  // Evaluate's and Sample's material packing, checks, planning and last steps of large calls (server/api/unary_call.h)
+  HostWorker* preparer = nullptr;
   batching::Budget* memory = nullptr;      // bytes every call reserves (server/api/admission.h)
   batching::Budget* long_calls = nullptr;  // slots of long-running calls
   ClientSlots* client_long_calls = nullptr;  // and each client's share of them
@@ -117,7 +119,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // Delegates to HandleYarnGeometry (server/api/yarn_rpc.h).
   grpc::ServerWriteReactor<v1::YarnGeometryChunk>* YarnGeometry(grpc::CallbackServerContext* context,
                                                                const v1::YarnGeometryRequest* request) override;
-  // Delegates to HandleSample (server/api/sample_rpc.h), which works on the preparer.
+  // Delegates to HandleSample (server/api/sample_rpc.h).
   grpc::ServerUnaryReactor* Sample(grpc::CallbackServerContext* context, const v1::SampleRequest* request,
                                    v1::SampleResponse* response) override;
   // Delegate to server/api/btf_rpc.h.
@@ -131,9 +133,6 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
                                       v1::DeleteBtfResponse* response) override;
 
  private:
-  // Finishes a call on the default reactor and records it.
-  grpc::ServerUnaryReactor* Reply(grpc::CallbackServerContext* context, const char* rpc,
-                                  batching::Clock::time_point received, grpc::Status status);
   // UNAVAILABLE while the service is not serving (warming up or draining), else OK.
   grpc::Status Serving() const;
 

@@ -7,6 +7,7 @@
 
 #include "server/api/admission.h"
 #include "server/api/job_status.h"
+#include "server/api/unary_call.h"
 #include "server/imaging/image_encode.h"
 
 namespace loomlight::api {
@@ -269,10 +270,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     return stop.ok();
   }
 
-  void Finish(const grpc::Status& status) {
-    deps_.metrics->Call(kRpc, status.error_code(), SecondsSince(received_));
-    reactor_->Finish(status);
-  }
+  void Finish(const grpc::Status& status) { FinishUnary(deps_.metrics, reactor_, kRpc, received_, status); }
 
   const TextureSliceDeps deps_;
   Admission admission_;  // the call's slot and bytes, released with the call
@@ -303,10 +301,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
 
 grpc::ServerUnaryReactor* Reject(const TextureSliceDeps& deps, grpc::CallbackServerContext* context,
                                  Clock::time_point received, const grpc::Status& status) {
-  deps.metrics->Call(kRpc, status.error_code(), SecondsSince(received));
-  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  reactor->Finish(status);
-  return reactor;
+  return AnswerNow(deps.metrics, context, kRpc, received, status);
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <memory>
 #include <numbers>
+#include <thread>
 
 #include "server/models/cdf.h"
 #include "server/models/material_plan.h"
@@ -102,8 +103,8 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
 
   // One node's queries at a time: its cells' centres x the tile's points.
   const size_t n = size_t(cells) * uv_points;
-  std::vector<float> wi(3 * n), wo(3 * n), uv(with_uv ? 2 * n : 0);
-  std::vector<double> cosine(cells), f(3 * n);
+  std::vector<float> wi(3 * n), uv(with_uv ? 2 * n : 0);
+  std::vector<double> cosine(cells);
   for (int r = 0; r < wi_rows_; ++r)
     for (int c = 0; c < res_.wi_phi; ++c) {
       const Dir w = FromTable(FromZPhi(z_min_ + (r + 0.5) * dz, (c + 0.5) * dphi));
@@ -118,14 +119,18 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
       }
     }
   nodes_.resize(size_t(res_.wo_z) * res_.wo_phi);
-  for (int i = 0; i < res_.wo_z; ++i)
-    for (int j = 0; j < res_.wo_phi; ++j) {
+  // Nodes are independent: kBuildThreads threads take every kBuildThreads-th node, each with its own wo and f.
+  const auto build_nodes = [&](int first) {
+    std::vector<float> wo(3 * n);
+    std::vector<double> f(3 * n);
+    for (int index = first; index < int(nodes_.size()); index += kBuildThreads) {
+      const int i = index / res_.wo_phi, j = index % res_.wo_phi;
       const double phi_o = fiber_ ? 0.0 : (j + 0.5) * 2 * kPi / res_.wo_phi;
       const Dir o = FromTable(FromZPhi(wo_z_min + (i + 0.5) * wo_dz, phi_o));
       for (size_t q = 0; q < n; ++q)
         for (int k = 0; k < 3; ++k) wo[3 * q + k] = float(o[k]);
       EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
-      Node& node = nodes_[size_t(i) * res_.wo_phi + j];
+      Node& node = nodes_[index];
       node.row_cdf.assign(wi_rows_ + 1, 0.0);
       node.column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0);
       for (int r = 0; r < wi_rows_; ++r) {
@@ -142,6 +147,11 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
         node.row_cdf[r + 1] = node.row_cdf[r] + column[res_.wi_phi];
       }
     }
+  };
+  std::vector<std::thread> helpers;
+  for (int t = 1; t < kBuildThreads; ++t) helpers.emplace_back(build_nodes, t);
+  build_nodes(0);
+  for (std::thread& t : helpers) t.join();
 }
 
 size_t DirectionSampler::bytes() const {

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <cstdio>
 #include <numeric>
 
@@ -81,6 +82,17 @@ TEST(AllocateSamples, IsolatedNoiseReachesItsNeighboursUpToTheCap) {
       const bool near = std::abs(x - 4) <= 1 && std::abs(y - 4) <= 1;
       EXPECT_EQ(counts[size_t(y) * w + x], near ? 64u : 4u) << x << "," << y;
     }
+}
+
+// Variances that are not finite (a radiance overflow upstream) never make a count that is not a number.
+TEST(AllocateSamples, NonFiniteVariancesGiveCountsInRange) {
+  PixelNoise noise = Uniform(8, 8, 1.0, 1.0);
+  noise.variance[10] = std::numeric_limits<double>::infinity();
+  noise.variance[40] = std::numeric_limits<double>::quiet_NaN();
+  for (const uint32_t first : {2u, 16u}) {  // 16: the first pass alone spends the budget (the multiplier is 0)
+    const std::vector<uint32_t> counts = AllocateSamples(8, 8, noise, first, 16, 128);
+    for (uint32_t n : counts) EXPECT_TRUE(n >= first && n <= 128) << n;
+  }
 }
 
 // ---- End to end ----

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace loomlight::render {
 namespace {
@@ -46,7 +47,9 @@ std::vector<uint32_t> AllocateSamples(int width, int height, const PixelNoise& n
   double budget = 0, most_work = 0;
   for (size_t p = 0; p < n; ++p) {
     const double cost = noise.cost[p];
-    score[p] = std::sqrt(std::max(variance[p], 0.0) / cost);
+    // A variance that is not a number says nothing (the first pass only); an infinite one asks for the most.
+    const double s = std::sqrt(std::max(variance[p], 0.0) / cost);
+    score[p] = std::isnan(s) ? 0.0 : std::min(s, std::numeric_limits<double>::max());
     budget += cost * samples_per_pixel;
     most_work += cost * (score[p] > 0 ? most : first);
   }

@@ -131,10 +131,12 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
         for (int k = 0; k < 3; ++k) wo[3 * q + k] = float(o[k]);
       EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
       Node& node = nodes_[index];
-      node.row_cdf.assign(wi_rows_ + 1, 0.0);
-      node.column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0);
+      node.row_cdf.assign(wi_rows_ + 1, 0.0f);
+      node.column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0f);
+      double row_sum = 0;
       for (int r = 0; r < wi_rows_; ++r) {
-        double* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+        float* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+        double column_sum = 0;
         for (int c = 0; c < res_.wi_phi; ++c) {
           double sum = 0;
           for (int k = 0; k < uv_points; ++k)
@@ -142,9 +144,11 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
               const double v = f[3 * (size_t(r * res_.wi_phi + c) * uv_points + k) + ch];
               if (std::isfinite(v) && v > 0) sum += v;
             }
-          column[c + 1] = column[c] + sum * cosine[r * res_.wi_phi + c];
+          column_sum += sum * cosine[r * res_.wi_phi + c];
+          column[c + 1] = float(column_sum);  // rounding is monotone: the sums stay non-decreasing
         }
-        node.row_cdf[r + 1] = node.row_cdf[r] + column[res_.wi_phi];
+        row_sum += column_sum;
+        node.row_cdf[r + 1] = float(row_sum);
       }
     }
   };
@@ -156,7 +160,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
 
 size_t DirectionSampler::bytes() const {
   size_t total = sizeof(*this);
-  for (const Node& node : nodes_) total += (node.row_cdf.size() + node.column_cdf.size()) * sizeof(double);
+  for (const Node& node : nodes_) total += (node.row_cdf.size() + node.column_cdf.size()) * sizeof(float);
   return total;
 }
 
@@ -225,8 +229,12 @@ double DirectionSampler::NodePdf(int node, double z, double phi) const {
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
   const int r = std::clamp(int((z - z_min_) / dz), 0, wi_rows_ - 1);
   const int c = std::clamp(int(phi / dphi), 0, res_.wi_phi - 1);
-  const double* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
-  return (column[c + 1] - column[c]) / total / (dz * dphi);  // dz dphi is the cell's solid angle
+  const float* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+  const double row = double(n.row_cdf[r + 1]) - double(n.row_cdf[r]), row_total = column[res_.wi_phi];
+  if (!(row > 0 && row_total > 0)) return 0;
+  // The row's and then the cell's probability as DrawNode picks them from the stored sums, over the cell's solid
+  // angle dz dphi.
+  return row / total * ((double(column[c + 1]) - double(column[c])) / row_total) / (dz * dphi);
 }
 
 void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, double* phi) const {
@@ -234,7 +242,7 @@ void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, doubl
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
   double fz, fp;
   const int r = SearchCdf(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
-  const double* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+  const float* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
   const int c = SearchCdf(column, res_.wi_phi, u2 * column[res_.wi_phi], &fp);
   *z = z_min_ + (r + fz) * dz;
   *phi = (c + fp) * dphi;

@@ -349,7 +349,7 @@ TEST(BoundedMemory, MaterialCacheIsBoundedInBytesAndKeyedOnTheResolvedMaterial) 
 // A material's sampling table (built on its first render or Sample call) counts in the cache's bytes once, and
 // the cache stays within its bound as tables are built.
 TEST(BoundedMemory, MaterialCacheCountsSamplingTables) {
-  constexpr size_t kCapacity = size_t{16} << 20;  // a few of the twill's sampling tables (2.8 MiB each)
+  constexpr size_t kCapacity = size_t{16} << 20;  // room for a sampling table of up to 4x today's (0.7 MiB)
   models::MaterialCache cache(kCapacity);
   const models::Registry& registry = models::Registry::Global();
   std::shared_ptr<const models::PreparedMaterial> entry;

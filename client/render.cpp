@@ -206,7 +206,7 @@ OptionList render_options() {
       {"fiber-shadows", "auto|traced|slices", "fiber scenes: light through the fibers traced, or the self-shadow slices"},
       {"fiber-occlusion", "auto|traced|texture|distance", "fiber scenes: ambient occlusion traced or approximated"},
       {"ambient", "X", "fiber scenes: constant ambient radiance (default: the scene's with default lighting)"},
-      {"btf-environment", "auto|sampled|folded", "btf materials: the environment map sampled, or folded into the BTF"},
+      {"btf-environment", "auto|sampled|folded", "btf materials: the environment map sampled, or folded into the BTF (auto: folded where its estimated error is within --error-target)"},
       {"size", "WxH", "image size in pixels (default 256x256)"},
       {"spp", "N", "samples per pixel (default 16); adaptive sampling: their work, spent where pixels are noisy"},
       {"sampling", "auto|uniform|adaptive", "spread the samples evenly or by noise (auto: adaptive from 8 spp)"},

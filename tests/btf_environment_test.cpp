@@ -9,7 +9,9 @@
 //     given;
 // (c) renders of a twill BTF sphere: FOLDED's mean over the sphere within 2% of SAMPLED at 512 spp, and at 2 spp
 //     its error against that reference far below SAMPLED's; the choice in the fidelity report;
-// (d) bad btf_environment values refused naming the field.
+// (d) the fold's error estimate: reported, bounding the folded render's bias against SAMPLED at 512 spp; AUTO
+//     folds only where it is within the target; a fold kept across calls renders the same bytes;
+// (e) bad btf_environment values refused naming the field.
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
@@ -479,6 +481,72 @@ TEST_F(BtfEnvironmentRender, FoldedAgreesWithSampledAndHasFarLessNoise) {
   const double sampled_mse = RelativeMse(sampled2.rgb, reference.rgb, pixels);
   std::printf("2 spp relative MSE against sampled 512 spp: folded %.3g, sampled %.3g\n", folded_mse, sampled_mse);
   EXPECT_LT(folded_mse, 0.2 * sampled_mse);
+}
+
+// The estimate is what AUTO decides by: over the target, sampled (saying so); within it, folded, counted in
+// the object's estimated error. And it is honest: the folded image's bias over the sphere against SAMPLED at
+// 512 spp is within it (the mean's bias is at most the mean absolute error the estimate measures), up to the
+// reference's own noise.
+TEST_F(BtfEnvironmentRender, AutoFoldsWhereTheEstimatedErrorIsWithinTheTarget) {
+  constexpr int kSide = 64;
+  const std::vector<size_t> pixels = SpherePixels(kSide);
+  const Rendered folded = Render(*stub_, SphereRequest(v1::BTF_ENVIRONMENT_FOLDED, 16, 2, kSide));
+  ASSERT_TRUE(folded.status.ok()) << folded.status.error_message();
+  const v1::FidelityChoice* requested = Choice(folded.last, "btf_environment");
+  ASSERT_NE(requested, nullptr);
+  const double estimate = requested->estimated_error();
+  EXPECT_GT(estimate, 0.0) << requested->reason();
+  EXPECT_NE(requested->reason().find("estimated error"), std::string::npos) << requested->reason();
+
+  const Rendered reference = Render(*stub_, SphereRequest(v1::BTF_ENVIRONMENT_SAMPLED, 512, 11, kSide));
+  ASSERT_TRUE(reference.status.ok()) << reference.status.error_message();
+  double noise = 0;  // the reference mean's standard error, from its pixels' spread about the folded image
+  const double mean_ref = Mean(reference.rgb, pixels), mean_folded = Mean(folded.rgb, pixels);
+  for (size_t p : pixels)
+    for (int c = 0; c < 3; ++c) noise += std::pow(reference.rgb[3 * p + c] - folded.rgb[3 * p + c], 2);
+  noise = std::sqrt(noise / (3.0 * pixels.size())) / std::sqrt(3.0 * pixels.size()) / mean_ref;
+  const double bias = std::fabs(mean_folded - mean_ref) / mean_ref;
+  std::printf("fold's estimated error %.3g; folded 16 spp against sampled 512 spp: mean bias %.3g (reference noise "
+              "%.2g)\n", estimate, bias, noise);
+  EXPECT_LE(bias, estimate + 3 * noise);
+
+  v1::RenderRequest strict = SphereRequest(v1::BTF_ENVIRONMENT_AUTO, 1, 1, kSide);  // target 1e-6
+  const Rendered sampled = Render(*stub_, strict);
+  ASSERT_TRUE(sampled.status.ok()) << sampled.status.error_message();
+  const v1::FidelityChoice* over = Choice(sampled.last, "btf_environment");
+  ASSERT_NE(over, nullptr);
+  EXPECT_EQ(over->chosen(), "sampled");
+  EXPECT_NE(over->reason().find("over the target"), std::string::npos) << over->reason();
+  EXPECT_GT(sampled.last.queries(), 0u);
+
+  v1::RenderRequest loose = strict;
+  loose.set_error_target(0.05);
+  const Rendered chosen = Render(*stub_, loose);
+  ASSERT_TRUE(chosen.status.ok()) << chosen.status.error_message();
+  const v1::FidelityChoice* within = Choice(chosen.last, "btf_environment");
+  ASSERT_NE(within, nullptr);
+  EXPECT_EQ(within->chosen(), "folded") << within->reason();
+  EXPECT_GT(within->estimated_error(), 0.0);
+  EXPECT_LE(within->estimated_error(), 0.05);
+  EXPECT_GE(chosen.last.fidelity(0).estimated_error(), within->estimated_error());
+  EXPECT_EQ(chosen.last.queries(), 0u);  // the sky is the only light: nothing left to sample
+}
+
+// A second call with the same asset, map, scene and camera reuses the first call's fold, and renders the same
+// bytes as the call that made it.
+TEST_F(BtfEnvironmentRender, AFoldKeptAcrossCallsRendersTheSameImage) {
+  v1::RenderRequest r = SphereRequest(v1::BTF_ENVIRONMENT_FOLDED, 2, 5, 32);
+  r.set_texture_rotation_deg(33);  // a fold of its own: no other test's call made it
+  const Rendered first = Render(*stub_, r);
+  const Rendered second = Render(*stub_, r);
+  ASSERT_TRUE(first.status.ok() && second.status.ok());
+  const v1::FidelityChoice* made = Choice(first.last, "btf_environment");
+  const v1::FidelityChoice* kept = Choice(second.last, "btf_environment");
+  ASSERT_TRUE(made && kept);
+  EXPECT_EQ(made->reason().find("kept from an earlier call"), std::string::npos) << made->reason();
+  EXPECT_NE(kept->reason().find("kept from an earlier call"), std::string::npos) << kept->reason();
+  EXPECT_EQ(first.last.image(), second.last.image());
+  EXPECT_EQ(made->estimated_error(), kept->estimated_error());
 }
 
 TEST_F(BtfEnvironmentRender, BadValuesAreRefusedNamingTheField) {

@@ -94,6 +94,7 @@ grpc::Status CompressAndStore(const ServiceDeps& deps, const models::btf::BtfIma
   switch (deps.btf_store->Put(asset, job.replace, &error)) {
     case assets::BtfStore::Outcome::kOk:
       deps.materials->Clear();  // a material naming this name must not find a replaced asset's packing
+      if (deps.folds) deps.folds->Clear();  // nor its folds (they keep the old tables alive)
       *out = asset;
       return grpc::Status::OK;
     case assets::BtfStore::Outcome::kExists: return {grpc::StatusCode::ALREADY_EXISTS, "name: " + error};
@@ -494,6 +495,7 @@ grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const v1::DeleteBtfRequest
   if (!deps.btf_store->Delete(request.name()))
     return {grpc::StatusCode::NOT_FOUND, "name: no BTF asset named " + models::Quote(request.name())};
   deps.materials->Clear();
+  if (deps.folds) deps.folds->Clear();
   return grpc::Status::OK;
 }
 

@@ -350,28 +350,37 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     s.fiber_shadows = plan_.fiber_shadows;
     s.fiber_occlusion = plan_.fiber_occlusion;
     ChooseBtfEnvironment();
-    // Surfaces sample their material too (weighed against the environment's samples by MIS). A material's table
-    // is built on its first render, on the asset loader (not on the host worker every streaming call shares),
-    // and kept with it in the material cache; so is the folded environment, when requested.
-    std::vector<const models::PreparedMaterial*> unbuilt;
-    for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
-      if (const models::PreparedMaterial* m = SampledMaterial(o); m && !m->SamplerBuilt()) unbuilt.push_back(m);
-    if (unbuilt.empty() && !folding_) return StartRendering();
+    // Surfaces sample their material too (weighed against the environment's samples by MIS), unless their
+    // environment light is folded. A material's table is built on its first render, on the asset loader (not on
+    // the host worker every streaming call shares), and kept with it in the material cache; the fold, when
+    // requested or a candidate, is built and chosen there first.
+    if (!folding_) {
+      bool built = true;
+      for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
+        if (const models::PreparedMaterial* m = SampledMaterial(o, nullptr); m && !m->SamplerBuilt()) built = false;
+      if (built) return StartRendering();
+    }
     loading_ = true;
-    deps_.loader->Post([this, unbuilt] {
+    deps_.loader->Post([this] {
       std::shared_ptr<const render::FoldedEnvironment> folded;
-      grpc::Status status = folding_ ? FoldEnvironment(&folded) : grpc::Status::OK;
-      for (const models::PreparedMaterial* m : unbuilt) {
-        m->Sampler();
-        deps_.materials->ChargeSampler(*m);
-      }
-      Post([this, status, folded] {
+      std::vector<render::FidelityChoice> choices;
+      grpc::Status status = folding_ ? FoldEnvironment(&folded, &choices) : grpc::Status::OK;
+      for (size_t o = 0; o < plan_.objects.size() && status.ok() && setup_.environment; ++o)
+        if (const models::PreparedMaterial* m = SampledMaterial(o, folded.get()); m && !m->SamplerBuilt()) {
+          m->Sampler();
+          deps_.materials->ChargeSampler(*m);
+        }
+      Post([this, status, folded, choices] {
         loading_ = false;
         if (!status.ok()) {
           if (status_.ok()) status_ = status;
         } else {
           setup_.folded_environment = folded;
-          ReportFold();
+          for (size_t o = 0; o < choices.size() && o < plan_.fidelity.size(); ++o)
+            if (!choices[o].aspect.empty()) {
+              plan_.fidelity[o].choices.push_back(choices[o]);
+              plan_.fidelity[o].estimated_error += choices[o].estimated_error;
+            }
           StartRendering();
         }
         Pump();
@@ -379,35 +388,30 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     });
   }
 
-  // Whether the environment light of the `btf` objects is folded (btf_environment FOLDED; validated: a `btf`
-  // material, environment lighting, not a fiber scene) or sampled, in the fidelity report of every object whose
-  // material is a `btf` asset lit by an environment.
+  // Whether the environment light of the `btf` objects may be folded (btf_environment FOLDED, or AUTO where the
+  // fold's estimated error is within the target: render::ChooseFoldedEnvironment, once folded) or is sampled,
+  // in the fidelity report of every object whose material is a `btf` asset lit by an environment. FOLDED is
+  // validated: a `btf` material without a layer, environment lighting, not a fiber scene.
   void ChooseBtfEnvironment() {
     const v1::RenderRequest& r = request_;
-    if (!setup_.environment || !material_->model->folds_environment()) return;
-    folding_ = r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED && !r.force_full_fidelity() && !material_->transmission;
-    const std::string reason = r.force_full_fidelity()                                ? "force_full_fidelity"
-                               : r.btf_environment() == v1::BTF_ENVIRONMENT_SAMPLED  ? "requested"
-                               : r.btf_environment() == v1::BTF_ENVIRONMENT_AUTO
-                                   ? "btf_environment AUTO: sampled (the fold is used only when requested)"
-                                   : "";  // FOLDED: filled in once folded (ReportFold)
+    if (!setup_.environment || !material_->model->folds_environment() || fiber_job_) return;
+    const bool asked = r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED || r.btf_environment() == v1::BTF_ENVIRONMENT_AUTO;
+    folding_ = asked && !r.force_full_fidelity() && !material_->transmission;
+    if (folding_) return;
+    const std::string reason = r.force_full_fidelity() ? "force_full_fidelity"
+                               : material_->transmission
+                                   ? "the material lets light through its layer: the fold is of reflected light only"
+                                   : "requested";
     for (size_t o = 0; o < plan_.fidelity.size(); ++o)
       if (!setup_.scene.objects[o].fibers)
-        plan_.fidelity[o].choices.push_back({"btf_environment", folding_ ? "folded" : "sampled", "sampled", 0, reason});
-  }
-
-  // The fold's vertices, cells, bytes and time in each folded object's report.
-  void ReportFold() {
-    for (size_t o = 0; o < plan_.fidelity.size(); ++o)
-      for (render::FidelityChoice& c : plan_.fidelity[o].choices)
-        if (c.aspect == "btf_environment" && setup_.folded_environment)
-          c.reason = setup_.folded_environment->Describe(int(o));
+        plan_.fidelity[o].choices.push_back({"btf_environment", "sampled", "sampled", 0, reason});
   }
 
   // On the asset loader: each object's `btf` material (as its kernel path reads it: the chosen components, BTF
   // or BRDF) folded with the environment, within the deadline, while the client is there, and within the
   // memory budget.
-  grpc::Status FoldEnvironment(std::shared_ptr<const render::FoldedEnvironment>* out) {
+  grpc::Status FoldEnvironment(std::shared_ptr<const render::FoldedEnvironment>* out,
+                               std::vector<render::FidelityChoice>* choices) {
     std::vector<render::FoldedEnvironment::Material> materials(plan_.objects.size());
     for (size_t o = 0; o < plan_.objects.size(); ++o) {
       const int e = plan_.objects[o].evaluator;
@@ -418,17 +422,39 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
     const auto admit = [this](uint64_t bytes) { return admission_.bytes.Grow(size_t(bytes)); };
     bool refused = false;
-    const std::string e = render::FoldedEnvironment::Build(setup_, materials, int(kTraceThreads), stop, admit, &refused, out);
-    if (e.empty()) return grpc::Status::OK;
+    // A fold of the same asset, map, scene and camera made by an earlier call, else made now and kept.
+    const std::string key = render::FoldCache::Key(setup_, materials);
+    std::shared_ptr<const render::FoldedEnvironment> folded = deps_.folds ? deps_.folds->Find(key) : nullptr;
+    const bool kept = folded != nullptr;
+    std::string e;
+    if (!folded) {
+      e = render::FoldedEnvironment::Build(setup_, materials, int(kTraceThreads), stop, admit, &refused, &folded);
+      if (e.empty() && deps_.folds) deps_.folds->Insert(key, folded, setup_);
+    }
+    std::vector<bool> keep;
+    std::vector<double> errors;  // the pilot's hits depend on the image size beyond the key
+    const std::string pilot = std::to_string(setup_.width) + "x" + std::to_string(setup_.height);
+    if (e.empty() && deps_.folds) deps_.folds->FindErrors(key, pilot, &errors);
+    if (e.empty() && !render::ChooseFoldedEnvironment(setup_, *folded, materials, error_target_,
+                                                      request_.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED,
+                                                      int(kTraceThreads), stop, &errors, choices, &keep))
+      e = "stopped while estimating the fold's error";
+    if (e.empty() && deps_.folds) deps_.folds->KeepErrors(key, pilot, errors);
+    if (e.empty()) {
+      if (std::find(keep.begin(), keep.end(), true) != keep.end()) *out = folded->Keeping(keep);
+      for (render::FidelityChoice& c : *choices)
+        if (kept && c.chosen == "folded") c.reason += "; the fold kept from an earlier call";
+      return grpc::Status::OK;
+    }
     if (grpc::Status stopped = StopStatus(context_, deadline_); !stopped.ok()) return stopped;
     if (refused) return {grpc::StatusCode::RESOURCE_EXHAUSTED, "btf_environment: " + e};
     return {grpc::StatusCode::INTERNAL, "btf_environment: " + e};
   }
 
   // The material whose sampler object o's hits draw from (null: it samples lights only, as fibers do and as
-  // objects with a folded environment do).
-  const models::PreparedMaterial* SampledMaterial(size_t o) const {
-    if (folding_) return nullptr;
+  // objects whose environment light is in `folded` do).
+  const models::PreparedMaterial* SampledMaterial(size_t o, const render::FoldedEnvironment* folded) const {
+    if (folded && folded->Covers(int(o))) return nullptr;
     const int e = plan_.objects[o].evaluator;
     return e >= 0 && !plan_.evaluators[e].fiber_axis ? plan_.evaluators[e].material : nullptr;
   }
@@ -438,7 +464,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     render::RenderSetup& s = setup_;
     s.object_samplers.assign(s.scene.objects.size(), nullptr);
     for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
-      if (const models::PreparedMaterial* m = SampledMaterial(o)) s.object_samplers[o] = &m->Sampler();
+      if (const models::PreparedMaterial* m = SampledMaterial(o, s.folded_environment.get()))
+        s.object_samplers[o] = &m->Sampler();
     total_pixels_ = uint64_t(s.width) * s.height;
     chunk_slots_ = std::max<uint64_t>(1, kRenderChunkQueries / std::max<size_t>(1, render::MaxQueriesPerSample(s)));
     sums_.assign(total_pixels_, Rgb{});
@@ -777,7 +804,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   std::shared_ptr<const yarn::YarnVisibility> fiber_visibility_;
   uint64_t fiber_count_ = 0;
   bool loading_ = false;  // the asset loader is reading the environment map
-  bool folding_ = false;  // the `btf` objects' environment light is folded (ChooseBtfEnvironment)
+  bool folding_ = false;  // the `btf` objects' environment light is folded or a candidate (ChooseBtfEnvironment)
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
 
   render::RenderSetup setup_;

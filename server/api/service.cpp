@@ -80,9 +80,11 @@ struct EvaluateCall : PlanCall<v1::EvaluateRequest, v1::EvaluateResponse> {
 LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits& limits)
     : deps_(deps),
       materials_(limits.material_cache_bytes),
+      folds_(limits.fold_cache_bytes),
       client_long_calls_(limits.max_long_calls_per_client),
       idle_uploads_(limits.upload_idle_timeout) {
   deps_.materials = &materials_;
+  deps_.folds = &folds_;
   deps_.idle_uploads = &idle_uploads_;
   deps_.client_long_calls = &client_long_calls_;
   deps_.worker = &worker_;

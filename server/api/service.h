@@ -17,6 +17,7 @@
 #include "server/batching/budget.h"
 #include "server/models/material_cache.h"
 #include "server/models/registry.h"
+#include "server/render/folded_environment.h"
 
 namespace loomlight::api {
 
@@ -40,6 +41,7 @@ struct ServiceLimits {
   size_t max_long_running_calls = 16;            // TextureSlice, Tabulate and Render calls at once
   size_t max_long_calls_per_client = 8;          // of them, one client's (its name, else its connection)
   size_t material_cache_bytes = size_t{64} << 20;
+  size_t fold_cache_bytes = size_t{128} << 20;  // BTF environment folds kept across Render calls
   // A client-streaming call (UploadBtf) that sends nothing for this long is cancelled (server/api/idle_streams.h).
   std::chrono::milliseconds upload_idle_timeout{60000};
 };
@@ -52,6 +54,7 @@ struct ServiceDeps {
   bool has_fp64 = false;
   Metrics* metrics = nullptr;
   models::MaterialCache* materials = nullptr;
+  render::FoldCache* folds = nullptr;  // BTF environment folds (render::FoldCache), kept across Render calls
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
   HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
   HostWorker* geometry = nullptr;  // generating yarn geometry, off the host worker
@@ -138,6 +141,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
 
   ServiceDeps deps_;
   models::MaterialCache materials_;
+  render::FoldCache folds_;
   ClientSlots client_long_calls_;
   IdleStreams idle_uploads_;
   std::atomic<bool> serving_{false};

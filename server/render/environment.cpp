@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 
 #include "server/models/cdf.h"
@@ -133,6 +134,13 @@ size_t Environment::bytes() const {
   if (!map_) return 0;
   return map_->rgb.size() * sizeof(float) + map_->bright_pixels.size() * sizeof(uint32_t) +
          (map_->row_cdf.size() + map_->column_cdf.size() + map_->bright_cdf.size()) * sizeof(double);
+}
+
+std::string Environment::Identity() const {
+  char text[160];
+  std::snprintf(text, sizeof text, "%p %a %a %a", static_cast<const void*>(map_.get()), intensity_, cos_rotation_,
+                sin_rotation_);
+  return text;
 }
 
 void Environment::SetTransform(double intensity, double rotation_deg) {

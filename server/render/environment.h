@@ -40,6 +40,9 @@ class Environment {
 
   // Radiance scale and a rotation about +y (degrees) applied to the map.
   void SetTransform(double intensity, double rotation_deg);
+  // Which decoded map this is a copy of (shared between copies; valid while one of them lives) and its
+  // transform: equal for environments that give the same radiance everywhere.
+  std::string Identity() const;
 
   Rgb Radiance(Vec3 direction) const;
 

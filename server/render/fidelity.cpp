@@ -272,6 +272,48 @@ const models::PreparedMaterial* CachedVariants::Get(const v1::Material& material
   return entry.get();
 }
 
+std::vector<ShadingPoint> PilotHits(const RenderSetup& setup) {
+  const Pilot pilot(setup);
+  std::vector<ShadingPoint> hits;
+  for (size_t o = 0; o < setup.scene.objects.size(); ++o)
+    hits.insert(hits.end(), pilot.points(int(o)).begin(), pilot.points(int(o)).end());
+  return hits;
+}
+
+bool ChooseFoldedEnvironment(const RenderSetup& setup, const FoldedEnvironment& fold,
+                             const std::vector<FoldedEnvironment::Material>& materials, double error_target,
+                             bool requested, int threads, const std::function<bool()>& stop,
+                             std::vector<double>* errors, std::vector<FidelityChoice>* choices,
+                             std::vector<bool>* keep) {
+  const size_t objects = setup.scene.objects.size();
+  choices->assign(objects, {});
+  keep->assign(objects, false);
+  if (errors->empty()) *errors = fold.EstimateError(setup, materials, PilotHits(setup), threads, stop);
+  if (errors->empty()) return false;
+  const std::vector<double>& error = *errors;
+  for (size_t o = 0; o < objects; ++o) {
+    if (!fold.Covers(int(o))) continue;
+    const double e = o < error.size() ? error[o] : -1.0;
+    const bool within = e >= 0 && e <= error_target;
+    (*keep)[o] = requested || within;
+    FidelityChoice& c = (*choices)[o];
+    c.aspect = "btf_environment";
+    c.full = "sampled";
+    c.chosen = (*keep)[o] ? "folded" : "sampled";
+    c.estimated_error = (*keep)[o] ? std::max(e, 0.0) : 0.0;
+    const std::string estimate =
+        e < 0 ? std::string("no pilot hit to estimate its error")
+              : Format("estimated error %.2g (the pilot's reflected environment light against each hit's own fold "
+                       "from %d x %d cells, relative L1)",
+                       e, FoldedEnvironment::kReferenceCellsAround, FoldedEnvironment::kReferenceCellsDown);
+    c.reason = (*keep)[o] ? fold.Describe(int(o)) + "; " + estimate + (requested ? "; requested" : "")
+               : e < 0    ? "btf_environment AUTO: sampled, as the pilot rays missed the object (" + estimate + ")"
+                          : Format("btf_environment AUTO: sampled, as the fold's %s is over the target %g",
+                                   estimate.c_str(), error_target);
+  }
+  return true;
+}
+
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, MaterialVariants& variants,
                            double target, bool force_full, FidelityPlan* plan) {
   const std::string failed = "cannot pack a variant of the material for the fidelity choice";

@@ -9,6 +9,8 @@
 // - transmission: evaluated only when the light reaching the back of the cloth matters;
 // - a curtain layer's accuracy knob (its model's accuracy_knob, e.g. the thin layer's scattering orders), chosen
 //   as the reflection's, reported as "transmission.<param>";
+// - btf_environment: a `btf` asset's environment light folded into it (Sattler et al. Eq. 10) where the fold's
+//   estimated error (FoldedEnvironment::EstimateError at the pilot's hits) is within the target, else sampled;
 // - fiber scenes' shadows and ambient occlusion: rays traced through the fibers, or the yarn cross-section's
 //   approximations (Wu and Yuksel Sec. 4.1-4.2) when the pilot's radiance with them is within the target of
 //   the traced one. The approximations are statistical (a fiber gets the mean visibility at its place in the
@@ -18,12 +20,14 @@
 // never by model or parameter name.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "server/models/material_cache.h"
 #include "server/models/registry.h"
+#include "server/render/folded_environment.h"
 #include "server/render/shading.h"
 
 namespace loomlight::render {
@@ -98,6 +102,20 @@ struct FidelityPlan {
 // Fills *plan for every object of setup.scene. Returns "" or why a variant could not be made (internal).
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& material, MaterialVariants& variants,
                            double error_target, bool force_full, FidelityPlan* plan);
+
+// The pilot's hits: kPilotGrid x kPilotGrid pixel centres traced with the render's code, in image order.
+std::vector<ShadingPoint> PilotHits(const RenderSetup& setup);
+
+// btf_environment for a built fold: per object it covers, the fold's error estimated at the pilot's hits
+// (*errors: FoldedEnvironment::EstimateError's, estimated here when empty; the same for every call with this
+// fold and image size). Requested (FOLDED): every covered object keeps its fold; AUTO: an object keeps it when
+// its estimate is within the target (not when the pilot missed it). Sets (*keep)[o] and (*choices)[o] (aspect
+// "btf_environment") for every covered object; the others' choices stay empty. False when stopped.
+bool ChooseFoldedEnvironment(const RenderSetup& setup, const FoldedEnvironment& fold,
+                             const std::vector<FoldedEnvironment::Material>& materials, double error_target,
+                             bool requested, int threads, const std::function<bool()>& stop,
+                             std::vector<double>* errors, std::vector<FidelityChoice>* choices,
+                             std::vector<bool>* keep);
 
 // True when the material lets light through the cloth (a layer, or a transmitting model).
 inline bool Transmits(const MaterialInfo& m) { return m.layered || (m.model && m.model->transmission()); }

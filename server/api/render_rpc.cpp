@@ -205,6 +205,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     std::vector<render::QueryBucket> buckets;  // per evaluator; tag = slot
     std::vector<Rgb> value;                    // per slot: the radiance needing no query, then the sample's all
     std::vector<uint16_t> slot_queries;        // adaptive first pass: per slot, its queries (the sample's work)
+    std::vector<uint8_t> slot_folded;          // adaptive first pass: per slot, 1 for a hit shaded by the fold
     std::vector<std::vector<double>> f;        // per evaluator: the kernel's results
     std::vector<std::unique_ptr<models::EvaluationPlan>> plans;  // per evaluator: its kernel parts
     size_t jobs_in_flight = 0;
@@ -521,6 +522,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     chunk.buckets.resize(plan_.evaluators.size());
     for (render::QueryBucket& b : chunk.buckets) b.Clear();
     chunk.value.assign(slots, Rgb{});
+    chunk.slot_folded.assign(adaptive_ && pass_ == 0 ? slots : 0, 0);
     chunk.queries = 0;
     // Chunks are traced on kTraceThreads threads (casting rays and sampling lights and materials is the host's
     // share of a render), each a contiguous run of pixels with about as many samples into its own buckets,
@@ -563,6 +565,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
         if (point.environment_folded) {
           folded.push_back(setup_.folded_environment->QueryOf(point));
           folded_slot.push_back(slot);
+          if (!chunk.slot_folded.empty()) chunk.slot_folded[slot] = 1;
         }
       }
     }
@@ -646,7 +649,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   }
 
   // After an adaptive render's first pass: each pixel's samples (render::AllocateSamples), from the spread of
-  // its first samples and their work (queries); then the second pass begins.
+  // its first samples and their work (queries, folded hits); then the second pass begins.
   void AllocateSamples() {
     render::PixelNoise noise;
     noise.variance.resize(total_pixels_);
@@ -701,7 +704,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
         sum = sum + v;
         if (!measure) continue;
         squares_[pixel] += v.x * v.x + v.y * v.y + v.z * v.z;
-        pixel_queries_[pixel] += chunk.slot_queries[slot];
+        pixel_queries_[pixel] += chunk.slot_queries[slot] + (chunk.slot_folded[slot] ? render::kFoldedSampleCost : 0.0);
       }
     }
     samples_done_ += chunk.value.size();

@@ -4,7 +4,6 @@
 #include <grpcpp/grpcpp.h>
 
 #include <algorithm>
-#include <condition_variable>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -99,41 +98,6 @@ inline void SubmitPlan(batching::Batcher* batcher, const models::EvaluationPlan&
       done(k, refused);
     }
   }
-}
-
-// Evaluates a plan through the batcher (bulk priority, fp32) into f (3 per query; parts write their queries'
-// slots) and waits: for workers that may block (the asset loader, the preparer), e.g. building a material's
-// sampling table. True when every part ran; false when one did not (a passed deadline, a cancelled call, a
-// batcher that refused or is stopping).
-inline bool EvaluateAndWait(batching::Batcher* batcher, const models::EvaluationPlan& plan, double* f,
-                            batching::Clock::time_point deadline, grpc::CallbackServerContext* context) {
-  struct Wait {
-    std::mutex mutex;
-    std::condition_variable done;
-    size_t left = 0;
-    bool ok = true;
-  };
-  auto wait = std::make_shared<Wait>();
-  wait->left = plan.parts();
-  SubmitPlan(batcher, plan, runtime::ResultSink{.f64 = f}, false, batching::Priority::kBulk, deadline, context,
-             [wait](size_t, batching::JobResult result) {
-               std::lock_guard<std::mutex> lock(wait->mutex);
-               if (result.status != batching::JobStatus::kOk) wait->ok = false;
-               if (--wait->left == 0) wait->done.notify_all();
-             });
-  std::unique_lock<std::mutex> lock(wait->mutex);
-  wait->done.wait(lock, [&] { return wait->left == 0; });
-  return wait->ok;
-}
-
-// A material's sampling table, built (on first use) by the batched kernels on behalf of a call: null when the
-// call stopped first.
-inline const models::DirectionSampler* BatchedSampler(batching::Batcher* batcher, const models::PreparedMaterial& material,
-                                                      batching::Clock::time_point deadline,
-                                                      grpc::CallbackServerContext* context) {
-  return material.Sampler([&](const models::EvaluationPlan& plan, double* f) {
-    return EvaluateAndWait(batcher, plan, f, deadline, context);
-  });
 }
 
 // The most bytes of an INVALID_ARGUMENT status message. Messages quote client input only truncated

@@ -368,11 +368,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       grpc::Status status = folding_ ? FoldEnvironment(&folded, &choices) : grpc::Status::OK;
       for (size_t o = 0; o < plan_.objects.size() && status.ok() && setup_.environment; ++o)
         if (const models::PreparedMaterial* m = SampledMaterial(o, folded.get()); m && !m->SamplerBuilt()) {
-          if (!BatchedSampler(deps_.batcher, *m, deadline_, context_)) {
-            status = StopStatus(context_, deadline_);
-            if (status.ok()) status = {grpc::StatusCode::UNAVAILABLE, "a material's sampling table could not be built now; retry"};
-            break;
-          }
+          m->Sampler();
           deps_.materials->ChargeSampler(*m);
         }
       Post([this, status, folded, choices] {

@@ -53,13 +53,7 @@ struct SampleCall : PlanCall<v1::SampleRequest, v1::SampleResponse> {
     if (grpc::Status s = StopStatus(call->context, call->deadline); !s.ok()) return call->Finish(s);
     const auto started = batching::Clock::now();
     const bool built = call->material->SamplerBuilt();
-    // Built here on first use, by the batched kernels.
-    const models::DirectionSampler* table = BatchedSampler(call->deps->batcher, *call->material, call->deadline, call->context);
-    if (!table) {
-      grpc::Status s = StopStatus(call->context, call->deadline);
-      return call->Finish(s.ok() ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "the material's sampling table could not be built now; retry") : s);
-    }
-    const models::DirectionSampler& sampler = *table;
+    const models::DirectionSampler& sampler = call->material->Sampler();  // built here on first use
     if (!built) call->deps->materials->ChargeSampler(*call->material);
     const v1::SampleRequest& request = *call->request;
     const bool given = request.random_size() > 0;

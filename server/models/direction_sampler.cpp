@@ -49,9 +49,6 @@ bool DirectionSampler::Sphere(const Model& model, bool layered) {
 
 DirectionSampler::DirectionSampler(const PreparedMaterial& material) : DirectionSampler(material, Resolution()) {}
 
-DirectionSampler::DirectionSampler(const PreparedMaterial& material, Resolution resolution)
-    : DirectionSampler(material, resolution, Evaluate()) {}
-
 namespace {
 // The material at its model's shape setting (AccuracyKnob::shape_setting) when that is cheaper than its own,
 // else null: the table needs the lobes' shape, e.g. 8 tangent samples instead of 32-256 for the microcylinder.
@@ -70,8 +67,7 @@ std::unique_ptr<PreparedMaterial> AtShapeSetting(const PreparedMaterial& materia
 }
 }  // namespace
 
-DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resolution, const Evaluate& evaluate)
-    : res_(resolution) {
+DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resolution) : res_(resolution) {
   const std::unique_ptr<PreparedMaterial> shape = AtShapeSetting(own);
   const PreparedMaterial& material = shape ? *shape : own;
   const Model& model = *material.model;
@@ -123,82 +119,43 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
       }
     }
   nodes_.resize(size_t(res_.wo_z) * res_.wo_phi);
-  // Node `index`'s wo, and its CDFs from f at its queries (the cells' centres x the tile's points).
-  const auto wo_of = [&](int index) {
-    const int i = index / res_.wo_phi, j = index % res_.wo_phi;
-    const double phi_o = fiber_ ? 0.0 : (j + 0.5) * 2 * kPi / res_.wo_phi;
-    return FromTable(FromZPhi(wo_z_min + (i + 0.5) * wo_dz, phi_o));
-  };
-  const auto fill_node = [&](int index, const double* f) {
-    Node& node = nodes_[index];
-    node.row_cdf.assign(wi_rows_ + 1, 0.0f);
-    node.column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0f);
-    double row_sum = 0;
-    for (int r = 0; r < wi_rows_; ++r) {
-      float* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
-      double column_sum = 0;
-      for (int c = 0; c < res_.wi_phi; ++c) {
-        double sum = 0;
-        for (int k = 0; k < uv_points; ++k)
-          for (int ch = 0; ch < 3; ++ch) {
-            const double v = f[3 * (size_t(r * res_.wi_phi + c) * uv_points + k) + ch];
-            if (std::isfinite(v) && v > 0) sum += v;
-          }
-        column_sum += sum * cosine[r * res_.wi_phi + c];
-        column[c + 1] = float(column_sum);  // rounding is monotone: the sums stay non-decreasing
+  // Nodes are independent: kBuildThreads threads take every kBuildThreads-th node, each with its own wo and f.
+  const auto build_nodes = [&](int first) {
+    std::vector<float> wo(3 * n);
+    std::vector<double> f(3 * n);
+    for (int index = first; index < int(nodes_.size()); index += kBuildThreads) {
+      const int i = index / res_.wo_phi, j = index % res_.wo_phi;
+      const double phi_o = fiber_ ? 0.0 : (j + 0.5) * 2 * kPi / res_.wo_phi;
+      const Dir o = FromTable(FromZPhi(wo_z_min + (i + 0.5) * wo_dz, phi_o));
+      for (size_t q = 0; q < n; ++q)
+        for (int k = 0; k < 3; ++k) wo[3 * q + k] = float(o[k]);
+      EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
+      Node& node = nodes_[index];
+      node.row_cdf.assign(wi_rows_ + 1, 0.0f);
+      node.column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0f);
+      double row_sum = 0;
+      for (int r = 0; r < wi_rows_; ++r) {
+        float* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+        double column_sum = 0;
+        for (int c = 0; c < res_.wi_phi; ++c) {
+          double sum = 0;
+          for (int k = 0; k < uv_points; ++k)
+            for (int ch = 0; ch < 3; ++ch) {
+              const double v = f[3 * (size_t(r * res_.wi_phi + c) * uv_points + k) + ch];
+              if (std::isfinite(v) && v > 0) sum += v;
+            }
+          column_sum += sum * cosine[r * res_.wi_phi + c];
+          column[c + 1] = float(column_sum);  // rounding is monotone: the sums stay non-decreasing
+        }
+        row_sum += column_sum;
+        node.row_cdf[r + 1] = float(row_sum);
       }
-      row_sum += column_sum;
-      node.row_cdf[r + 1] = float(row_sum);
     }
   };
-  const int node_count = int(nodes_.size());
-  if (evaluate) {
-    // The batched kernels: groups of nodes of at least kMinBatchQueries queries each, one launch's worth, on this
-    // thread (the device has the cores).
-    const int group = int(std::max<size_t>(1, (kMinBatchQueries + n - 1) / n));
-    std::vector<float> wo, wi_group, uv_group;
-    std::vector<double> f;
-    for (int first = 0; first < node_count; first += group) {
-      const int count = std::min(group, node_count - first);
-      const size_t queries = size_t(count) * n;
-      wo.resize(3 * queries);
-      wi_group.resize(3 * queries);
-      uv_group.resize(with_uv ? 2 * queries : 0);
-      for (int g = 0; g < count; ++g) {
-        const Dir o = wo_of(first + g);
-        for (size_t q = 0; q < n; ++q)
-          for (int k = 0; k < 3; ++k) wo[3 * (g * n + q) + k] = float(o[k]);
-        std::copy(wi.begin(), wi.end(), wi_group.begin() + 3 * g * n);
-        if (with_uv) std::copy(uv.begin(), uv.end(), uv_group.begin() + 2 * g * n);
-      }
-      f.assign(3 * queries, 0.0);  // a query no part of the plan takes (light through opaque cloth) stays 0
-      if (!evaluate(EvaluationPlan(material, wi_group.data(), wo.data(), with_uv ? uv_group.data() : nullptr, queries),
-                    f.data())) {
-        nodes_.clear();
-        return;
-      }
-      for (int g = 0; g < count; ++g) fill_node(first + g, f.data() + 3 * g * n);
-    }
-  } else {
-    // The native host build: nodes are independent, kBuildThreads threads take every kBuildThreads-th node.
-    const auto build_nodes = [&](int first) {
-      std::vector<float> wo(3 * n);
-      std::vector<double> f(3 * n);
-      for (int index = first; index < node_count; index += kBuildThreads) {
-        const Dir o = wo_of(index);
-        for (size_t q = 0; q < n; ++q)
-          for (int k = 0; k < 3; ++k) wo[3 * q + k] = float(o[k]);
-        f.assign(3 * n, 0.0);
-        EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
-        fill_node(index, f.data());
-      }
-    };
-    std::vector<std::thread> helpers;
-    for (int t = 1; t < kBuildThreads; ++t) helpers.emplace_back(build_nodes, t);
-    build_nodes(0);
-    for (std::thread& t : helpers) t.join();
-  }
-  complete_ = true;
+  std::vector<std::thread> helpers;
+  for (int t = 1; t < kBuildThreads; ++t) helpers.emplace_back(build_nodes, t);
+  build_nodes(0);
+  for (std::thread& t : helpers) t.join();
 }
 
 size_t DirectionSampler::bytes() const {

@@ -1,7 +1,7 @@
 // Importance sampling of any material: draws wi given wo with a density that is known exactly, so a renderer
 // (or a client, through the Sample RPC) can weigh f |cos| / pdf and combine it with light sampling (MIS).
 //
-// The density is a tabulated one built from the material itself: at a grid of wo nodes (24 x 24), f(wi, wo) |cos theta_i|
+// The density is a tabulated one built from the material itself: at a grid of wo nodes (12 x 12), f(wi, wo) |cos theta_i|
 // (averaged over the pattern's tile for spatially varying models) at the centres of equal-area cells of wi
 // (uniform in cos theta and phi); between nodes the node densities are blended bilinearly (a mixture, so its
 // density is the same blend). Surfaces: each node's density is first moved to wo's elevation, its cos theta
@@ -22,14 +22,12 @@
 
 #include <array>
 #include <cstddef>
-#include <functional>
 #include <string>
 #include <vector>
 
 namespace loomlight::models {
 
 struct PreparedMaterial;
-class EvaluationPlan;
 class Model;
 
 class DirectionSampler {
@@ -43,33 +41,24 @@ class DirectionSampler {
   // Threads that build a table (on the caller's thread and kBuildThreads - 1 more).
   static constexpr int kBuildThreads = 2;
 
-  // Resolution, measured on the cylinders at 16 samples per pixel (uniform), PSNR against 512-1024 spp (satin,
-  // twill, the satin sphere): 12 x 12 wo nodes with 24 x 48 wi cells 41.5, 39.0, 38.4 dB; 24 x 24 nodes with
-  // 16 x 32 cells 42.7, 41.5, 40.2 dB, the same time per sample, 1.8 times the bytes (1.3 MiB a surface table)
-  // and queries (the satin's 295,000: ~0.05 s through the batched kernels; a woven's 2.7 million, 9 tile
-  // points each: ~0.2 s). Finer wo nodes matter most (the satin with 24 x 48 cells: 43.0 dB, 2.8 MiB; 12 x 24
-  // nodes: 42.5); 2 x 2 tile points lose 5 dB on the twill.
+  // 24 x 24 wo nodes sample the satin far better (one sample's weight deviates 0.15 x the mean at 30 degrees
+  // against 0.33, 0.3-0.6 against 0.7-1.7 at 80-85 degrees; its cylinders at 16 samples per pixel 43.0 dB against
+  // 41.5), but each table is 4 times the work and bytes, and the soak test's 20-second mix of every preset's
+  // Sample and Render calls was still filling the material cache with them in its last third (RSS plateaued
+  // ~70 MiB higher, after ~30 s). 12 x 24 gave 42.4 dB and passed that test only narrowly. Kept at 12 x 12 until
+  // a table is cheaper to build (fewer tile points, a cheaper shape setting) or built ahead of the first call.
   struct Resolution {
-    int wo_z = 24, wo_phi = 24;     // wo nodes (cos theta_o, phi_o)
+    int wo_z = 12, wo_phi = 12;     // wo nodes (cos theta_o, phi_o)
     int fiber_wo_z = 32;           // fibers: wo nodes in cos theta_o over the sphere (f depends on phi_i - phi_o)
-    int wi_z = 16, wi_phi = 32;    // wi cells per hemisphere in cos theta; phi cells
+    int wi_z = 24, wi_phi = 48;    // wi cells per hemisphere in cos theta; phi cells
     int uv = 3;                    // uv points per axis averaged over the tile (spatially varying models)
   };
 
-  // Evaluates a plan's f into its buffer (3 per query, zeroed by the caller): the batched kernels, through the
-  // server's batcher. False when it could not (the call it builds for stopped).
-  using Evaluate = std::function<bool(const EvaluationPlan& plan, double* f)>;
-  // Queries per Evaluate call: nodes are evaluated in groups of at least this many (one launch's worth).
-  static constexpr size_t kMinBatchQueries = 1 << 16;
-
-  // The table for `material`, evaluated by `evaluate` (the batched kernels: the 12 x 12 satin's 166,000
-  // queries in ~0.02 s) or, when it is empty, by the native (float, -O3, scalar) host build of the same kernel
-  // source on kBuildThreads threads (~0.2 s). A material that is zero everywhere samples the cosine density
-  // alone. Not complete() when `evaluate` failed: then it must not be used.
+  // The table for `material`, from its native (float, -O3) host build of the kernel source (the same
+  // source as the kernels; ~80,000 evaluations per texel point). Never fails: a material that is zero
+  // everywhere samples the cosine density alone.
   explicit DirectionSampler(const PreparedMaterial& material);
   DirectionSampler(const PreparedMaterial& material, Resolution resolution);
-  DirectionSampler(const PreparedMaterial& material, Resolution resolution, const Evaluate& evaluate);
-  bool complete() const { return complete_; }
 
   struct Sample {
     Dir wi{0, 0, 0};
@@ -129,7 +118,6 @@ class DirectionSampler {
   Dir DrawCosine(double u1, double u2) const;
 
   Resolution res_;
-  bool complete_ = false;
   bool fiber_ = false, sphere_ = false, wo_sphere_ = false;
   int wi_rows_ = 0;  // wi_z, or 2 wi_z over the sphere
   double z_min_ = 0;  // -1 over the sphere

@@ -36,30 +36,22 @@ struct PreparedMaterial {
     return knob_errors_;
   }
 
-  // The material's importance-sampling table, built on first use by `evaluate` (the server's batched kernels;
-  // empty: the native host build) and kept: a worker's job, not a gRPC or host-worker thread's. Null when
-  // `evaluate` failed (the call that asked stopped); the next caller builds it again. Every caller in one
-  // server passes the same kind of evaluator, so the table (and every image sampled by it) does not depend on
-  // which call built it.
-  const DirectionSampler* Sampler(const DirectionSampler::Evaluate& evaluate) const {
-    std::lock_guard<std::mutex> lock(sampler_mutex_);
-    if (!sampler_) {
-      auto built = std::make_unique<DirectionSampler>(*this, DirectionSampler::Resolution(), evaluate);
-      if (!built->complete()) return nullptr;
-      sampler_ = std::move(built);
+  // The material's importance-sampling table, built on first use (0.1-0.3 s: a worker's job, not a gRPC or
+  // host-worker thread's) and kept.
+  const DirectionSampler& Sampler() const {
+    std::call_once(sampler_once_, [this] {
+      sampler_ = std::make_unique<DirectionSampler>(*this);
       sampler_built_.store(true, std::memory_order_release);
-    }
-    return sampler_.get();
+    });
+    return *sampler_;
   }
-  // The table once built (SamplerBuilt()), or built now on the host.
-  const DirectionSampler& Sampler() const { return *Sampler(DirectionSampler::Evaluate()); }
   // Whether Sampler() returns at once.
   bool SamplerBuilt() const { return sampler_built_.load(std::memory_order_acquire); }
 
  private:
   mutable std::once_flag knob_errors_once_;
   mutable std::vector<double> knob_errors_;
-  mutable std::mutex sampler_mutex_;
+  mutable std::once_flag sampler_once_;
   mutable std::unique_ptr<const DirectionSampler> sampler_;
   mutable std::atomic<bool> sampler_built_{false};
 };

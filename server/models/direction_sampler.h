@@ -1,7 +1,7 @@
 // Importance sampling of any material: draws wi given wo with a density that is known exactly, so a renderer
 // (or a client, through the Sample RPC) can weigh f |cos| / pdf and combine it with light sampling (MIS).
 //
-// The density is a tabulated one built from the material itself: at a grid of wo nodes (12 x 12), f(wi, wo) |cos theta_i|
+// The density is a tabulated one built from the material itself: at a grid of wo nodes (24 x 24), f(wi, wo) |cos theta_i|
 // (averaged over the pattern's tile for spatially varying models) at the centres of equal-area cells of wi
 // (uniform in cos theta and phi); between nodes the node densities are blended bilinearly (a mixture, so its
 // density is the same blend). Surfaces: each node's density is first moved to wo's elevation, its cos theta
@@ -41,16 +41,19 @@ class DirectionSampler {
   // Threads that build a table (on the caller's thread and kBuildThreads - 1 more).
   static constexpr int kBuildThreads = 2;
 
-  // 24 x 24 wo nodes sample the satin far better (one sample's weight deviates 0.15 x the mean at 30 degrees
-  // against 0.33, 0.3-0.6 against 0.7-1.7 at 80-85 degrees; its cylinders at 16 samples per pixel 43.0 dB against
-  // 41.5), but each table is 4 times the work and bytes, and the soak test's 20-second mix of every preset's
-  // Sample and Render calls was still filling the material cache with them in its last third (RSS plateaued
-  // ~70 MiB higher, after ~30 s). 12 x 24 gave 42.4 dB and passed that test only narrowly. Kept at 12 x 12 until
-  // a table is cheaper to build (fewer tile points, a cheaper shape setting) or built ahead of the first call.
+  // Resolution, measured on the cylinders at 16 samples per pixel (uniform), PSNR against 512-1024 spp (satin,
+  // twill, the satin sphere): 12 x 12 wo nodes with 24 x 48 wi cells 41.5, 39.0, 38.4 dB; 24 x 24 nodes with
+  // 16 x 32 cells 42.7, 41.5, 40.2 dB at the same time per sample, for 1.8 times the bytes (1.3 MiB a surface
+  // table) and queries (the satin's table 0.19 -> 0.26 s, a woven's 0.06 -> 0.09 s on the first call). Finer wo
+  // nodes matter most (24 x 48 cells at 24 x 24 nodes: 43.0 dB on the satin, 2.8 MiB, and the soak test's mix
+  // was still filling the material cache with them in its last third; 12 x 24 nodes: 42.5); 2 x 2 tile points
+  // lose 5 dB on the twill. Built through the batcher's OpenCL kernels instead (~5x faster), a table was not the
+  // same bytes twice (f from a launch is not bitwise the native build's, and a second PreparedMaterial of the
+  // same material built its own), so the same request rendered two images: kept on the native build.
   struct Resolution {
-    int wo_z = 12, wo_phi = 12;     // wo nodes (cos theta_o, phi_o)
+    int wo_z = 24, wo_phi = 24;     // wo nodes (cos theta_o, phi_o)
     int fiber_wo_z = 32;           // fibers: wo nodes in cos theta_o over the sphere (f depends on phi_i - phi_o)
-    int wi_z = 24, wi_phi = 48;    // wi cells per hemisphere in cos theta; phi cells
+    int wi_z = 16, wi_phi = 32;    // wi cells per hemisphere in cos theta; phi cells
     int uv = 3;                    // uv points per axis averaged over the tile (spatially varying models)
   };
 

@@ -390,7 +390,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   }
 
   // Whether the environment light of the `btf` objects may be folded (btf_environment FOLDED, or AUTO where the
-  // fold's estimated error is within the target: render::ChooseFoldedEnvironment, once folded) or is sampled,
+  // fold's estimated error is within the target: render::FoldEnvironment decides, once folded) or is sampled,
   // in the fidelity report of every object whose material is a `btf` asset lit by an environment. FOLDED is
   // validated: a `btf` material without a layer, environment lighting, not a fiber scene.
   void ChooseBtfEnvironment() {
@@ -423,30 +423,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
     const auto admit = [this](uint64_t bytes) { return admission_.bytes.Grow(size_t(bytes)); };
     bool refused = false;
-    // A fold of the same asset, map, scene and camera made by an earlier call, else made now and kept.
-    const std::string key = render::FoldCache::Key(setup_, materials);
-    std::shared_ptr<const render::FoldedEnvironment> folded = deps_.folds ? deps_.folds->Find(key) : nullptr;
-    const bool kept = folded != nullptr;
-    std::string e;
-    if (!folded) {
-      e = render::FoldedEnvironment::Build(setup_, materials, int(kTraceThreads), stop, admit, &refused, &folded);
-      if (e.empty() && deps_.folds) deps_.folds->Insert(key, folded, setup_);
-    }
-    std::vector<bool> keep;
-    std::vector<double> errors;  // the pilot's hits depend on the image size beyond the key
-    const std::string pilot = std::to_string(setup_.width) + "x" + std::to_string(setup_.height);
-    if (e.empty() && deps_.folds) deps_.folds->FindErrors(key, pilot, &errors);
-    if (e.empty() && !render::ChooseFoldedEnvironment(setup_, *folded, materials, error_target_,
-                                                      request_.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED,
-                                                      int(kTraceThreads), stop, &errors, choices, &keep))
-      e = "stopped while estimating the fold's error";
-    if (e.empty() && deps_.folds) deps_.folds->KeepErrors(key, pilot, errors);
-    if (e.empty()) {
-      if (std::find(keep.begin(), keep.end(), true) != keep.end()) *out = folded->Keeping(keep);
-      for (render::FidelityChoice& c : *choices)
-        if (kept && c.chosen == "folded") c.reason += "; the fold kept from an earlier call";
-      return grpc::Status::OK;
-    }
+    const std::string e = render::FoldEnvironment(setup_, materials, deps_.folds, error_target_,
+                                                  request_.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED,
+                                                  int(kTraceThreads), stop, admit, &refused, out, choices);
+    if (e.empty()) return grpc::Status::OK;
     if (grpc::Status stopped = StopStatus(context_, deadline_); !stopped.ok()) return stopped;
     if (refused) return {grpc::StatusCode::RESOURCE_EXHAUSTED, "btf_environment: " + e};
     return {grpc::StatusCode::INTERNAL, "btf_environment: " + e};

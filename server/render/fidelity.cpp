@@ -143,6 +143,51 @@ double Median(std::vector<double> v) {
 
 std::string KnobText(double v) { return Format("%g", v); }
 
+// The pilot's hits, in image order.
+std::vector<ShadingPoint> PilotHits(const RenderSetup& setup) {
+  const Pilot pilot(setup);
+  std::vector<ShadingPoint> hits;
+  for (size_t o = 0; o < setup.scene.objects.size(); ++o)
+    hits.insert(hits.end(), pilot.points(int(o)).begin(), pilot.points(int(o)).end());
+  return hits;
+}
+
+// The btf_environment choice per object the fold covers, from its estimated errors (*errors, estimated here at
+// the pilot's hits when empty). False when stopped.
+bool ChooseFoldedEnvironment(const RenderSetup& setup, const FoldedEnvironment& fold,
+                             const std::vector<FoldedEnvironment::Material>& materials, double error_target,
+                             bool requested, int threads, const std::function<bool()>& stop,
+                             std::vector<double>* errors, std::vector<FidelityChoice>* choices,
+                             std::vector<bool>* keep) {
+  const size_t objects = setup.scene.objects.size();
+  choices->assign(objects, {});
+  keep->assign(objects, false);
+  if (errors->empty()) *errors = fold.EstimateError(setup, materials, PilotHits(setup), threads, stop);
+  if (errors->empty()) return false;
+  const std::vector<double>& error = *errors;
+  for (size_t o = 0; o < objects; ++o) {
+    if (!fold.Covers(int(o))) continue;
+    const double e = o < error.size() ? error[o] : -1.0;
+    const bool within = e >= 0 && e <= error_target;
+    (*keep)[o] = requested || within;
+    FidelityChoice& c = (*choices)[o];
+    c.aspect = "btf_environment";
+    c.full = "sampled";
+    c.chosen = (*keep)[o] ? "folded" : "sampled";
+    c.estimated_error = (*keep)[o] ? std::max(e, 0.0) : 0.0;
+    const std::string estimate =
+        e < 0 ? std::string("no pilot hit to estimate its error")
+              : Format("estimated error %.2g (the pilot's reflected environment light against each hit's own fold "
+                       "from %d x %d cells, relative L1)",
+                       e, FoldedEnvironment::kReferenceCellsAround, FoldedEnvironment::kReferenceCellsDown);
+    c.reason = (*keep)[o] ? fold.Describe(int(o)) + "; " + estimate + (requested ? "; requested" : "")
+               : e < 0    ? "btf_environment AUTO: sampled, as the pilot rays missed the object (" + estimate + ")"
+                          : Format("btf_environment AUTO: sampled, as the fold's %s is over the target %g",
+                                   estimate.c_str(), error_target);
+  }
+  return true;
+}
+
 // Sets one knob (the `setting` of *chosen) to its cheapest setting whose pilot radiance is within the target of
 // its full setting's, the rest of *chosen as it is, and says so in *choice. False when a variant cannot be packed.
 bool ChooseKnob(const std::vector<ShadingPoint>& points, const MaterialInfo& m, MaterialVariants& variants,
@@ -272,46 +317,32 @@ const models::PreparedMaterial* CachedVariants::Get(const v1::Material& material
   return entry.get();
 }
 
-std::vector<ShadingPoint> PilotHits(const RenderSetup& setup) {
-  const Pilot pilot(setup);
-  std::vector<ShadingPoint> hits;
-  for (size_t o = 0; o < setup.scene.objects.size(); ++o)
-    hits.insert(hits.end(), pilot.points(int(o)).begin(), pilot.points(int(o)).end());
-  return hits;
-}
-
-bool ChooseFoldedEnvironment(const RenderSetup& setup, const FoldedEnvironment& fold,
-                             const std::vector<FoldedEnvironment::Material>& materials, double error_target,
-                             bool requested, int threads, const std::function<bool()>& stop,
-                             std::vector<double>* errors, std::vector<FidelityChoice>* choices,
-                             std::vector<bool>* keep) {
-  const size_t objects = setup.scene.objects.size();
-  choices->assign(objects, {});
-  keep->assign(objects, false);
-  if (errors->empty()) *errors = fold.EstimateError(setup, materials, PilotHits(setup), threads, stop);
-  if (errors->empty()) return false;
-  const std::vector<double>& error = *errors;
-  for (size_t o = 0; o < objects; ++o) {
-    if (!fold.Covers(int(o))) continue;
-    const double e = o < error.size() ? error[o] : -1.0;
-    const bool within = e >= 0 && e <= error_target;
-    (*keep)[o] = requested || within;
-    FidelityChoice& c = (*choices)[o];
-    c.aspect = "btf_environment";
-    c.full = "sampled";
-    c.chosen = (*keep)[o] ? "folded" : "sampled";
-    c.estimated_error = (*keep)[o] ? std::max(e, 0.0) : 0.0;
-    const std::string estimate =
-        e < 0 ? std::string("no pilot hit to estimate its error")
-              : Format("estimated error %.2g (the pilot's reflected environment light against each hit's own fold "
-                       "from %d x %d cells, relative L1)",
-                       e, FoldedEnvironment::kReferenceCellsAround, FoldedEnvironment::kReferenceCellsDown);
-    c.reason = (*keep)[o] ? fold.Describe(int(o)) + "; " + estimate + (requested ? "; requested" : "")
-               : e < 0    ? "btf_environment AUTO: sampled, as the pilot rays missed the object (" + estimate + ")"
-                          : Format("btf_environment AUTO: sampled, as the fold's %s is over the target %g",
-                                   estimate.c_str(), error_target);
+std::string FoldEnvironment(const RenderSetup& setup, const std::vector<FoldedEnvironment::Material>& materials,
+                            FoldCache* cache, double error_target, bool requested, int threads,
+                            const std::function<bool()>& stop, const std::function<bool(uint64_t)>& admit,
+                            bool* refused, std::shared_ptr<const FoldedEnvironment>* out,
+                            std::vector<FidelityChoice>* choices) {
+  *refused = false;
+  out->reset();
+  const std::string key = FoldCache::Key(setup, materials);
+  std::shared_ptr<const FoldedEnvironment> folded = cache ? cache->Find(key) : nullptr;
+  const bool kept = folded != nullptr;
+  if (!folded) {
+    if (std::string e = FoldedEnvironment::Build(setup, materials, threads, stop, admit, refused, &folded); !e.empty())
+      return e;
+    if (cache) cache->Insert(key, folded, setup);
   }
-  return true;
+  std::vector<double> errors;  // the pilot's hits depend on the image size beyond the key
+  const std::string pilot = std::to_string(setup.width) + "x" + std::to_string(setup.height);
+  if (cache) cache->FindErrors(key, pilot, &errors);
+  std::vector<bool> keep;
+  if (!ChooseFoldedEnvironment(setup, *folded, materials, error_target, requested, threads, stop, &errors, choices, &keep))
+    return "stopped while estimating the fold's error";
+  if (cache) cache->KeepErrors(key, pilot, errors);
+  if (std::find(keep.begin(), keep.end(), true) != keep.end()) *out = folded->Keeping(keep);
+  for (FidelityChoice& c : *choices)
+    if (kept && c.chosen == "folded") c.reason += "; the fold kept from an earlier call";
+  return "";
 }
 
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, MaterialVariants& variants,

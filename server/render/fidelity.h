@@ -103,19 +103,18 @@ struct FidelityPlan {
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& material, MaterialVariants& variants,
                            double error_target, bool force_full, FidelityPlan* plan);
 
-// The pilot's hits: kPilotGrid x kPilotGrid pixel centres traced with the render's code, in image order.
-std::vector<ShadingPoint> PilotHits(const RenderSetup& setup);
-
-// btf_environment for a built fold: per object it covers, the fold's error estimated at the pilot's hits
-// (*errors: FoldedEnvironment::EstimateError's, estimated here when empty; the same for every call with this
-// fold and image size). Requested (FOLDED): every covered object keeps its fold; AUTO: an object keeps it when
-// its estimate is within the target (not when the pilot missed it). Sets (*keep)[o] and (*choices)[o] (aspect
-// "btf_environment") for every covered object; the others' choices stay empty. False when stopped.
-bool ChooseFoldedEnvironment(const RenderSetup& setup, const FoldedEnvironment& fold,
-                             const std::vector<FoldedEnvironment::Material>& materials, double error_target,
-                             bool requested, int threads, const std::function<bool()>& stop,
-                             std::vector<double>* errors, std::vector<FidelityChoice>* choices,
-                             std::vector<bool>* keep);
+// btf_environment, where it may fold (FOLDED, or AUTO): the environment folded into every object's `btf`
+// material (`cache`'s fold for this setup when it has one, else built and kept there; may be null), its error
+// estimated per object at the pilot's hits (FoldedEnvironment::EstimateError; kept with the fold per image
+// size), and per object the choice: FOLDED (`requested`) keeps every fold; AUTO an object's when its estimate is
+// within the target (not when the pilot missed it). *out folds only the objects that keep theirs (null: none);
+// (*choices)[o] is each folded-capable object's report (aspect "btf_environment"; the others' stay empty).
+// `admit` is asked for a new fold's bytes first. Returns "" or why not (*refused: the memory budget).
+std::string FoldEnvironment(const RenderSetup& setup, const std::vector<FoldedEnvironment::Material>& materials,
+                            FoldCache* cache, double error_target, bool requested, int threads,
+                            const std::function<bool()>& stop, const std::function<bool(uint64_t)>& admit,
+                            bool* refused, std::shared_ptr<const FoldedEnvironment>* out,
+                            std::vector<FidelityChoice>* choices);
 
 // True when the material lets light through the cloth (a layer, or a transmitting model).
 inline bool Transmits(const MaterialInfo& m) { return m.layered || (m.model && m.model->transmission()); }

@@ -131,10 +131,40 @@ TEST(BtfKernels, GridDirectionsReproduceTheImagesWithinTheReportedError) {
   }
 }
 
-TEST(BtfKernels, OpenClFloatAndDoubleAgreeWithTheDoubleReference) {
-  const BtfImages im = LowRankImages(SmallGrid(), 8, 6, 5);
-  auto asset = Register(models::btf::Compress(im, {.max_components = 6}, nullptr, nullptr), "test_kernels");
-  const models::PackedMaterial m = Pack(*asset, 6);
+// The same on Table 1's H1 grid with 24 components kept: c = 16 and 21 sum the components in the kernel's
+// blocks of 16 (and five more one by one), c = 24 is exact. Only the asset's error, from its eigenvalues, is
+// the expectation: the double reference shares the kernel's source.
+TEST(BtfKernels, GridDirectionsReproduceTheImagesInBlocksOfComponents) {
+  bool found = false;
+  const BtfImages im = LowRankImages(DirectionGrid::Preset("h1", &found), 4, 24, 7);
+  ASSERT_TRUE(found);
+  auto asset = Register(models::btf::Compress(im, {.max_components = 24}, nullptr, nullptr), "test_grid_blocks");
+  ASSERT_EQ(asset->components, 24);
+  std::vector<float> wi, wo, uv;
+  GridQueries(im, &wi, &wo, &uv);
+  const size_t n = wi.size() / 3;
+  for (int c : {15, 16, 21, 24}) {
+    const models::PackedMaterial m = Pack(*asset, c);
+    std::vector<double> f(3 * n);
+    BtfModel().ReferenceEval(m, wi.data(), wo.data(), uv.data(), n, f.data());
+    EXPECT_NEAR(Rms(f, im.f), asset->errors[c].rmse, 1e-5 + 1e-3 * asset->errors[c].rmse) << "c = " << c;
+  }
+  EXPECT_GT(asset->errors[21].rmse, 10 * asset->errors[24].rmse + 1e-4);  // c = 21 is not already exact
+}
+
+// c = 6: the components one by one; on Table 1's H1 grid, c = 16 and 21 of 24 kept: the kernel's blocks of 16
+// (explicit vectors), a block and five more, and components kept beyond those used.
+class BtfKernelsAtComponents : public ::testing::TestWithParam<std::tuple<bool, int, int>> {};
+
+TEST_P(BtfKernelsAtComponents, OpenClFloatAndDoubleAgreeWithTheDoubleReference) {
+  const auto [h1, kept, c] = GetParam();
+  bool found = false;
+  const DirectionGrid grid = h1 ? DirectionGrid::Preset("h1", &found) : SmallGrid();
+  const BtfImages im = LowRankImages(grid, h1 ? 4 : 8, kept, 5);
+  auto asset = Register(models::btf::Compress(im, {.max_components = kept}, nullptr, nullptr),
+                        "test_kernels_" + std::to_string(c));
+  ASSERT_EQ(asset->components, kept);
+  const models::PackedMaterial m = Pack(*asset, c);
   std::mt19937 rng(1);
   std::uniform_real_distribution<float> unit(0.0f, 1.0f);
   std::vector<float> wi, wo, uv;
@@ -169,6 +199,10 @@ TEST(BtfKernels, OpenClFloatAndDoubleAgreeWithTheDoubleReference) {
     }
   }
 }
+
+INSTANTIATE_TEST_SUITE_P(Components, BtfKernelsAtComponents,
+                         ::testing::Values(std::make_tuple(false, 6, 6), std::make_tuple(true, 24, 16),
+                                           std::make_tuple(true, 24, 21)));
 
 // An asset larger than 2^24 values, whose tile-mean block starts at an offset a float32 table cannot hold (the
 // packed material is kept as float32): read from the header, the tile means came one value off, in the kernels

@@ -27,37 +27,43 @@
 #define BT_MAX_RINGS 64
 
 // The up to 4 grid directions around the unit direction (x, y, z), z > 0, and their bilinear weights (zero
-// weights where fewer are needed).
-LL_INLINE void bt_neighbours(LL_GLOBAL const scalar* mat, scalar x, scalar y, scalar z, int* slot, scalar* weight) {
+// weights where fewer are needed), for every lane at once: the slots are whole numbers held in reals, the ring
+// search a select per ring (the rings are the material's, the same for every lane), the angles ll_atan2's
+// polynomial (no library call, so the lanes stay one vector).
+LL_INLINE void bt_neighbours(LL_GLOBAL const scalar* mat, real x, real y, real z, real* slot, real* weight) {
   const int rings = (int)mat[3];
   LL_GLOBAL const scalar* ring = mat + BT_HEADER_SIZE;
   // theta from atan2, accurate at the pole and the horizon alike (acos loses half its digits near z = 1).
-  const scalar theta = atan2(sqrt(x * x + y * y), z);
-  int r0 = 0;
-  scalar t = 0;  // weight of ring r0 + 1
+  const real theta = ll_atan2(sqrt(x * x + y * y), z);
+  // The ring at or below theta (the first inside the first ring, the last beyond the last) and the one above
+  // it, as their (count, first direction), and t, the weight of the one above.
+  real t = R(0.0);
+  real count0 = (real)ring[1], first0 = (real)ring[2];
+  real count1 = count0, first1 = first0;
   for (int r = 0; r + 1 < rings; ++r) {
-    const scalar lo = ring[BT_RING_STRIDE * r], hi = ring[BT_RING_STRIDE * (r + 1)];
-    if (theta >= lo) {
-      r0 = r;
-      t = theta >= hi ? (scalar)1 : (theta - lo) / (hi - lo);
-    }
+    LL_GLOBAL const scalar* lo = ring + BT_RING_STRIDE * r;
+    LL_GLOBAL const scalar* hi = lo + BT_RING_STRIDE;
+    const mask above = theta >= (real)lo[0];
+    const real tr = theta >= (real)hi[0] ? R(1.0) : (theta - (real)lo[0]) * (real)(1 / (hi[0] - lo[0]));
+    t = above ? tr : t;
+    count0 = above ? (real)lo[1] : count0;
+    first0 = above ? (real)lo[2] : first0;
+    count1 = above ? (real)hi[1] : count1;
+    first1 = above ? (real)hi[2] : first1;
   }
-  if (rings == 1 || theta < ring[0]) t = 0;  // inside the first ring: its directions alone
-  scalar phi = atan2(y, x);
-  if (phi < 0) phi += (scalar)(2 * 3.14159265358979323846);
+  real phi = ll_atan2(y, x);
+  phi = phi < R(0.0) ? phi + R(2 * 3.14159265358979323846) : phi;
   for (int side = 0; side < 2; ++side) {
-    LL_GLOBAL const scalar* rr = ring + BT_RING_STRIDE * (side == 0 ? r0 : (r0 + 1 < rings ? r0 + 1 : r0));
-    const int count = (int)rr[1], first = (int)rr[2];
-    const scalar p = phi * (scalar)count * (scalar)(0.5 / 3.14159265358979323846);
-    const scalar p0 = floor(p);
-    const scalar s = p - p0;
-    int j0 = (int)p0;
-    j0 = j0 >= count ? j0 - count : j0;  // phi rounds up to 2 pi
-    const int j1 = j0 + 1 == count ? 0 : j0 + 1;
-    const scalar w = side == 0 ? 1 - t : t;
+    const real count = side == 0 ? count0 : count1, first = side == 0 ? first0 : first1;
+    const real p = phi * count * R(0.5 / 3.14159265358979323846);
+    const real p0 = floor(p);
+    const real s = p - p0;
+    const real j0 = p0 >= count ? p0 - count : p0;  // phi rounds up to 2 pi
+    const real j1 = j0 + R(1.0) == count ? R(0.0) : j0 + R(1.0);
+    const real w = side == 0 ? R(1.0) - t : t;
     slot[2 * side] = first + j0;
     slot[2 * side + 1] = first + j1;
-    weight[2 * side] = w * (1 - s);
+    weight[2 * side] = w * (R(1.0) - s);
     weight[2 * side + 1] = w * s;
   }
 }
@@ -103,85 +109,195 @@ LL_INLINE int bt_footprint(LL_GLOBAL const scalar* mat, int textured, scalar u, 
   return 4;
 }
 
-// f of one query (scalar code: each query reads its own view slots and texels, so a work-item's lanes share
-// nothing to vectorise but the loops over components). textured = 0: the tile's mean (u, v unused).
-LL_INLINE void bt_eval_one(LL_GLOBAL const scalar* mat, int c, scalar wix, scalar wiy, scalar wiz, scalar wox,
-                           scalar woy, scalar woz, int textured, scalar u, scalar v, scalar* out) {
-  out[0] = out[1] = out[2] = 0;
-  const scalar ni = sqrt(wix * wix + wiy * wiy + wiz * wiz), no = sqrt(wox * wox + woy * woy + woz * woz);
-  wix /= ni, wiy /= ni, wiz /= ni;
-  wox /= no, woy /= no, woz /= no;
-  if (!(wiz > (scalar)1e-7) || !(woz > (scalar)1e-7)) return;  // a reflection model (SPEC.md section 1)
+// Components are summed in blocks of BT_BLOCK as explicit vectors (OpenCL's scalar16, a GCC vector in C++):
+// a lane's query shares nothing else to vectorise (each reads its own view slots and texels), and PoCL leaves
+// loops over a block rolled, with their sums in memory.
+#define BT_BLOCK 16
+#ifdef __OPENCL_C_VERSION__
+#ifdef LL_FP64
+typedef double16 bt_block;
+typedef double8 bt_half_block;
+typedef double4 bt_quarter_block;
+#else
+typedef float16 bt_block;
+typedef float8 bt_half_block;
+typedef float4 bt_quarter_block;
+#endif
+#define BT_LOAD(v, p) ((v) = vload16(0, p))
+#define BT_ZERO(v) ((v) = (bt_block)(0))
+LL_INLINE scalar bt_sum(const bt_block* v) {
+  const bt_half_block a = v->lo + v->hi;
+  const bt_quarter_block b = a.lo + a.hi;
+  return (b.x + b.y) + (b.z + b.w);
+}
+#else
+typedef scalar bt_block __attribute__((vector_size(BT_BLOCK * sizeof(scalar))));
+#define BT_LOAD(v, p) __builtin_memcpy(&(v), (p), sizeof(bt_block))
+#define BT_ZERO(v) ((v) = bt_block{})
+LL_INLINE scalar bt_sum(const bt_block* v) {  // the same order as OpenCL's halving
+  scalar b[4];
+  for (int j = 0; j < 4; ++j) b[j] = ((*v)[j] + (*v)[j + 8]) + ((*v)[j + 4] + (*v)[j + 12]);
+  return (b[0] + b[1]) + (b[2] + b[3]);
+}
+#endif
+
+// f of one query given its view slots and light directions (bt_neighbours; slots as whole numbers) and its
+// (u, v). textured = 0: the tile's mean (u, v unused).
+LL_INLINE void bt_reconstruct(LL_GLOBAL const scalar* mat, int c, const scalar* view_slot, const scalar* view_w,
+                              const scalar* light_slot, const scalar* light_w, int textured, scalar u, scalar v,
+                              scalar* out) {
   const int kept = (int)mat[0], n = (int)mat[4];
   c = c < kept ? (c < 0 ? 0 : c) : kept;
-  const int stride = 1 + kept;
+  const int stride = 1 + kept, blocks = c / BT_BLOCK;
   LL_GLOBAL const scalar* weights = mat + bt_weights_offset(mat);
-  int view[4], light[4];
-  scalar view_w[4], light_w[4];
-  bt_neighbours(mat, wox, woy, woz, view, view_w);
-  bt_neighbours(mat, wix, wiy, wiz, light, light_w);
   int texel[4], block_offset, view_stride;
   scalar texel_w[4];
   const int texels = bt_footprint(mat, textured, u, v, texel, texel_w, &block_offset, &view_stride);
   LL_GLOBAL const scalar* block = mat + block_offset;
   const int texel_stride = 3 * stride;
-  scalar acc[3] = {0, 0, 0};
-  scalar gamma[BT_MAX_COMPONENTS];
-  scalar sum[1 + BT_MAX_COMPONENTS];
+  // The component terms stay elementwise until the end (summed over views, blocks and texels): one reduction
+  // per channel per query instead of one per view.
+  bt_block acc0, acc1, acc2;
+  BT_ZERO(acc0);
+  BT_ZERO(acc1);
+  BT_ZERO(acc2);
+  scalar total[3] = {0, 0, 0};
   for (int m = 0; m < 4; ++m) {
-    if (view_w[m] == 0) continue;
-    // Eq. 3: the four light directions' coefficients folded into one per component.
-    for (int k = 0; k < c; ++k) gamma[k] = 0;
-    for (int l = 0; l < 4; ++l) {
-      if (light_w[l] == 0) continue;
-      LL_GLOBAL const scalar* p = weights + (view[m] * n + light[l]) * kept;
-      const scalar w = light_w[l];
-      for (int k = 0; k < c; ++k) gamma[k] += w * p[k];
+    const scalar vw = view_w[m];
+    if (vw == 0) continue;
+    const int view = (int)view_slot[m];
+    LL_GLOBAL const scalar* slot = block + view * view_stride;
+    LL_GLOBAL const scalar* texel_data[4];
+    scalar w[4];  // the view's and the texels' weights together
+    for (int t = 0; t < texels; ++t) {
+      texel_data[t] = slot + texel[t] * texel_stride;
+      w[t] = vw * texel_w[t];
+      for (int ch = 0; ch < 3; ++ch) total[ch] += w[t] * texel_data[t][ch * stride];  // the view's mean
     }
-    LL_GLOBAL const scalar* slot = block + view[m] * view_stride;
-    for (int ch = 0; ch < 3; ++ch) {
-      // The texels' filter first, elementwise over (mean, components) (contiguous: it vectorises), then one
-      // dot product with gamma per channel, instead of one per texel.
-      for (int k = 0; k <= c; ++k) sum[k] = 0;
-      for (int t = 0; t < texels; ++t) {
-        LL_GLOBAL const scalar* e = slot + texel[t] * texel_stride + ch * stride;
-        const scalar w = texel_w[t];
-        for (int k = 0; k <= c; ++k) sum[k] += w * e[k];
+    LL_GLOBAL const scalar* light_p[4];
+    for (int l = 0; l < 4; ++l) light_p[l] = weights + (view * n + (int)light_slot[l]) * kept;
+    for (int b = 0; b < blocks; ++b) {
+      const int k0 = b * BT_BLOCK;
+      // Eq. 3: the four light directions' coefficients folded into one per component.
+      bt_block gamma, e, s0, s1, s2;
+      BT_ZERO(gamma);
+      for (int l = 0; l < 4; ++l) {
+        if (light_w[l] == 0) continue;
+        BT_LOAD(e, light_p[l] + k0);
+        gamma += light_w[l] * e;
       }
-      scalar value = sum[0];  // the view's mean (the PCA is mean-centred)
-      for (int k = 0; k < c; ++k) value += gamma[k] * sum[1 + k];
-      acc[ch] += view_w[m] * value;
+      // The texels' filter first, then the product with gamma: one multiply-add per texel and value.
+      BT_ZERO(s0);
+      BT_ZERO(s1);
+      BT_ZERO(s2);
+      for (int t = 0; t < texels; ++t) {
+        LL_GLOBAL const scalar* p = texel_data[t] + 1 + k0;
+        BT_LOAD(e, p);
+        s0 += w[t] * e;
+        BT_LOAD(e, p + stride);
+        s1 += w[t] * e;
+        BT_LOAD(e, p + 2 * stride);
+        s2 += w[t] * e;
+      }
+      acc0 += gamma * s0;
+      acc1 += gamma * s1;
+      acc2 += gamma * s2;
+    }
+    for (int k = blocks * BT_BLOCK; k < c; ++k) {  // the components beyond the last whole block
+      scalar gamma = 0;
+      for (int l = 0; l < 4; ++l) gamma += light_w[l] * light_p[l][k];
+      for (int ch = 0; ch < 3; ++ch) {
+        scalar sum = 0;
+        for (int t = 0; t < texels; ++t) sum += w[t] * texel_data[t][ch * stride + 1 + k];
+        total[ch] += gamma * sum;
+      }
     }
   }
+  const scalar value[3] = {total[0] + bt_sum(&acc0), total[1] + bt_sum(&acc1), total[2] + bt_sum(&acc2)};
   // The data are non-negative; a truncated PCA series can undershoot near zero, which no BTF value can be.
-  for (int ch = 0; ch < 3; ++ch) out[ch] = acc[ch] > 0 ? acc[ch] : 0;
+  for (int ch = 0; ch < 3; ++ch) out[ch] = value[ch] > 0 ? value[ch] : 0;
 }
 
-// The kernels' per-work-item function: each lane on its own (see bt_eval_one).
 #if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
+// A cache prefetch: clang's builtin (PoCL compiles with clang) emits the CPU's prefetch instruction; OpenCL's
+// own prefetch() is the portable fallback.
+#if defined(__has_builtin)
+#if __has_builtin(__builtin_prefetch)
+#define BT_PREFETCH(p) __builtin_prefetch(p)
+#endif
+#endif
+#ifndef BT_PREFETCH
+#define BT_PREFETCH(p) prefetch(p, 1)
+#endif
+
+// Starts loading what bt_reconstruct will read for one query (its view slots' texels and light weights), so
+// that the next lane's reads overlap this lane's arithmetic: random queries wait on memory, not on sums.
+LL_INLINE void bt_prefetch(LL_GLOBAL const scalar* mat, int c, const scalar* view_slot, const scalar* view_w,
+                           const scalar* light_slot, int textured, scalar u, scalar v) {
+  const int kept = (int)mat[0], n = (int)mat[4];
+  const int stride = 1 + kept, last = c < kept ? c : kept;
+  LL_GLOBAL const scalar* weights = mat + bt_weights_offset(mat);
+  int texel[4], block_offset, view_stride;
+  scalar texel_w[4];
+  const int texels = bt_footprint(mat, textured, u, v, texel, texel_w, &block_offset, &view_stride);
+  for (int m = 0; m < 4; ++m) {
+    if (view_w[m] == 0) continue;
+    const int view = (int)view_slot[m];
+    LL_GLOBAL const scalar* slot = mat + block_offset + view * view_stride;
+    for (int t = 0; t < texels; ++t)
+      for (int ch = 0; ch < 3; ++ch) {
+        LL_GLOBAL const scalar* p = slot + texel[t] * 3 * stride + ch * stride;
+        BT_PREFETCH(p);
+        BT_PREFETCH(p + last);
+      }
+    for (int l = 0; l < 4; ++l) {
+      LL_GLOBAL const scalar* p = weights + (view * n + (int)light_slot[l]) * kept;
+      BT_PREFETCH(p);
+      BT_PREFETCH(p + (last > 0 ? last - 1 : 0));
+    }
+  }
+}
+#endif
+
+// The kernels' per-work-item function: the directions and their neighbours for every lane at once, then the
+// reconstruction lane by lane (see bt_reconstruct).
 LL_INLINE void bt_eval(LL_GLOBAL const scalar* mat, int c, real wix, real wiy, real wiz, real wox, real woy,
                        real woz, int textured, real u, real v, real* out) {
-  scalar in[8][LL_WIDTH], res[3][LL_WIDTH];
-  LL_CAT(vstore, LL_WIDTH)(wix, 0, in[0]);
-  LL_CAT(vstore, LL_WIDTH)(wiy, 0, in[1]);
-  LL_CAT(vstore, LL_WIDTH)(wiz, 0, in[2]);
-  LL_CAT(vstore, LL_WIDTH)(wox, 0, in[3]);
-  LL_CAT(vstore, LL_WIDTH)(woy, 0, in[4]);
-  LL_CAT(vstore, LL_WIDTH)(woz, 0, in[5]);
-  LL_CAT(vstore, LL_WIDTH)(u, 0, in[6]);
-  LL_CAT(vstore, LL_WIDTH)(v, 0, in[7]);
+  ll_normalize(&wix, &wiy, &wiz);
+  ll_normalize(&wox, &woy, &woz);
+  // A reflection model (SPEC.md section 1); lanes below the horizon (or not numbers) give 0.
+  const real lit = wiz > LL_HORIZON_EPS && woz > LL_HORIZON_EPS ? R(1.0) : R(0.0);
+  real view[4], view_w[4], light[4], light_w[4];
+  bt_neighbours(mat, wox, woy, woz, view, view_w);
+  bt_neighbours(mat, wix, wiy, wiz, light, light_w);
+#if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
+  scalar lane[19][LL_WIDTH], res[3][LL_WIDTH];
+  for (int m = 0; m < 4; ++m) {
+    LL_CAT(vstore, LL_WIDTH)(view[m], 0, lane[m]);
+    LL_CAT(vstore, LL_WIDTH)(view_w[m], 0, lane[4 + m]);
+    LL_CAT(vstore, LL_WIDTH)(light[m], 0, lane[8 + m]);
+    LL_CAT(vstore, LL_WIDTH)(light_w[m], 0, lane[12 + m]);
+  }
+  LL_CAT(vstore, LL_WIDTH)(u, 0, lane[16]);
+  LL_CAT(vstore, LL_WIDTH)(v, 0, lane[17]);
+  LL_CAT(vstore, LL_WIDTH)(lit, 0, lane[18]);
   for (int i = 0; i < LL_WIDTH; ++i) {
-    scalar f[3];
-    bt_eval_one(mat, c, in[0][i], in[1][i], in[2][i], in[3][i], in[4][i], in[5][i], textured, in[6][i], in[7][i], f);
+    scalar vs[4], vws[4], ls[4], lws[4], f[3] = {0, 0, 0};
+    for (int m = 0; m < 4; ++m) vs[m] = lane[m][i], vws[m] = lane[4 + m][i], ls[m] = lane[8 + m][i], lws[m] = lane[12 + m][i];
+    const int next = i + 1;
+    if (textured && next < LL_WIDTH && lane[18][next] != 0) {  // the tile means (no uv) stay in cache
+      scalar nvs[4], nvws[4], nls[4];
+      for (int m = 0; m < 4; ++m) nvs[m] = lane[m][next], nvws[m] = lane[4 + m][next], nls[m] = lane[8 + m][next];
+      bt_prefetch(mat, c, nvs, nvws, nls, textured, lane[16][next], lane[17][next]);
+    }
+    if (lane[18][i] != 0) bt_reconstruct(mat, c, vs, vws, ls, lws, textured, lane[16][i], lane[17][i], f);
     res[0][i] = f[0], res[1][i] = f[1], res[2][i] = f[2];
   }
   out[0] = LL_CAT(vload, LL_WIDTH)(0, res[0]);
   out[1] = LL_CAT(vload, LL_WIDTH)(0, res[1]);
   out[2] = LL_CAT(vload, LL_WIDTH)(0, res[2]);
-}
 #else
-LL_INLINE void bt_eval(LL_GLOBAL const scalar* mat, int c, real wix, real wiy, real wiz, real wox, real woy,
-                       real woz, int textured, real u, real v, real* out) {
-  bt_eval_one(mat, c, wix, wiy, wiz, wox, woy, woz, textured, u, v, out);
-}
+  out[0] = out[1] = out[2] = 0;
+  if (lit != 0) bt_reconstruct(mat, c, view, view_w, light, light_w, textured, u, v, out);
 #endif
+}

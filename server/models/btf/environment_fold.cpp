@@ -84,13 +84,12 @@ std::shared_ptr<const EnvironmentFold> EnvironmentFold::Make(std::shared_ptr<con
       if (!(z > 1e-7) || !(e.solid_angle > 0)) continue;
       if (e.radiance[0] <= 0 && e.radiance[1] <= 0 && e.radiance[2] <= 0) continue;
       if (visible && !visible(f, d)) continue;
-      int slot[4];
-      float weight[4];
+      float slot[4], weight[4];  // slots as whole numbers, as the kernel holds them
       bt_float::bt_neighbours(mat, float(Dot(d, frame.x)), float(Dot(d, frame.y)), float(z), slot, weight);
       const double scale = e.solid_angle * z;  // dw cos(theta_i)
       for (int m = 0; m < 4; ++m) {
         if (weight[m] == 0) continue;
-        for (int ch = 0; ch < 3; ++ch) g(Eigen::Index(3 * f + ch), slot[m]) += double(weight[m]) * scale * e.radiance[ch];
+        for (int ch = 0; ch < 3; ++ch) g(Eigen::Index(3 * f + ch), Eigen::Index(slot[m])) += double(weight[m]) * scale * e.radiance[ch];
       }
     }
   });
@@ -129,8 +128,7 @@ void EnvironmentFold::Radiance(const int frame[4], const double weight[4], const
   if (!(wo[2] > 1e-7)) return;  // a reflection model (SPEC.md section 1)
   const float* mat = tables_->data32().data();
   const int c = components_, stride = 1 + c, block_stride = 1 + kept_;
-  int view[4];
-  float view_w[4];
+  float view[4], view_w[4];  // slots as whole numbers, as the kernel holds them
   bt_float::bt_neighbours(mat, float(wo[0]), float(wo[1]), float(wo[2]), view, view_w);
 
   // The kernel's texel footprint: bilinear over the wrapped tile, or the tile-mean block.
@@ -149,7 +147,7 @@ void EnvironmentFold::Radiance(const int frame[4], const double weight[4], const
       std::fill(coefficient, coefficient + stride, 0.0);
       for (int f = 0; f < 4; ++f) {
         if (frame[f] < 0 || weight[f] == 0) continue;
-        const float* cf = coefficients_.data() + ((size_t(frame[f]) * views_ + view[m]) * 3 + ch) * stride;
+        const float* cf = coefficients_.data() + ((size_t(frame[f]) * views_ + size_t(view[m])) * 3 + ch) * stride;
         for (int k = 0; k < stride; ++k) coefficient[k] += weight[f] * cf[k];
       }
       // The texels' filter over (mean, components), then one dot product with (G, gamma), as the kernel does.

@@ -24,10 +24,10 @@ std::vector<double> Reference(const Workload& w, size_t n, size_t threads) {
   return f;
 }
 
-void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const Workload& w, std::vector<double>* f) {
+void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const Workload& w, std::vector<double>* f, double* kernel_seconds) {
   std::string error;
   if (!rt.RunSingle(w.model, w.material, fp64, w.pairs.wi.data(), w.pairs.wo.data(), w.uv, w.pairs.size(), f,
-                    &error)) {
+                    &error, models::Quantity::kScattering, kernel_seconds)) {
     std::fprintf(stderr, "OpenCL launch failed: %s\n", error.c_str());
     std::exit(1);
   }

@@ -23,7 +23,8 @@ struct Workload {
 std::vector<double> Reference(const Workload& w, size_t n, size_t threads);
 
 // The OpenCL kernel over all pairs in one launch; f receives 3 values per pair. Exits on a failed launch.
-void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const Workload& w, std::vector<double>* f);
+void RunOpenCl(runtime::ClRuntime& rt, bool fp64, const Workload& w, std::vector<double>* f,
+               double* kernel_seconds = nullptr);
 
 // The native float baseline over all pairs (all hardware threads).
 void RunNative(const Workload& w, std::vector<float>* f);

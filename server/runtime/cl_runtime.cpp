@@ -1,6 +1,7 @@
 #include "server/runtime/cl_runtime.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cctype>
 #include <cstdlib>
 #include <cstring>
@@ -288,14 +289,14 @@ bool ClRuntime::Warm(const models::Registry& registry, std::string* error) {
 
 bool ClRuntime::RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
                           const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error,
-                          models::Quantity quantity) {
-  const std::vector<int> index(n, 0);
+                          models::Quantity quantity, double* kernel_seconds) {
   const std::vector<const models::PackedMaterial*> materials = {&m};
   const LaunchArgs args{.model = &model, .fp64 = fp64, .uniform = m.uniform, .materials = &materials,
-                        .material_index = &index, .wi = wi, .wo = wo, .uv = uv, .n = n, .quantity = quantity};
+                        .material_index = nullptr, .wi = wi, .wo = wo, .uv = uv, .n = n, .quantity = quantity};
   LaunchResults results;
   if (!Run(args, &results, error)) return false;
-  f->assign(3 * n, 0.0);
+  if (kernel_seconds) *kernel_seconds = results.kernel_seconds();
+  f->resize(3 * n);  // Write sets every value
   results.Write(0, n, ResultSink{.f64 = f->data()}, 0);
   return true;
 }
@@ -360,7 +361,7 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   int group_m = -1;
   size_t lanes = 0;
   for (size_t q = 0; q < a.n; ++q) {
-    const int m = (*a.material_index)[q];
+    const int m = a.material_index ? (*a.material_index)[q] : 0;
     if (lanes % width != 0 && m != group_m) lanes += width - lanes % width;
     if (lanes % width == 0) {
       group_offset.push_back(static_cast<int>(offset[m]));
@@ -449,6 +450,7 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   clSetKernelArg(k, 6, sizeof(cl_mem), &out);
   clSetKernelArg(k, 7, sizeof(cl_int), &nlanes);
   const size_t global = lanes / width;
+  const auto enqueued = std::chrono::steady_clock::now();
   err = clEnqueueNDRangeKernel(target.queue, k, 1, nullptr, &global, &items_per_group, 0, nullptr, nullptr);
   if (err != CL_SUCCESS) {
     *error = ClError("clEnqueueNDRangeKernel", err);
@@ -457,6 +459,7 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
   results->lanes = lanes;
   if (target.staged) {  // the kernel wrote into the staging's host memory (the device is this CPU)
     err = clFinish(target.queue);
+    results->kernel_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - enqueued).count();
     const char* host = reinterpret_cast<const char*>(target.staging[5].host.data());
     if (a.fp64) {
       results->f64.resize(3 * lanes);
@@ -465,17 +468,23 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
       results->f32.resize(3 * lanes);
       std::memcpy(results->f32.data(), host, 3 * lanes * sizeof(float));
     }
-  } else if (a.fp64) {
-    results->f64.resize(3 * lanes);
-    err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(double), results->f64.data(), 0, nullptr,
-                              nullptr);
   } else {
-    results->f32.resize(3 * lanes);
-    err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(float), results->f32.data(), 0, nullptr,
-                              nullptr);
+    err = clFinish(target.queue);
+    results->kernel_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - enqueued).count();
+    if (err == CL_SUCCESS) {
+      if (a.fp64) {
+        results->f64.resize(3 * lanes);
+        err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(double), results->f64.data(), 0,
+                                  nullptr, nullptr);
+      } else {
+        results->f32.resize(3 * lanes);
+        err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(float), results->f32.data(), 0,
+                                  nullptr, nullptr);
+      }
+    }
   }
   if (err != CL_SUCCESS) {
-    *error = ClError("clEnqueueReadBuffer", err);
+    *error = ClError(target.staged ? "clFinish" : "clEnqueueReadBuffer", err);
     return false;
   }
   return true;

@@ -37,7 +37,7 @@ struct LaunchArgs {
   bool fp64 = false;
   int uniform = 0;
   const std::vector<const models::PackedMaterial*>* materials = nullptr;
-  const std::vector<int>* material_index = nullptr;
+  const std::vector<int>* material_index = nullptr;  // nullptr: every query has materials[0]
   const float* wi = nullptr;
   const float* wo = nullptr;
   const float* uv = nullptr;  // nullptr: f(wi, wo)
@@ -59,6 +59,9 @@ class LaunchResults {
  public:
   // Writes the launch's queries [first, first + count) to the sink's queries [sink_first, sink_first + count).
   void Write(size_t first, size_t count, const ResultSink& sink, size_t sink_first) const;
+  // Wall time from the kernel's enqueue to its results being readable: the device's part of the launch,
+  // without the host's lane layout and copies.
+  double kernel_seconds() const { return kernel_seconds_; }
 
  private:
   friend class ClRuntime;
@@ -66,6 +69,7 @@ class LaunchResults {
   std::vector<double> f64;
   std::vector<size_t> lane_of;  // query -> lane
   size_t lanes = 0;
+  double kernel_seconds_ = 0;
 };
 
 class ClRuntime {
@@ -82,10 +86,10 @@ class ClRuntime {
 
   // Runs one launch. Thread-safe: launches are serialised.
   bool Run(const LaunchArgs& args, LaunchResults* results, std::string* error);
-  // One material for all n queries (uv nullptr: f(wi, wo)).
+  // One material for all n queries (uv nullptr: f(wi, wo)); kernel_seconds: LaunchResults::kernel_seconds.
   bool RunSingle(const models::Model& model, const models::PackedMaterial& m, bool fp64, const float* wi,
                  const float* wo, const float* uv, size_t n, std::vector<double>* f, std::string* error,
-                 models::Quantity quantity = models::Quantity::kScattering);
+                 models::Quantity quantity = models::Quantity::kScattering, double* kernel_seconds = nullptr);
 
   bool has_fp64() const { return has_fp64_; }
   const std::string& device_name() const { return main_.device_name; }

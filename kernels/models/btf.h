@@ -109,9 +109,9 @@ LL_INLINE int bt_footprint(LL_GLOBAL const scalar* mat, int textured, scalar u, 
   return 4;
 }
 
-// Components are summed in blocks of BT_BLOCK as explicit vectors (OpenCL's scalar16, a GCC vector in C++):
-// a lane's query shares nothing else to vectorise (each reads its own view slots and texels), and PoCL leaves
-// loops over a block rolled, with their sums in memory.
+// Components are summed in blocks of BT_BLOCK as explicit vectors (OpenCL's float16 or double16, a GCC vector
+// in C++): a lane's query shares nothing else to vectorise (each reads its own view slots and texels), and
+// PoCL leaves loops over a block rolled, with their sums in memory.
 #define BT_BLOCK 16
 #ifdef __OPENCL_C_VERSION__
 #ifdef LL_FP64
@@ -218,6 +218,50 @@ LL_INLINE void bt_reconstruct(LL_GLOBAL const scalar* mat, int c, const scalar* 
   for (int ch = 0; ch < 3; ++ch) out[ch] = value[ch] > 0 ? value[ch] : 0;
 }
 
+#if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
+// A cache prefetch: clang's builtin (PoCL compiles with clang) emits the CPU's prefetch instruction; OpenCL's
+// own prefetch() is the portable fallback.
+#if defined(__has_builtin)
+#if __has_builtin(__builtin_prefetch)
+#define BT_PREFETCH(p) __builtin_prefetch(p)
+#endif
+#endif
+#ifndef BT_PREFETCH
+#define BT_PREFETCH(p) prefetch(p, 1)
+#endif
+
+// Starts loading what bt_reconstruct will read for one query (its view slots' texels and light weights), so
+// that the next lane's reads overlap this lane's arithmetic: random queries wait on memory, not on sums.
+// Called only where the next lane's nearest view slot differs from this lane's: neighbouring queries of a
+// render or a slice share their view slots and nearby texels, already in cache, and would pay for the
+// prefetches' instructions alone.
+LL_INLINE void bt_prefetch(LL_GLOBAL const scalar* mat, int c, const scalar* view_slot, const scalar* view_w,
+                           const scalar* light_slot, int textured, scalar u, scalar v) {
+  const int kept = (int)mat[0], n = (int)mat[4];
+  const int stride = 1 + kept, last = c < kept ? c : kept;
+  LL_GLOBAL const scalar* weights = mat + bt_weights_offset(mat);
+  int texel[4], block_offset, view_stride;
+  scalar texel_w[4];
+  const int texels = bt_footprint(mat, textured, u, v, texel, texel_w, &block_offset, &view_stride);
+  for (int m = 0; m < 4; ++m) {
+    if (view_w[m] == 0) continue;
+    const int view = (int)view_slot[m];
+    LL_GLOBAL const scalar* slot = mat + block_offset + view * view_stride;
+    for (int t = 0; t < texels; ++t)
+      for (int ch = 0; ch < 3; ++ch) {
+        LL_GLOBAL const scalar* p = slot + texel[t] * 3 * stride + ch * stride;
+        BT_PREFETCH(p);
+        BT_PREFETCH(p + last);
+      }
+    for (int l = 0; l < 4; ++l) {
+      LL_GLOBAL const scalar* p = weights + (view * n + (int)light_slot[l]) * kept;
+      BT_PREFETCH(p);
+      BT_PREFETCH(p + (last > 0 ? last - 1 : 0));
+    }
+  }
+}
+#endif
+
 // The kernels' per-work-item function: the directions and their neighbours for every lane at once, then the
 // reconstruction lane by lane (see bt_reconstruct).
 LL_INLINE void bt_eval(LL_GLOBAL const scalar* mat, int c, real wix, real wiy, real wiz, real wox, real woy,
@@ -242,7 +286,16 @@ LL_INLINE void bt_eval(LL_GLOBAL const scalar* mat, int c, real wix, real wiy, r
   LL_CAT(vstore, LL_WIDTH)(lit, 0, lane[18]);
   for (int i = 0; i < LL_WIDTH; ++i) {
     scalar vs[4], vws[4], ls[4], lws[4], f[3] = {0, 0, 0};
-    for (int m = 0; m < 4; ++m) vs[m] = lane[m][i], vws[m] = lane[4 + m][i], ls[m] = lane[8 + m][i], lws[m] = lane[12 + m][i];
+    for (int m = 0; m < 4; ++m) {
+      vs[m] = lane[m][i], vws[m] = lane[4 + m][i];
+      ls[m] = lane[8 + m][i], lws[m] = lane[12 + m][i];
+    }
+    const int next = i + 1;
+    if (textured && next < LL_WIDTH && lane[18][next] != 0 && lane[0][next] != lane[0][i]) {
+      scalar nvs[4], nvws[4], nls[4];
+      for (int m = 0; m < 4; ++m) nvs[m] = lane[m][next], nvws[m] = lane[4 + m][next], nls[m] = lane[8 + m][next];
+      bt_prefetch(mat, c, nvs, nvws, nls, textured, lane[16][next], lane[17][next]);
+    }
     if (lane[18][i] != 0) bt_reconstruct(mat, c, vs, vws, ls, lws, textured, lane[16][i], lane[17][i], f);
     res[0][i] = f[0], res[1][i] = f[1], res[2][i] = f[2];
   }

@@ -114,21 +114,25 @@ TEST(BtfCompression, TargetPsnrKeepsTheFewestComponentsReachingIt) {
 }
 
 // The reconstruction at grid directions and texel centres is the PCA's: its RMS error against the images is
-// what the asset reports, for every component count.
-TEST(BtfKernels, GridDirectionsReproduceTheImagesWithinTheReportedError) {
-  const BtfImages im = LowRankImages(SmallGrid(), 6, 5, 3);
-  auto asset = Register(models::btf::Compress(im, {.max_components = 5}, nullptr, nullptr), "test_grid");
+// what the asset reports (from its eigenvalues), at each of these component counts.
+void ExpectGridDirectionsReproduceTheImages(const BtfImages& im, const models::btf::BtfAsset& asset,
+                                            std::initializer_list<int> components) {
   std::vector<float> wi, wo, uv;
   GridQueries(im, &wi, &wo, &uv);
   const size_t n = wi.size() / 3;
-  for (int c : {0, 1, 2, 5}) {
-    const models::PackedMaterial m = Pack(*asset, c);
+  for (int c : components) {
+    const models::PackedMaterial m = Pack(asset, c);
     std::vector<double> f(3 * n);
     BtfModel().ReferenceEval(m, wi.data(), wo.data(), uv.data(), n, f.data());
-    const double rms = Rms(f, im.f);
     // The tables are float32: 1e-6 of the values on top of the PCA's own error.
-    EXPECT_NEAR(rms, asset->errors[c].rmse, 1e-5 + 1e-3 * asset->errors[c].rmse) << "c = " << c;
+    EXPECT_NEAR(Rms(f, im.f), asset.errors[c].rmse, 1e-5 + 1e-3 * asset.errors[c].rmse) << "c = " << c;
   }
+}
+
+TEST(BtfKernels, GridDirectionsReproduceTheImagesWithinTheReportedError) {
+  const BtfImages im = LowRankImages(SmallGrid(), 6, 5, 3);
+  auto asset = Register(models::btf::Compress(im, {.max_components = 5}, nullptr, nullptr), "test_grid");
+  ExpectGridDirectionsReproduceTheImages(im, *asset, {0, 1, 2, 5});
 }
 
 // The same on Table 1's H1 grid with 24 components kept: c = 16 and 21 sum the components in the kernel's
@@ -140,15 +144,7 @@ TEST(BtfKernels, GridDirectionsReproduceTheImagesInBlocksOfComponents) {
   ASSERT_TRUE(found);
   auto asset = Register(models::btf::Compress(im, {.max_components = 24}, nullptr, nullptr), "test_grid_blocks");
   ASSERT_EQ(asset->components, 24);
-  std::vector<float> wi, wo, uv;
-  GridQueries(im, &wi, &wo, &uv);
-  const size_t n = wi.size() / 3;
-  for (int c : {15, 16, 21, 24}) {
-    const models::PackedMaterial m = Pack(*asset, c);
-    std::vector<double> f(3 * n);
-    BtfModel().ReferenceEval(m, wi.data(), wo.data(), uv.data(), n, f.data());
-    EXPECT_NEAR(Rms(f, im.f), asset->errors[c].rmse, 1e-5 + 1e-3 * asset->errors[c].rmse) << "c = " << c;
-  }
+  ExpectGridDirectionsReproduceTheImages(im, *asset, {15, 16, 21, 24});
   EXPECT_GT(asset->errors[21].rmse, 10 * asset->errors[24].rmse + 1e-4);  // c = 21 is not already exact
 }
 

@@ -285,18 +285,14 @@ LL_INLINE void bt_eval(LL_GLOBAL const scalar* mat, int c, real wix, real wiy, r
   LL_CAT(vstore, LL_WIDTH)(v, 0, lane[17]);
   LL_CAT(vstore, LL_WIDTH)(lit, 0, lane[18]);
   for (int i = 0; i < LL_WIDTH; ++i) {
-    scalar vs[4], vws[4], ls[4], lws[4], f[3] = {0, 0, 0};
-    for (int m = 0; m < 4; ++m) {
-      vs[m] = lane[m][i], vws[m] = lane[4 + m][i];
-      ls[m] = lane[8 + m][i], lws[m] = lane[12 + m][i];
-    }
     const int next = i + 1;
+    scalar nb[16], f[3] = {0, 0, 0};  // one lane's view slots, their weights, light slots, their weights
     if (textured && next < LL_WIDTH && lane[18][next] != 0 && lane[0][next] != lane[0][i]) {
-      scalar nvs[4], nvws[4], nls[4];
-      for (int m = 0; m < 4; ++m) nvs[m] = lane[m][next], nvws[m] = lane[4 + m][next], nls[m] = lane[8 + m][next];
-      bt_prefetch(mat, c, nvs, nvws, nls, textured, lane[16][next], lane[17][next]);
+      for (int k = 0; k < 16; ++k) nb[k] = lane[k][next];
+      bt_prefetch(mat, c, nb, nb + 4, nb + 8, textured, lane[16][next], lane[17][next]);
     }
-    if (lane[18][i] != 0) bt_reconstruct(mat, c, vs, vws, ls, lws, textured, lane[16][i], lane[17][i], f);
+    for (int k = 0; k < 16; ++k) nb[k] = lane[k][i];
+    if (lane[18][i] != 0) bt_reconstruct(mat, c, nb, nb + 4, nb + 8, nb + 12, textured, lane[16][i], lane[17][i], f);
     res[0][i] = f[0], res[1][i] = f[1], res[2][i] = f[2];
   }
   out[0] = LL_CAT(vload, LL_WIDTH)(0, res[0]);

@@ -457,9 +457,13 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
     return false;
   }
   results->lanes = lanes;
+  err = clFinish(target.queue);
+  results->kernel_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - enqueued).count();
+  if (err != CL_SUCCESS) {
+    *error = ClError("clFinish", err);
+    return false;
+  }
   if (target.staged) {  // the kernel wrote into the staging's host memory (the device is this CPU)
-    err = clFinish(target.queue);
-    results->kernel_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - enqueued).count();
     const char* host = reinterpret_cast<const char*>(target.staging[5].host.data());
     if (a.fp64) {
       results->f64.resize(3 * lanes);
@@ -468,23 +472,17 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
       results->f32.resize(3 * lanes);
       std::memcpy(results->f32.data(), host, 3 * lanes * sizeof(float));
     }
+  } else if (a.fp64) {
+    results->f64.resize(3 * lanes);
+    err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(double), results->f64.data(), 0, nullptr,
+                              nullptr);
   } else {
-    err = clFinish(target.queue);
-    results->kernel_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - enqueued).count();
-    if (err == CL_SUCCESS) {
-      if (a.fp64) {
-        results->f64.resize(3 * lanes);
-        err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(double), results->f64.data(), 0,
-                                  nullptr, nullptr);
-      } else {
-        results->f32.resize(3 * lanes);
-        err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(float), results->f32.data(), 0,
-                                  nullptr, nullptr);
-      }
-    }
+    results->f32.resize(3 * lanes);
+    err = clEnqueueReadBuffer(target.queue, out, CL_TRUE, 0, 3 * lanes * sizeof(float), results->f32.data(), 0, nullptr,
+                              nullptr);
   }
   if (err != CL_SUCCESS) {
-    *error = ClError(target.staged ? "clFinish" : "clEnqueueReadBuffer", err);
+    *error = ClError("clEnqueueReadBuffer", err);
     return false;
   }
   return true;

@@ -21,6 +21,8 @@ void Usage() {
                "  --tokens FILE              every call but health needs a bearer token listed in FILE\n"
                "                             (lines 'TOKEN CLIENT CALLS'; reloaded on SIGHUP; needs TLS)\n"
                "  --allow-plaintext-remote   allow plaintext on an address other than loopback\n"
+               "  --trusted-proxy ADDR[/BITS] believe X-Forwarded-For from this proxy (repeatable): fair share and\n"
+               "                             per-client limits then count the client it forwards, not the proxy\n"
                "  --platform NAME            OpenCL platform substring (env LOOMLIGHT_PLATFORM; default PoCL)\n"
                "  --device NAME              OpenCL device substring (env LOOMLIGHT_DEVICE; default first CPU)\n"
                "  --cache-dir DIR            PoCL kernel cache (POCL_CACHE_DIR; default ~/.cache/loomlight/pocl)\n"
@@ -46,8 +48,8 @@ void Usage() {
                "  --btf-store-mb N           all BTF assets together, in MiB (default 2048)\n"
                "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
                "  --max-long-calls N         TextureSlice, Tabulate and Render calls at once (default 16)\n"
-               "  --max-long-calls-per-client N  of them, one client's (its token's name, else its connection;\n"
-               "                             default 8)\n"
+               "  --max-long-calls-per-client N  of them, one client's (its token's name, else the address a\n"
+               "                             --trusted-proxy forwarded, else its connection; default 8)\n"
                "  --material-cache-mb N      packed materials kept, in MiB (default 64)\n"
                "  --fold-cache-mb N          BTF environment folds kept across renders, in MiB (default 128)\n"
                "  --upload-idle-seconds N    an UploadBtf that sends nothing for N s is cancelled (default 60)\n"
@@ -140,6 +142,12 @@ int main(int argc, char** argv) {
     else if (arg == "--tls-client-ca") options.access.tls_client_ca = value();
     else if (arg == "--tokens") options.access.tokens_file = value();
     else if (arg == "--allow-plaintext-remote") options.access.allow_plaintext_remote = true;
+    else if (arg == "--trusted-proxy") {
+      if (const std::string error = options.access.trusted_proxies.Add(value()); !error.empty()) {
+        std::fprintf(stderr, "error: %s\n", error.c_str());
+        return 2;
+      }
+    }
     else if (arg == "--platform") options.runtime.platform = value();
     else if (arg == "--device") options.runtime.device = value();
     else if (arg == "--cache-dir") options.runtime.cache_dir = value();

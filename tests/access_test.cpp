@@ -301,5 +301,124 @@ TEST(Access, ClientConnectsWithCaAndToken) {
   std::remove(token_file.c_str());
 }
 
+// A long-running call that holds its slot while the test runs: a large tabulation whose stream the client reads
+// only up to its first message (it is admitted), forwarded for `forwarded_for` when not empty. The call is
+// cancelled when the object goes.
+struct HeldTabulation {
+  HeldTabulation(v1::Loomlight::Stub& stub, const std::string& forwarded_for) {
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    if (!forwarded_for.empty()) context.AddMetadata("x-forwarded-for", forwarded_for);
+    v1::TabulateRequest request;
+    request.mutable_material()->set_preset("velvet");
+    v1::AnisotropicGrid* grid = request.mutable_anisotropic();
+    grid->set_theta_i_count(64);
+    grid->set_phi_i_count(64);
+    grid->set_theta_o_count(64);
+    grid->set_phi_o_count(64);  // 16.8 M cells: far more than the transport's windows hold unread
+    request.set_format(v1::TABLE_FORMAT_RAW);
+    reader = stub.Tabulate(&context, request);
+    v1::TabulateChunk first;
+    admitted = reader->Read(&first);
+    if (!admitted) status = reader->Finish();
+  }
+  ~HeldTabulation() {
+    if (!admitted) return;
+    context.TryCancel();
+    v1::TabulateChunk rest;
+    while (reader->Read(&rest)) {
+    }
+    reader->Finish();
+  }
+  grpc::ClientContext context;
+  std::unique_ptr<grpc::ClientReader<v1::TabulateChunk>> reader;
+  bool admitted = false;
+  grpc::Status status;  // why not, when refused
+};
+
+// Behind a load balancer every call comes from the proxy. A proxy the operator trusts (--trusted-proxy) names
+// the client in X-Forwarded-For, whose last entry (the one the proxy appended) is the client for fair share and
+// per-client limits; from anyone else the header is ignored, so a client cannot escape its limit by sending one.
+TEST(Access, TrustedProxiesNameTheClientsTheyForward) {
+  api::ServerOptions options;
+  options.limits.max_long_calls_per_client = 1;
+  ASSERT_EQ(options.access.trusted_proxies.Add("127.0.0.0/8"), "");
+  {
+    auto server = testing::StartInProcessServer(options);
+    ASSERT_TRUE(server);
+    auto stub = testing::Connect(server->port());  // one connection: the proxy's
+    HeldTabulation first(*stub, "198.51.100.7");
+    ASSERT_TRUE(first.admitted) << first.status.error_message();
+    // Another client behind the proxy (the client's own entry first, the proxy's last) has its own slot.
+    HeldTabulation other(*stub, "198.51.100.7, 203.0.113.9");
+    EXPECT_TRUE(other.admitted) << other.status.error_message();
+    // The first client again, whatever it claimed before the proxy's entry: its one slot is taken.
+    HeldTabulation again(*stub, "203.0.113.9,198.51.100.7");
+    EXPECT_FALSE(again.admitted);
+    EXPECT_EQ(again.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+    EXPECT_NE(again.status.error_message().find("forwarded:::ffff:198.51.100.7"), std::string::npos)
+        << again.status.error_message();
+  }
+  // Not a trusted proxy: the header changes nothing, the connection is the client.
+  options.access.trusted_proxies = api::TrustedProxies();
+  ASSERT_EQ(options.access.trusted_proxies.Add("10.0.0.0/8"), "");
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  HeldTabulation first(*stub, "198.51.100.7");
+  ASSERT_TRUE(first.admitted) << first.status.error_message();
+  HeldTabulation forged(*stub, "203.0.113.9");
+  EXPECT_FALSE(forged.admitted);
+  EXPECT_EQ(forged.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(forged.status.error_message().find("peer:"), std::string::npos) << forged.status.error_message();
+}
+
+TEST(Access, TrustedProxyBlocksAreParsed) {
+  api::TrustedProxies proxies;
+  EXPECT_EQ(proxies.Add("10.1.0.0/16"), "");
+  EXPECT_EQ(proxies.Add("2001:db8::/32"), "");
+  EXPECT_EQ(proxies.Add("192.0.2.1"), "");
+  EXPECT_TRUE(proxies.Contains("ipv4:10.1.255.3:5000"));
+  EXPECT_FALSE(proxies.Contains("ipv4:10.2.0.1:5000"));
+  EXPECT_TRUE(proxies.Contains("ipv6:[2001:db8:1::5]:443"));
+  EXPECT_FALSE(proxies.Contains("ipv6:[2001:db9::5]:443"));
+  EXPECT_TRUE(proxies.Contains("ipv4:192.0.2.1:1"));
+  EXPECT_FALSE(proxies.Contains("ipv4:192.0.2.2:1"));
+  EXPECT_TRUE(proxies.Contains("ipv6:[::ffff:10.1.0.9]:7"));  // IPv4 by way of an IPv6 socket
+  EXPECT_FALSE(proxies.Contains("unix:/run/loomlight.sock"));
+  for (const char* bad : {"", "10.1.0.0/33", "2001:db8::/129", "10.1.0.0/", "10.1.0.0/x", "proxy.example:80",
+                          "10.1.0.0/-1"})
+    EXPECT_NE(proxies.Add(bad), "") << bad;
+}
+
+// The long-call slot is given back before the client sees its call end, so a client whose limit is one can
+// start its next call the moment the last one ended.
+TEST(Access, ALongCallsSlotIsFreeWhenTheClientSeesItsEnd) {
+  api::ServerOptions options;
+  options.limits.max_long_calls_per_client = 1;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  v1::TabulateRequest request;
+  request.mutable_material()->set_preset("velvet");
+  v1::AnisotropicGrid* grid = request.mutable_anisotropic();
+  grid->set_theta_i_count(2);
+  grid->set_phi_i_count(2);
+  grid->set_theta_o_count(2);
+  grid->set_phi_o_count(2);
+  int refused = 0;
+  for (int i = 0; i < 200; ++i) {
+    grpc::ClientContext context;
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(20));
+    auto reader = stub->Tabulate(&context, request);
+    v1::TabulateChunk message;
+    while (reader->Read(&message)) {
+    }
+    const grpc::Status status = reader->Finish();
+    if (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED) ++refused;
+    else EXPECT_TRUE(status.ok()) << status.error_message();
+  }
+  EXPECT_EQ(refused, 0);
+}
+
 }  // namespace
 }  // namespace loomlight

@@ -11,6 +11,10 @@
 #  3. A rerun resumes: it skips the outputs that exist and redoes the 10 that were removed.
 #  4. The same batch with the client's own round_robin over the three addresses (one dead since step 2) and a
 #     second replica killed in the middle: the same guarantees, without HAProxy.
+#  5. Fair share sees through the proxy: a replica started with --trusted-proxy and one long call per client,
+#     behind HAProxy. While a long render through HAProxy holds the client's slot, a second call through HAProxy
+#     is refused RESOURCE_EXHAUSTED naming the client as HAProxy forwarded it (X-Forwarded-For), and the same
+#     call made to the replica directly, on a connection of its own, is admitted.
 #
 # usage: scale_out_test.sh LOOMLIGHT_SERVER_BINARY LOOMLIGHT_CLIENT_BINARY
 set -euo pipefail
@@ -60,9 +64,10 @@ next_free_port() {
 # Starts a replica on a port of its own choosing (--address 127.0.0.1:0, so no port can be taken meanwhile);
 # sets replica_pid[NAME], replica_port[NAME] and replica_metrics[NAME] from its first lines.
 declare -A replica_pid=() replica_port=() replica_metrics=()
-start_replica() {
+start_replica() {  # NAME [SERVER_ARGUMENTS...]
   local name=$1 log="$work/$1.log"
-  "$server_binary" --address 127.0.0.1:0 --metrics-address 127.0.0.1:0 >"$log" 2>&1 &
+  shift
+  "$server_binary" --address 127.0.0.1:0 --metrics-address 127.0.0.1:0 "$@" >"$log" 2>&1 &
   replica_pid[$name]=$!
   started_pids+=($!)
 }
@@ -151,8 +156,9 @@ replica_bulk_calls() {
 start_replica replica1
 start_replica replica2
 start_replica replica3
-for r in replica1 replica2 replica3; do read_replica_ports $r; done
-for r in replica1 replica2 replica3; do wait_serving $r; done
+start_replica forwarded --trusted-proxy 127.0.0.1 --max-long-calls-per-client 1  # step 5's
+for r in replica1 replica2 replica3 forwarded; do read_replica_ports $r; done
+for r in replica1 replica2 replica3 forwarded; do wait_serving $r; done
 address() { echo "127.0.0.1:${replica_port[$1]}"; }
 echo "replicas SERVING on $(address replica1), $(address replica2), $(address replica3) after $(($(date +%s) - started)) s"
 
@@ -330,5 +336,36 @@ check_batch round-robin "$work/round-robin-out"
 # Both live replicas served the batch: replica3 until it was killed, replica1 throughout.
 ((victim_calls_before_kill > replica3_calls_before)) || fail "round-robin: replica3 served no call before the kill"
 (($(replica_bulk_calls replica1) > replica1_calls_before)) || fail "round-robin: replica1 served no call"
+
+echo "round-robin: replica1 and replica3 served the batch"
+
+# ---- 5. fair share counts the clients behind the proxy ----
+
+start_haproxy haproxy-forwarded.log "$(address forwarded)" "$(address forwarded)" "$(address forwarded)"
+wait_server_state replica1 UP
+"$client_binary" --server "127.0.0.1:$haproxy_port" --timeout 300 render --preset velvet --size 1024x1024 \
+  --spp 64 --out "$work/long.png" >"$work/long-render.log" 2>&1 &
+long_render_pid=$!
+started_pids+=($!)
+in_flight=0
+for ((i = 0; i < 100 && in_flight == 0; ++i)); do
+  for r in replica1 replica2 replica3; do in_flight=$((in_flight + $(haproxy_stat loomlight_replicas $r scur))); done
+  kill -0 "$long_render_pid" 2>/dev/null || fail "forwarded: the long render ended: $(head -c 400 "$work/long-render.log")"
+  sleep 0.1
+done
+((in_flight > 0)) || fail "forwarded: the long render never reached the replica"
+sleep 1  # admitted by now (admission is the handler's first step)
+kill -0 "$long_render_pid" 2>/dev/null || fail "forwarded: the long render ended early: $(cat "$work/long-render.log")"
+second="render --preset velvet --size 32x32 --spp 1"
+if "$client_binary" --server "127.0.0.1:$haproxy_port" $second --out "$work/second.png" >"$work/second.log" 2>&1; then
+  fail "forwarded: a second long call through HAProxy was admitted beside the client's first (limit 1)"
+fi
+grep -q "RESOURCE_EXHAUSTED" "$work/second.log" && grep -q "forwarded:::ffff:127.0.0.1" "$work/second.log" ||
+  fail "forwarded: the refusal does not name the forwarded client: $(head -c 400 "$work/second.log")"
+"$client_binary" --server "$(address forwarded)" $second --out "$work/direct.png" >"$work/direct.log" 2>&1 ||
+  fail "forwarded: the direct call (its own connection) was refused: $(head -c 400 "$work/direct.log")"
+kill -TERM "$long_render_pid" 2>/dev/null || true
+echo "forwarded: behind HAProxy the client is its forwarded address; a second long call refused, a direct one admitted"
+stop_haproxy
 
 echo "PASS in $(($(date +%s) - started)) s"

@@ -1,9 +1,13 @@
 #include "server/api/access.h"
 
+#include <arpa/inet.h>
 #include <grpcpp/security/server_credentials.h>
+
+#include <cstring>
 
 #include <fstream>
 #include <sstream>
+#include <string_view>
 
 namespace loomlight::api {
 namespace {
@@ -20,7 +24,83 @@ bool EqualInConstantTime(const std::string& a, const std::string& b) {
   return difference == 0;
 }
 
+// An IPv4 or IPv6 address as 16 bytes (IPv4 mapped into IPv6), or false.
+bool ParseAddress(const std::string& text, std::array<uint8_t, 16>* out) {
+  in_addr v4;
+  if (inet_pton(AF_INET, text.c_str(), &v4) == 1) {
+    out->fill(0);
+    (*out)[10] = (*out)[11] = 0xff;
+    std::memcpy(out->data() + 12, &v4, 4);
+    return true;
+  }
+  in6_addr v6;
+  if (inet_pton(AF_INET6, text.c_str(), &v6) == 1) {
+    std::memcpy(out->data(), &v6, 16);
+    return true;
+  }
+  return false;
+}
+
+// The host of a gRPC peer string ("ipv4:10.0.0.7:41234", "ipv6:[::1]:41234"); "" for others (unix sockets).
+std::string PeerHost(const std::string& peer) {
+  std::string rest;
+  if (peer.rfind("ipv4:", 0) == 0 || peer.rfind("ipv6:", 0) == 0) rest = peer.substr(5);
+  else return "";
+  const size_t colon = rest.rfind(':');
+  if (colon == std::string::npos) return "";
+  rest.resize(colon);
+  if (rest.size() >= 2 && rest.front() == '[' && rest.back() == ']') rest = rest.substr(1, rest.size() - 2);
+  // An IPv6 zone ("fe80::1%25eth0", percent-encoded) is not part of the address.
+  if (const size_t zone = rest.find('%'); zone != std::string::npos) rest.resize(zone);
+  return rest;
+}
+
+std::string Trim(std::string_view text) {
+  const size_t first = text.find_first_not_of(" \t");
+  if (first == std::string_view::npos) return "";
+  const size_t last = text.find_last_not_of(" \t");
+  return std::string(text.substr(first, last - first + 1));
+}
+
 }  // namespace
+
+std::string TrustedProxies::Add(const std::string& block) {
+  const size_t slash = block.find('/');
+  const std::string address = block.substr(0, slash);
+  Block parsed;
+  if (!ParseAddress(address, &parsed.address))
+    return "--trusted-proxy: '" + block.substr(0, 64) + "' is not ADDRESS or ADDRESS/BITS (an IPv4 or IPv6 address)";
+  const bool v4 = address.find(':') == std::string::npos;
+  const int max_bits = v4 ? 32 : 128;
+  int bits = max_bits;
+  if (slash != std::string::npos) {
+    const std::string text = block.substr(slash + 1);
+    char* end = nullptr;
+    const long n = std::strtol(text.c_str(), &end, 10);
+    if (text.empty() || *end || n < 0 || n > max_bits)
+      return "--trusted-proxy: '" + block.substr(0, 64) + "' needs a prefix length of 0.." +
+             std::to_string(max_bits);
+    bits = static_cast<int>(n);
+  }
+  parsed.bits = v4 ? bits + 96 : bits;  // an IPv4 block is a block of IPv4-mapped addresses
+  blocks_.push_back(parsed);
+  return "";
+}
+
+bool TrustedProxies::Contains(const std::string& peer) const {
+  std::array<uint8_t, 16> address;
+  if (blocks_.empty() || !ParseAddress(PeerHost(peer), &address)) return false;
+  for (const Block& block : blocks_) {
+    int bits = block.bits;
+    bool match = true;
+    for (int i = 0; i < 16 && bits > 0 && match; ++i, bits -= 8) {
+      const uint8_t mask = bits >= 8 ? 0xff : static_cast<uint8_t>(0xff << (8 - bits));
+      match = ((address[i] ^ block.address[i]) & mask) == 0;
+    }
+    if (match) return true;
+  }
+  return false;
+}
 
 bool ReadFile(const std::string& path, std::string* text, std::string* error) {
   std::ifstream in(path, std::ios::binary);
@@ -192,9 +272,26 @@ std::string ClientName(const grpc::ServerContextBase& context) {
   return "anonymous";
 }
 
-std::string FairShareKey(const grpc::ServerContextBase& context) {
+std::string FairShareKey(const grpc::ServerContextBase& context, const TrustedProxies& proxies) {
   std::string name = ClientName(context);
-  return name != "anonymous" ? "client:" + name : "peer:" + context.peer();
+  if (name != "anonymous") return "client:" + name;
+  const std::string peer = context.peer();
+  if (proxies.Contains(peer)) {
+    // The proxy appends its client last; whatever came before is the client's own say and not believed.
+    const grpc::string_ref* last = nullptr;
+    const auto range = context.client_metadata().equal_range("x-forwarded-for");
+    for (auto it = range.first; it != range.second; ++it) last = &it->second;
+    if (last) {
+      const std::string_view value(last->data(), last->size());
+      const size_t comma = value.rfind(',');
+      const std::string client = Trim(comma == std::string_view::npos ? value : value.substr(comma + 1));
+      std::array<uint8_t, 16> address;
+      char canonical[INET6_ADDRSTRLEN];  // one key per address, however the proxy spelled it
+      if (ParseAddress(client, &address) && inet_ntop(AF_INET6, address.data(), canonical, sizeof canonical))
+        return std::string("forwarded:") + canonical;
+    }
+  }
+  return "peer:" + peer;
 }
 
 }  // namespace loomlight::api

@@ -7,6 +7,8 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/security/auth_metadata_processor.h>
 
+#include <array>
+#include <cstdint>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -15,11 +17,33 @@
 
 namespace loomlight::api {
 
+// Proxies whose X-Forwarded-For the server believes (`--trusted-proxy`): a call from one of them is counted
+// against the client address the proxy forwarded, so fair share and per-client limits still tell apart the
+// clients behind a load balancer. A header from anyone else is ignored: clients cannot pick their own share.
+class TrustedProxies {
+ public:
+  // Adds a block, "ADDRESS/BITS" or one address (IPv4 or IPv6); "" or why not.
+  std::string Add(const std::string& block);
+  bool empty() const { return blocks_.empty(); }
+  // Whether a gRPC peer ("ipv4:10.0.0.7:41234", "ipv6:[::1]:41234") is in one of the blocks.
+  bool Contains(const std::string& peer) const;
+
+ private:
+  struct Block {
+    std::array<uint8_t, 16> address;  // IPv4 as IPv4-mapped IPv6
+    int bits;
+  };
+  std::vector<Block> blocks_;
+};
+
+inline const TrustedProxies kNoTrustedProxies;
+
 struct AccessOptions {
   std::string tls_cert, tls_key;  // PEM files; both or neither
   std::string tls_client_ca;      // PEM; set: clients must present a certificate it signed (mutual TLS)
   std::string tokens_file;        // set: every call but health needs a bearer token listed there (needs TLS)
   bool allow_plaintext_remote = false;  // plaintext on an address other than loopback
+  TrustedProxies trusted_proxies;       // load balancers whose X-Forwarded-For names the client
 };
 
 // The auth context property carrying the caller's name (set by TokenTable's processor or taken from the
@@ -81,8 +105,10 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
 std::string ClientName(const grpc::ServerContextBase& context);
 
 // Whom fair share and per-client limits count a call against: its client's name when the caller is known
-// (token or certificate), else its connection (peer address and port).
-std::string FairShareKey(const grpc::ServerContextBase& context);
+// (token or certificate); else, for a call from a trusted proxy, the client address in the last entry of its
+// X-Forwarded-For (the one the proxy appended); else its connection (peer address and port). Computed once per
+// call: it looks up the auth context and the metadata.
+std::string FairShareKey(const grpc::ServerContextBase& context, const TrustedProxies& proxies);
 
 // Reads a whole file; false with *error when it cannot.
 bool ReadFile(const std::string& path, std::string* text, std::string* error);

@@ -66,11 +66,18 @@ class ClientSlots {
   std::unordered_map<std::string, size_t> held_;
 };
 
-// What an admitted call holds; released when the call object holding it is destroyed.
+// What an admitted call holds; released when the call object holding it is destroyed, the slots earlier by
+// EndSlots.
 struct Admission {
   ClientSlots::Hold client_slot;        // long-running calls only
   batching::Budget::Reservation slot;   // long-running calls only
   batching::Budget::Reservation bytes;  // the call's buffers (may grow, e.g. by a decoded environment map)
+  // Gives back the slots as the call finishes (its work is over; its buffers go with the call object, later, on
+  // a worker): a client that starts its next call the moment it sees this one end must find its slot free.
+  void EndSlots() {
+    client_slot.Release();
+    slot.Release();
+  }
 };
 
 // Reserves `bytes` (and a slot from `slots` when not null). Returns OK or RESOURCE_EXHAUSTED saying which

@@ -218,7 +218,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     plan_ = std::make_unique<models::EvaluationPlan>(*prepared_, wi_.data(), wo_.data(), uv_.data(), n * texels);
     job_in_flight_ = plan_->parts();
     SubmitPlan(deps_.batcher, *plan_, runtime::ResultSink{.f32 = images_.image(v, 0)}, false,
-               batching::Priority::kBulk, deadline_, context_, [this](size_t k, batching::JobResult result) {
+               batching::Priority::kBulk, deadline_, context_, client_, [this](size_t k, batching::JobResult result) {
                  Post([this, k, result = std::move(result)] { OnViewDone(k, result); });
                });
   }
@@ -422,6 +422,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   void Finish(const grpc::Status& s) {
     deps_.idle_uploads->Forget(idle_);  // an error before the end of the stream
     deps_.metrics->Call(kUploadRpc, s.error_code(), SecondsSince(received_));
+    admission_.EndSlots();
     grpc::ServerReadReactor<v1::UploadBtfMessage>::Finish(s);
   }
 

@@ -41,13 +41,14 @@ inline grpc::Status StopStatus(grpc::CallbackServerContext* context, batching::C
   return {grpc::StatusCode::CANCELLED, "call cancelled"};
 }
 
-// A job evaluating n queries (uv nullptr: f(wi, wo)) of one packed material into `sink`, stopped before launch
-// by the call's deadline or cancellation; the caller sets `done`. The material, the arrays and the sink's
-// buffers must outlive the job.
+// A job evaluating n queries (uv nullptr: f(wi, wo)) of one packed material into `sink` for `client` (the call's
+// FairShareKey), stopped before launch by the call's deadline or cancellation; the caller sets `done`. The
+// material, the arrays and the sink's buffers must outlive the job.
 inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const models::PackedMaterial& material,
                                              bool fp64, batching::Clock::time_point deadline,
-                                             grpc::CallbackServerContext* context, const float* wi, const float* wo,
-                                             const float* uv, size_t n, const runtime::ResultSink& sink) {
+                                             grpc::CallbackServerContext* context, const std::string& client,
+                                             const float* wi, const float* wo, const float* uv, size_t n,
+                                             const runtime::ResultSink& sink) {
   auto job = std::make_shared<batching::Job>();
   job->model = model;
   job->fp64 = fp64;
@@ -59,7 +60,7 @@ inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const m
   job->n = n;
   job->deadline = deadline;
   job->cancelled = [context] { return context->IsCancelled(); };
-  job->client = FairShareKey(*context);
+  job->client = client;
   return job;
 }
 
@@ -71,7 +72,7 @@ inline std::shared_ptr<batching::Job> NewJob(const models::Model* model, const m
 // kResourceExhausted) for a part that could not be queued, and for every part after it.
 inline void SubmitPlan(batching::Batcher* batcher, const models::EvaluationPlan& plan, const runtime::ResultSink& sink,
                        bool fp64, batching::Priority priority, batching::Clock::time_point deadline,
-                       grpc::CallbackServerContext* context,
+                       grpc::CallbackServerContext* context, const std::string& client,
                        const std::function<void(size_t part, batching::JobResult)>& done) {
   batching::JobResult refused;
   for (size_t k = 0; k < plan.parts(); ++k) {
@@ -86,8 +87,8 @@ inline void SubmitPlan(batching::Batcher* batcher, const models::EvaluationPlan&
     runtime::ResultSink part_sink = sink;
     part_sink.slot = plan.slots(k);
     part_sink.scale = plan.scale(k);
-    auto job = NewJob(&plan.model(k), plan.packed(k), fp64, deadline, context, plan.wi(k), plan.wo(k), plan.uv(k),
-                      plan.size(k), part_sink);
+    auto job = NewJob(&plan.model(k), plan.packed(k), fp64, deadline, context, client, plan.wi(k), plan.wo(k),
+                      plan.uv(k), plan.size(k), part_sink);
     job->quantity = plan.quantity();
     job->priority = priority;
     job->done = [done, k](batching::JobResult r) { done(k, std::move(r)); };

@@ -580,7 +580,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     for (size_t e = 0; e < plan_.evaluators.size(); ++e) {
       if (!chunk.plans[e]) continue;
       SubmitPlan(deps_.batcher, *chunk.plans[e], runtime::ResultSink{.f64 = chunk.f[e].data()}, fp64_,
-                 batching::Priority::kBulk, deadline_, context_, [this, index, e](size_t k, batching::JobResult r) {
+                 batching::Priority::kBulk, deadline_, context_, client_, [this, index, e](size_t k, batching::JobResult r) {
                    Post([this, index, e, k, r = std::move(r)] { OnJobDone(index, e, k, r); });
                  });
     }

@@ -44,6 +44,7 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   deps.long_calls = s->long_calls_.get();
   deps.environments = s->environments_.get();
   deps.btf_store = s->btf_store_.get();
+  deps.trusted_proxies = &s->options_.access.trusted_proxies;
   s->service_ = std::make_unique<LoomlightService>(deps, options.limits);
   if (!options.metrics_address.empty()) {
     *error = s->metrics_->Serve(options.metrics_address, options.access, s->tokens_);

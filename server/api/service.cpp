@@ -100,9 +100,12 @@ grpc::Status LoomlightService::Serving() const {
 
 grpc::Status AdmitLongCall(const ServiceDeps& deps, const grpc::ServerContextBase& context, size_t bytes,
                            Admission* out) {
-  if (!deps.client_long_calls->TryTake(FairShareKey(context), &out->client_slot))
+  // The key is the caller's own name or address (a proxy's client: as the proxy forwarded it), cut short.
+  const std::string client = FairShareKey(context, *deps.trusted_proxies);
+  if (!deps.client_long_calls->TryTake(client, &out->client_slot))
     return {grpc::StatusCode::RESOURCE_EXHAUSTED,
-            "this client is running its limit of " + std::to_string(deps.client_long_calls->per_client()) +
+            "this client (" + client.substr(0, 80) + ") is running its limit of " +
+                std::to_string(deps.client_long_calls->per_client()) +
                 " long-running calls (TextureSlice, Tabulate, Render, YarnGeometry) at once; retry when one ends"};
   return Admit(deps.memory, deps.long_calls, bytes, out);
 }

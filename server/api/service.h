@@ -7,6 +7,7 @@
 #include <memory>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
+#include "server/api/access.h"
 #include "server/api/admission.h"
 #include "server/api/host_worker.h"
 #include "server/api/idle_streams.h"
@@ -66,6 +67,7 @@ struct ServiceDeps {
   assets::EnvironmentMaps* environments = nullptr;
   assets::BtfStore* btf_store = nullptr;  // null: the server keeps no BTF assets
   IdleStreams* idle_uploads = nullptr;     // UploadBtf calls, cut off when they stop sending
+  const TrustedProxies* trusted_proxies = &kNoTrustedProxies;  // whose X-Forwarded-For names the client
 };
 
 // Packs a material its handler checked with MaterialCache::Peek; on a worker, never on a gRPC thread (packing

@@ -33,7 +33,7 @@ class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
   WorkerStreamCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, const char* rpc,
                    batching::Clock::time_point received, Admission admission)
       : deps_(deps), context_(context), rpc_(rpc), received_(received), deadline_(CallDeadline(context, received)),
-        client_(FairShareKey(*context)), admission_(std::move(admission)) {}
+        client_(FairShareKey(*context, *deps.trusted_proxies)), admission_(std::move(admission)) {}
 
   // Runs `task` on the host worker in the call's turn among clients; every task of the call goes through here
   // (the worker keeps order only within a client, and `delete this` must run last).
@@ -51,6 +51,7 @@ class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
     finished_ = true;
     deps_.metrics->Call(rpc_, status.error_code(),
                         std::chrono::duration<double>(batching::Clock::now() - received_).count());
+    admission_.EndSlots();
     this->Finish(status);
   }
 
@@ -59,8 +60,8 @@ class WorkerStreamCall : public grpc::ServerWriteReactor<Message> {
   const char* const rpc_;
   const batching::Clock::time_point received_;
   const batching::Clock::time_point deadline_;
-  const std::string client_;
-  Admission admission_;  // the call's slot and bytes, released with the call
+  const std::string client_;  // FairShareKey
+  Admission admission_;  // the call's slots (given back as it finishes) and bytes (released with the call)
   grpc::Status status_;  // not OK once the call is to end with an error (after what is in flight returns)
   bool write_in_flight_ = false;
   bool stream_broken_ = false;  // a write failed

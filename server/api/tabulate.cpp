@@ -251,7 +251,7 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     next_query_ += count;
     chunk.jobs_in_flight = chunk.plan->parts();
     SubmitPlan(deps_.batcher, *chunk.plan, runtime::ResultSink{.f64 = chunk.f.data()}, fp64_,
-               batching::Priority::kBulk, deadline_, context_, [this, &chunk](size_t k, batching::JobResult result) {
+               batching::Priority::kBulk, deadline_, context_, client_, [this, &chunk](size_t k, batching::JobResult result) {
                  Post([this, &chunk, k, result = std::move(result)] { OnJobDone(chunk, k, result); });
                });
   }

@@ -103,6 +103,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
       : deps_(deps),
         admission_(std::move(admission)),
         context_(context),
+        client_(FairShareKey(*context, *deps.trusted_proxies)),
         reactor_(context->DefaultReactor()),
         response_(response),
         material_(std::move(material)),
@@ -194,7 +195,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     chunk.plan = std::make_unique<models::EvaluationPlan>(*material_, wi_.data(), wo_.data(), chunk.uv.data(),
                                                           chunk.count);
     SubmitPlan(deps_.batcher, *chunk.plan, runtime::ResultSink{.f64 = chunk.f.data()}, fp64_,
-               batching::Priority::kInteractive, deadline_, context_,
+               batching::Priority::kInteractive, deadline_, context_, client_,
                [self = shared_from_this(), index](size_t, batching::JobResult result) {
                  self->deps_.worker->Post(
                      [self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
@@ -270,11 +271,15 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     return stop.ok();
   }
 
-  void Finish(const grpc::Status& status) { FinishUnary(deps_.metrics, reactor_, kRpc, received_, status); }
+  void Finish(const grpc::Status& status) {
+    admission_.EndSlots();
+    FinishUnary(deps_.metrics, reactor_, kRpc, received_, status);
+  }
 
   const TextureSliceDeps deps_;
-  Admission admission_;  // the call's slot and bytes, released with the call
+  Admission admission_;  // the call's slots (given back as it finishes) and bytes (released with the call)
   grpc::CallbackServerContext* const context_;
+  const std::string client_;  // FairShareKey
   grpc::ServerUnaryReactor* const reactor_;
   v1::TextureSliceResponse* const response_;
   std::shared_ptr<const models::PreparedMaterial> material_;  // set by Start

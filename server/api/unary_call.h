@@ -47,7 +47,7 @@ struct PlanCall {
            Response* response, batching::Clock::time_point received, bool fp64)
       : deps(&deps), rpc(rpc), context(context), request(request), response(response),
         reactor(context->DefaultReactor()), received(received), deadline(CallDeadline(context, received)),
-        fp64(fp64) {}
+        client(FairShareKey(*context, *deps.trusted_proxies)), fp64(fp64) {}
 
   // Sends the plan's parts (f, 3 per query, into `f`); when all have returned, the first failure finishes the
   // call, else `last_step` runs (inline on the batcher's thread when `small`, else on the preparer).
@@ -55,7 +55,7 @@ struct PlanCall {
   static void SubmitParts(const std::shared_ptr<Call>& call, float* f, bool small, void (Call::*last_step)()) {
     call->outcome.Expect(call->plan->parts());
     SubmitPlan(call->deps->batcher, *call->plan, runtime::ResultSink{.f32 = f}, call->fp64,
-               batching::Priority::kInteractive, call->deadline, call->context,
+               batching::Priority::kInteractive, call->deadline, call->context, call->client,
                [call, small, last_step](size_t k, batching::JobResult r) {
                  const models::EvaluationPlan& plan = *call->plan;
                  if (r.status == batching::JobStatus::kOk && r.batch_queries > 0)
@@ -89,6 +89,7 @@ struct PlanCall {
   Response* const response;
   grpc::ServerUnaryReactor* const reactor;
   const batching::Clock::time_point received, deadline;
+  const std::string client;  // FairShareKey
   const bool fp64;
   Admission admission;  // the call's bytes, held until the call object goes
   std::shared_ptr<const models::PreparedMaterial> material;

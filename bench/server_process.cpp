@@ -1,6 +1,7 @@
 #include "bench/server_process.h"
 
 #include <grpcpp/grpcpp.h>
+#include <sched.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -47,7 +48,7 @@ bool HealthServing(const std::string& address, const std::shared_ptr<grpc::Chann
 }  // namespace
 
 ChildServer::ChildServer(const std::vector<std::string>& extra_args,
-                         std::shared_ptr<grpc::ChannelCredentials> credentials) {
+                         std::shared_ptr<grpc::ChannelCredentials> credentials, int cpu) {
   if (!credentials) credentials = grpc::InsecureChannelCredentials();
   std::vector<std::string> args = {LOOMLIGHT_SERVER_BINARY, "--address", "127.0.0.1:0"};
   args.insert(args.end(), extra_args.begin(), extra_args.end());
@@ -58,6 +59,9 @@ ChildServer::ChildServer(const std::vector<std::string>& extra_args,
   argv.push_back(nullptr);
   for (auto& e : env) envp.push_back(e.data());
   envp.push_back(nullptr);
+  cpu_set_t cpus;
+  CPU_ZERO(&cpus);
+  if (cpu >= 0) CPU_SET(cpu, &cpus);
 
   int fds[2];
   if (pipe(fds) != 0) {
@@ -75,6 +79,7 @@ ChildServer::ChildServer(const std::vector<std::string>& extra_args,
     dup2(fds[1], STDERR_FILENO);
     close(fds[0]);
     close(fds[1]);
+    if (cpu >= 0 && sched_setaffinity(0, sizeof cpus, &cpus) != 0) _exit(126);  // inherited across exec
     execve(argv[0], argv.data(), envp.data());
     _exit(127);
   }

@@ -15,9 +15,9 @@ class ChildServer {
  public:
   // Starts LOOMLIGHT_SERVER_BINARY --address 127.0.0.1:0 plus `extra_args` and waits until it prints its port
   // and its health Check, over `credentials` (null: plaintext), answers SERVING; exits the benchmark when it
-  // cannot.
+  // cannot. `cpu` >= 0 pins the process (every thread it will start) to that CPU.
   explicit ChildServer(const std::vector<std::string>& extra_args = {},
-                       std::shared_ptr<grpc::ChannelCredentials> credentials = nullptr);
+                       std::shared_ptr<grpc::ChannelCredentials> credentials = nullptr, int cpu = -1);
   ~ChildServer();  // SIGTERM, then SIGKILL after 10 s; reaped, so its CPU shows in RUSAGE_CHILDREN
   ChildServer(const ChildServer&) = delete;
   ChildServer& operator=(const ChildServer&) = delete;

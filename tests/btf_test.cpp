@@ -4,6 +4,7 @@
 // synthesised and compressed, evaluated, kept across a restart, deleted; bad names and materials rejected.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <functional>
@@ -199,6 +200,61 @@ TEST_P(BtfKernelsAtComponents, OpenClFloatAndDoubleAgreeWithTheDoubleReference) 
 INSTANTIATE_TEST_SUITE_P(Components, BtfKernelsAtComponents,
                          ::testing::Values(std::make_tuple(false, 6, 6), std::make_tuple(true, 24, 16),
                                            std::make_tuple(true, 24, 21)));
+
+// Random queries wait on memory, so the runtime lays out a launch of the BTF model's random queries grouped by
+// view and texel row (Model::LocalityOrder) and each result still goes to its own query: through Evaluate,
+// every query of a random request must get its own f (the double reference's, in the request's order). A
+// texture slice's queries (one wo, uv in rows) keep their order.
+TEST(BtfKernels, RandomQueriesRunGroupedByViewAndAnswerInRequestOrder) {
+  auto asset = Register(models::btf::Compress(LowRankImages(SmallGrid(), 8, 6, 11), {.max_components = 6}, nullptr,
+                                              nullptr),
+                        "test_locality_order");
+  const size_t n = 40000;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  v1::EvaluateRequest request;
+  request.mutable_material()->set_model("btf");
+  v1::Param* p = request.mutable_material()->add_params();
+  p->set_name("asset");
+  p->set_text(asset->name);
+  for (size_t q = 0; q < n; ++q) {
+    for (int w = 0; w < 2; ++w) {
+      const float z = unit(rng), phi = 6.2831853f * unit(rng), s = std::sqrt(1 - z * z);
+      for (float x : {s * std::cos(phi), s * std::sin(phi), z}) (w ? request.add_wo(x) : request.add_wi(x));
+    }
+    request.add_uv(8 * unit(rng) - 4);
+    request.add_uv(8 * unit(rng) - 4);
+  }
+  std::vector<size_t> position(n);
+  ASSERT_TRUE(BtfModel().LocalityOrder(request.wo().data(), request.uv().data(), n, position.data()));
+  std::vector<size_t> sorted = position;
+  std::sort(sorted.begin(), sorted.end());
+  for (size_t q = 0; q < n; ++q) ASSERT_EQ(sorted[q], q);  // a permutation
+  std::vector<float> one_wo(3 * n), rows(2 * n);
+  for (size_t q = 0; q < n; ++q) {
+    std::copy_n(request.wo().data(), 3, &one_wo[3 * q]);
+    rows[2 * q] = (float(q % 200) + 0.5f) / 200;
+    rows[2 * q + 1] = (float(q / 200) + 0.5f) / 200;
+  }
+  EXPECT_FALSE(BtfModel().LocalityOrder(one_wo.data(), rows.data(), n, position.data()));
+
+  const models::PackedMaterial m = Pack(*asset, 6);
+  std::vector<double> expect(3 * n);
+  BtfModel().ReferenceEval(m, request.wi().data(), request.wo().data(), request.uv().data(), n, expect.data());
+  const double peak = *std::max_element(expect.begin(), expect.end());
+  ASSERT_GT(peak, 0.5);
+  auto server = testing::StartInProcessServer();
+  ASSERT_TRUE(server);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  v1::EvaluateResponse response;
+  const grpc::Status status = testing::Connect(server->port())->Evaluate(&context, request, &response);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  ASSERT_EQ(size_t(response.f_size()), 3 * n);
+  double worst = 0;
+  for (size_t i = 0; i < 3 * n; ++i) worst = std::max(worst, std::abs(double(response.f(int(i))) - expect[i]) / peak);
+  EXPECT_LT(worst, 2e-5);
+}
 
 // An asset larger than 2^24 values, whose tile-mean block starts at an offset a float32 table cannot hold (the
 // packed material is kept as float32): read from the header, the tile means came one value off, in the kernels

@@ -177,6 +177,11 @@ class Model {
   // Models whose packed material is a BTF asset's layout (kernels/models/btf.h) let a renderer fold an
   // environment map into it once (server/models/btf/environment_fold.h) instead of sampling the map per hit.
   virtual bool folds_environment() const { return false; }
+  // Where to put each of n queries of one material in a launch so that the kernel reads the model's tables
+  // with more locality than in the request's order: fills position[q] (a permutation of 0..n-1) and returns
+  // true, or returns false (position untouched) when the request's order is as good. ClRuntime::Run lays out
+  // a launch's lanes so; every result still goes to its own query. uv is null for queries without one.
+  virtual bool LocalityOrder(const float* wo, const float* uv, size_t n, size_t* position) const { return false; }
 
   const ParamSpec* FindParam(const std::string& name) const;
   // Defaults completed with the preset's values.

@@ -369,21 +369,32 @@ bool ClRuntime::Run(const LaunchArgs& a, LaunchResults* results, std::string* er
     }
     lane_of[q] = lanes++;
   }
+  // One material: its queries may take the lanes in any order, and the model may choose one that reads its
+  // tables with more locality (Model::LocalityOrder); the copies in and out follow lane_of either way.
+  const bool reordered = a.materials->size() == 1 && !ambient && a.model->LocalityOrder(a.wo, a.uv, a.n, lane_of.data());
   const size_t lanes_per_group = width * items_per_group;
   lanes = (lanes + lanes_per_group - 1) / lanes_per_group * lanes_per_group;
   group_offset.resize(lanes / width, 0);
   std::vector<float> wi(3 * lanes, 0.0f), wo(3 * lanes, 0.0f);  // planar: x, y, z blocks
   std::fill(wi.begin() + 2 * lanes, wi.end(), 1.0f);
   std::fill(wo.begin() + 2 * lanes, wo.end(), 1.0f);
-  for (size_t q = 0; q < a.n; ++q)
-    for (size_t c = 0; c < 3; ++c) {
-      wi[c * lanes + lane_of[q]] = a.wi[3 * q + c];
-      wo[c * lanes + lane_of[q]] = a.wo[3 * q + c];
-    }
   std::vector<float> uv(a.uv ? 2 * lanes : 1, 0.0f);  // planar u, v; one dummy value for f(wi, wo)
-  if (a.uv)
-    for (size_t q = 0; q < a.n; ++q)
-      for (size_t c = 0; c < 2; ++c) uv[c * lanes + lane_of[q]] = a.uv[2 * q + c];
+  // Reordered lanes are filled in lane order (reading each query's few bytes where they lie), not scattered
+  // over the eight planes, which would touch eight lines per query.
+  std::vector<size_t> query_of_lane;
+  if (reordered) {
+    query_of_lane.resize(a.n);
+    for (size_t q = 0; q < a.n; ++q) query_of_lane[lane_of[q]] = q;
+  }
+  for (size_t i = 0; i < a.n; ++i) {
+    const size_t q = reordered ? query_of_lane[i] : i, lane = reordered ? i : lane_of[q];
+    for (size_t c = 0; c < 3; ++c) {
+      wi[c * lanes + lane] = a.wi[3 * q + c];
+      wo[c * lanes + lane] = a.wo[3 * q + c];
+    }
+    if (a.uv)
+      for (size_t c = 0; c < 2; ++c) uv[c * lanes + lane] = a.uv[2 * q + c];
+  }
   const size_t real_size = a.fp64 ? sizeof(double) : sizeof(float);
   // One material is read where it lies; several are concatenated once.
   std::vector<char> concatenated;

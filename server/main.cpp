@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <algorithm>
 #include <cstring>
+#include <optional>
 #include <string>
 #include <thread>
 
@@ -102,8 +103,19 @@ int main(int argc, char** argv) {
   loomlight::api::ServerOptions options;
   options.data_dir = loomlight::assets::BtfStore::DefaultDataDir();
   for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
+    std::string arg = argv[i];
+    // "--name=value" is "--name value" (the form manifests and service files often use).
+    std::optional<std::string> attached;
+    if (const size_t equals = arg.find('='); arg.rfind("--", 0) == 0 && equals != std::string::npos) {
+      attached = arg.substr(equals + 1);
+      arg.resize(equals);
+    }
+    bool attached_taken = false;
     auto value = [&]() -> std::string {
+      if (attached) {
+        attached_taken = true;
+        return *attached;
+      }
       if (i + 1 >= argc) {
         std::fprintf(stderr, "error: %s needs a value\n", arg.c_str());
         std::exit(2);
@@ -182,6 +194,10 @@ int main(int argc, char** argv) {
     else if (arg == "--shutdown-grace") options.shutdown_grace = std::chrono::seconds(number());
     else if (arg == "--help" || arg == "-h") { Usage(); return 0; }
     else { std::fprintf(stderr, "error: unknown option '%s'\n", arg.c_str()); Usage(); return 2; }
+    if (attached && !attached_taken) {
+      std::fprintf(stderr, "error: %s takes no value\n", arg.c_str());
+      return 2;
+    }
   }
   std::string error;
   auto server = loomlight::api::LoomlightServer::Start(options, &error);

@@ -2,7 +2,8 @@
 # The shipped Kubernetes Deployment's server arguments (deploy/kubernetes/deployment.yaml, "--name=value" form)
 # are ones loomlight-server accepts: run with them and then --help, it must print its usage and exit 0 (an
 # unknown option or a bad value exits 2 before --help is reached). Also: "--name=value" means "--name value",
-# and a flag that takes no value refuses one.
+# and a flag that takes no value refuses one. The directories the server writes are mounted volumes (the
+# container's root file system is read-only).
 #
 # usage: deploy_args_test.sh LOOMLIGHT_SERVER_BINARY
 set -euo pipefail
@@ -17,6 +18,25 @@ printf 'manifest arguments: %s\n' "${args[*]}"
 
 out=$("$server" "${args[@]}" --help 2>&1) || { echo "FAIL: the manifest's arguments were refused: $out" | head -c 600; exit 1; }
 grep -q "usage: loomlight-server" <<<"$out" || { echo "FAIL: no usage printed"; exit 1; }
+
+# The root file system is read-only there, so every directory the server writes must be a mounted volume, and
+# --data-dir must be given (its default is under $HOME, on the root).
+if grep -q "readOnlyRootFilesystem: true" "$manifest"; then
+  mapfile -t mounts < <(sed -n 's/^ *mountPath: *//p' "$manifest")
+  data_dir=""
+  for arg in "${args[@]}"; do
+    case $arg in
+      --cache-dir=* | --data-dir=*)
+        path=${arg#*=}
+        [[ $arg == --data-dir=* ]] && data_dir=$path
+        mounted=0
+        for m in "${mounts[@]}"; do [[ $path == "$m" || $path == "$m"/* ]] && mounted=1; done
+        ((mounted)) || { echo "FAIL: $arg is not on a mounted volume (${mounts[*]}); the root is read-only"; exit 1; }
+        ;;
+    esac
+  done
+  [[ -n $data_dir ]] || { echo "FAIL: no --data-dir: the default under \$HOME is on the read-only root"; exit 1; }
+fi
 
 expect_refused() {  # MESSAGE ARGS...
   local message=$1 status=0

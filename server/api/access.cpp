@@ -41,18 +41,21 @@ bool ParseAddress(const std::string& text, std::array<uint8_t, 16>* out) {
   return false;
 }
 
+// The host of "HOST:PORT" ("[V6]:PORT" unbracketed; the whole text when there is no port).
+std::string HostOf(const std::string& address) {
+  const size_t colon = address.rfind(':');
+  std::string host = colon == std::string::npos ? address : address.substr(0, colon);
+  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  return host;
+}
+
 // The host of a gRPC peer string ("ipv4:10.0.0.7:41234", "ipv6:[::1]:41234"); "" for others (unix sockets).
 std::string PeerHost(const std::string& peer) {
-  std::string rest;
-  if (peer.rfind("ipv4:", 0) == 0 || peer.rfind("ipv6:", 0) == 0) rest = peer.substr(5);
-  else return "";
-  const size_t colon = rest.rfind(':');
-  if (colon == std::string::npos) return "";
-  rest.resize(colon);
-  if (rest.size() >= 2 && rest.front() == '[' && rest.back() == ']') rest = rest.substr(1, rest.size() - 2);
+  if (peer.rfind("ipv4:", 0) != 0 && peer.rfind("ipv6:", 0) != 0) return "";
+  std::string host = HostOf(peer.substr(5));
   // An IPv6 zone ("fe80::1%25eth0", percent-encoded) is not part of the address.
-  if (const size_t zone = rest.find('%'); zone != std::string::npos) rest.resize(zone);
-  return rest;
+  if (const size_t zone = host.find('%'); zone != std::string::npos) host.resize(zone);
+  return host;
 }
 
 std::string Trim(std::string_view text) {
@@ -219,9 +222,7 @@ std::shared_ptr<const TokenTable> TokenAuthProcessor::table() const {
 
 bool IsLoopbackAddress(const std::string& address) {
   if (address.rfind("unix:", 0) == 0) return true;
-  const size_t colon = address.rfind(':');
-  std::string host = colon == std::string::npos ? address : address.substr(0, colon);
-  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  const std::string host = HostOf(address);
   return host == "localhost" || host == "::1" || host.rfind("127.", 0) == 0;
 }
 

@@ -28,7 +28,7 @@ namespace fs = std::filesystem;
 
 // The PSNR the summaries single out: reconstructions above it are hard to tell from the stored images.
 constexpr double kGoodPsnrDb = 40.0;
-constexpr int kMaxResolution = 256;          // texels per side of an asset (CreateBtfRequest, UploadBtfHeader)
+constexpr int kMaxResolution = 128;          // texels per side of an asset (CreateBtfRequest, UploadBtfHeader)
 constexpr int kMaxComponents = 64;           // BtfCompression.max_components
 constexpr int kDefaultImageResolution = 64;  // the server's default for `create`, so both kinds compare
 // The image files `upload` looks for, in this order.
@@ -204,6 +204,19 @@ int run_create(const ParsedOptions& options) {
   if (options.has("resolution")) request.set_resolution(resolution(options, 0));
   *request.mutable_compression() = compression(options);
   request.set_replace(options.has("replace"));
+  const bool fibers = options.has("fibers");
+  if (!fibers && (options.has("yarn") || options.has("weave") || options.has("spacing") || options.has("crimp") ||
+                  options.has("rays")))
+    throw UsageError("--yarn, --weave, --spacing, --crimp and --rays are for --fibers");
+  if (fibers) {
+    v1::FiberBtfSource& source = *request.mutable_fibers();
+    if (auto yarn = options.last("yarn")) source.mutable_yarn()->set_preset(*yarn);
+    if (auto weave = options.last("weave")) source.mutable_woven()->mutable_weave()->set_preset(*weave);
+    if (auto spacing = options.last("spacing"))
+      source.mutable_woven()->set_yarn_spacing(parse_number(*spacing, "--spacing"));
+    if (auto crimp = options.last("crimp")) source.mutable_woven()->set_crimp(parse_number(*crimp, "--crimp"));
+    if (auto rays = options.last("rays")) source.set_samples_per_texel(uint32_t(parse_int(*rays, "--rays", 1, 64)));
+  }
 
   // One bar per stage: synthesis and compression each count the view slots.
   std::string stage;
@@ -383,7 +396,13 @@ OptionList create_options() {
   OptionList options = material_options();
   options.insert(options.end(), {
       kGridOption,
-      {"resolution", "N", "texels per side of the tile, one pattern repeat (default 64, at most 256)"},
+      {"resolution", "N", "texels per side of the tile, one pattern repeat (default 64, at most 128)"},
+      {"fibers", "", "capture a fiber-level woven patch instead (MATERIAL: a fiber model, e.g. --preset cotton)"},
+      {"yarn", "PRESET", "--fibers: the yarn, cotton1 (default), cotton2, polyester1, rayon2 or silk1"},
+      {"weave", "PRESET", "--fibers: the weave, a woven preset's pattern (default cotton_twill)"},
+      {"spacing", "S", "--fibers: yarn centre spacing (default: the server's)"},
+      {"crimp", "C", "--fibers: how far yarns bend over and under, 0..1 (default 1)"},
+      {"rays", "N", "--fibers: rays per texel, 1..64 (default 4)"},
   });
   const OptionList compression = compression_options();
   options.insert(options.end(), compression.begin(), compression.end());
@@ -402,7 +421,7 @@ OptionList images_options() {
   OptionList options = material_options();
   options.insert(options.end(), {
       kGridOption,
-      {"resolution", "N", "pixels per side of each image, one pattern repeat (default 64, at most 256)"},
+      {"resolution", "N", "pixels per side of each image, one pattern repeat (default 64, at most 128)"},
       {"format", "exr|png", "OpenEXR of f unscaled (default), or 8-bit sRGB PNG after --exposure"},
       {"exposure", "X", "png: f x X, clamped to 1, for every image alike (default 1)"},
   });
@@ -413,14 +432,18 @@ const Command& create_command() {
   static const Command command = {
       "btf create",
       "NAME MATERIAL [--grid h1|h2] [--resolution N] [--components N] [--target-psnr DB] [--replace]\n"
+      "  [--fibers [--yarn PRESET] [--weave PRESET] [--spacing S] [--crimp C] [--rays N]]\n"
       "  MATERIAL: " LOOMLIGHT_MATERIAL_SYNOPSIS,
-      "make a BTF asset from a spatially varying material on the server",
+      "make a BTF asset from a spatially varying material, or rendered fibers, on the server",
       "The server samples f at the texel centres of one pattern repeat for every view and light of the grid,\n"
       "compresses each view slot's light images with PCA and stores the asset as NAME (1-64 of A-Za-z0-9_.-).\n"
+      "With --fibers it renders instead a fiber-level woven patch (the yarn laid out by the weave, each fiber\n"
+      "shaded by MATERIAL, a fiber model), one repeat seen by parallel rays from each view and lit from each light.\n"
       "A progress bar per stage is drawn on stderr when it is a terminal; then the asset's summary is\n"
       "printed: grid, texels, components, size, the fewest components reaching 40 dB, and the error table.\n"
       "Large assets may need a longer --timeout (0 = none).\n"
-      "Example: loomlight btf create twill --preset cotton_twill --components 16 --target-psnr 40",
+      "Example: loomlight btf create twill --preset cotton_twill --components 16 --target-psnr 40\n"
+      "Fibers:  loomlight btf create twill_fibers --preset cotton --fibers --grid h2 --resolution 32",
       create_options(),
       run_create,
       1,

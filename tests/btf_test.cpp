@@ -651,6 +651,110 @@ grpc::Status Upload(v1::Loomlight::Stub& stub, const v1::UploadBtfHeader* header
   return writer->Finish();
 }
 
+// The fiber source: a cotton twill's fibers, one weave repeat captured (server/render/btf_capture.h), stored and
+// served like any asset; its bad requests refused naming the field; a deadline stops it and the server goes on.
+v1::CreateBtfRequest FiberRequest(const std::string& name) {
+  v1::CreateBtfRequest r = TwillRequest(name);
+  r.mutable_material()->Clear();
+  r.mutable_material()->set_preset("cotton");  // the fiber model
+  r.set_resolution(8);
+  r.mutable_fibers()->set_samples_per_texel(2);
+  return r;
+}
+
+TEST_F(BtfRpcTest, FiberSourceCapturesAWovenPatchOfFibers) {
+  auto server = Start();
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  v1::BtfAssetInfo info;
+  grpc::Status s = Create(*stub, FiberRequest("fibers8"), &info);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_EQ(info.source().rfind("fibers: 4 x 4 weave", 0), 0u) << info.source();  // cotton_twill's repeat
+  EXPECT_NE(info.source().find("2 rays per texel"), std::string::npos) << info.source();
+  EXPECT_EQ(info.threads_per_tile(), 4);
+  EXPECT_EQ(info.width(), 8u);
+  ASSERT_EQ(info.errors_size(), 13);
+  for (int c = 1; c < info.errors_size(); ++c) EXPECT_LE(info.errors(c).rmse(), info.errors(c - 1).rmse() * (1 + 1e-12));
+  EXPECT_GT(info.peak(), 0.0);
+  // Served through Evaluate: finite, non-negative, and lit wherever a texel sees fibers lit from above.
+  v1::EvaluateRequest r = BtfEvaluate("fibers8", 0);
+  double sum = 0;
+  for (int i = 0; i < 64; ++i) {
+    r.add_wi(0.3f), r.add_wi(0.0f), r.add_wi(std::sqrt(1 - 0.09f));
+    r.add_wo(0.0f), r.add_wo(-0.4f), r.add_wo(std::sqrt(1 - 0.16f));
+    r.add_uv((i % 8 + 0.5f) / 8), r.add_uv((i / 8 + 0.5f) / 8);
+  }
+  grpc::ClientContext ctx;
+  v1::EvaluateResponse out;
+  s = stub->Evaluate(&ctx, r, &out);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  ASSERT_EQ(out.f_size(), 3 * 64);
+  for (float f : out.f()) {
+    EXPECT_TRUE(std::isfinite(f));
+    EXPECT_GE(f, 0.0f);
+    sum += f;
+  }
+  // Cotton fibers under a light 17 degrees off the normal: between a dark 0.005 and an implausible 1 per sr.
+  EXPECT_GT(sum / out.f_size(), 0.005);
+  EXPECT_LT(sum / out.f_size(), 1.0);
+
+  struct Case {
+    v1::CreateBtfRequest request;
+    std::string field;
+  };
+  std::vector<Case> cases;
+  Case c{FiberRequest("bad"), "fibers.samples_per_texel"};
+  c.request.mutable_fibers()->set_samples_per_texel(65);
+  cases.push_back(c);
+  c = {FiberRequest("bad"), "fibers.woven.repeats_u"};
+  c.request.mutable_fibers()->mutable_woven()->set_repeats_u(2);
+  cases.push_back(c);
+  c = {FiberRequest("bad"), "fibers.yarn"};
+  c.request.mutable_fibers()->mutable_yarn()->set_preset("../cotton1");
+  cases.push_back(c);
+  c = {FiberRequest("bad"), "fibers.woven.crimp"};
+  c.request.mutable_fibers()->mutable_woven()->set_crimp(2);
+  cases.push_back(c);
+  c = {FiberRequest("bad"), "fibers.woven.weave"};
+  c.request.mutable_fibers()->mutable_woven()->mutable_weave()->set_preset("cotton");  // a fiber model: no pattern
+  cases.push_back(c);
+  c = {FiberRequest("bad"), "material"};  // the woven model shades no fibers
+  c.request.mutable_material()->set_preset("cotton_twill");
+  cases.push_back(c);
+  for (const Case& k : cases) {
+    grpc::Status bad = Create(*stub, k.request, &info);
+    EXPECT_EQ(bad.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << k.field << ": " << bad.error_message();
+    EXPECT_EQ(bad.error_message().rfind(k.field, 0), 0u) << bad.error_message();
+  }
+  // A fiber model without the fiber source does not vary over the surface.
+  v1::CreateBtfRequest plain = FiberRequest("plain");
+  plain.clear_fibers();
+  EXPECT_EQ(Create(*stub, plain, &info).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+
+  // A deadline stops a large capture (h1 at 64 x 64 texels, 64 rays each: minutes) mid-way; nothing is stored and
+  // the server serves the next call.
+  v1::CreateBtfRequest big = FiberRequest("big");
+  big.mutable_grid()->Clear();
+  big.mutable_grid()->set_preset("h1");
+  big.set_resolution(64);
+  big.mutable_fibers()->set_samples_per_texel(64);
+  {
+    grpc::ClientContext deadline;
+    deadline.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(1500));
+    auto reader = stub->CreateBtf(&deadline, big);
+    v1::CreateBtfProgress p;
+    while (reader->Read(&p)) {
+    }
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  }
+  grpc::ClientContext list_ctx;
+  v1::ListBtfsResponse listed;
+  ASSERT_TRUE(stub->ListBtfs(&list_ctx, v1::ListBtfsRequest(), &listed).ok());
+  for (const v1::BtfAssetInfo& a : listed.assets()) EXPECT_NE(a.name(), "big");
+  s = Create(*stub, FiberRequest("after"), &info);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+}
+
 TEST_F(BtfRpcTest, UploadedImagesGiveTheServerSynthesisedAsset) {
   auto server = Start();
   ASSERT_TRUE(server);

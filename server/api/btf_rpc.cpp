@@ -4,11 +4,14 @@
 #include <thread>
 
 #include "server/api/job_status.h"
+#include "server/api/render_rpc.h"
 #include "server/api/stream_call.h"
+#include "server/api/yarn_rpc.h"
 #include "server/assets/btf_store.h"
 #include "server/imaging/image_encode.h"
 #include "server/models/material_plan.h"
 #include "server/models/quote.h"
+#include "server/render/btf_capture.h"
 
 namespace loomlight::api {
 namespace {
@@ -112,15 +115,63 @@ size_t BuildBytes(const BtfJob& job) {
          2 * n * d * sizeof(double) + n * d * (1 + k) * sizeof(float);
 }
 
+// ---- The fiber source (render/btf_capture.h) ----
+
+// Rays per texel by default and at most.
+constexpr uint32_t kDefaultFiberSamples = 4;
+constexpr uint32_t kMaxFiberSamples = 64;
+// The patch traced: this many weave repeats per side, the tile the central one (Scene::tiling needs 3).
+constexpr int kFiberTileRepeats = 3;
+// Queries traced and evaluated at a time (a piece of a view: a run of its texels); each costs its wi, wo, axis,
+// weight and tag, the kernel's result and, while the tracing threads' parts are joined, a second copy.
+constexpr size_t kFiberPieceQueries = size_t{1} << 18;
+constexpr size_t kFiberBytesPerQuery = 2 * 52 + 12;
+
+// What a fiber source asks for: the patch's yarn and layout, rays per texel.
+struct FiberSource {
+  YarnJob yarn;
+  int samples = 1;
+};
+
+// The request's fiber source: its yarn on its weave (cotton_twill by default), laid out 3 x 3 repeats, at full
+// detail within Render's fiber limits. "" or "fibers.field: reason".
+std::string FiberSourceOf(const models::Registry& registry, const v1::FiberBtfSource& f, FiberSource* out) {
+  if (f.samples_per_texel() > kMaxFiberSamples)
+    return "fibers.samples_per_texel: at most " + std::to_string(kMaxFiberSamples) + ", got " +
+           std::to_string(f.samples_per_texel());
+  out->samples = int(f.samples_per_texel() == 0 ? kDefaultFiberSamples : f.samples_per_texel());
+  v1::WovenYarnLayout woven = f.woven();
+  if (woven.repeats_u() != 0 || woven.repeats_v() != 0)
+    return "fibers.woven.repeats_u, repeats_v: the tile is one repeat and the server lays out the patch around it; "
+           "leave them 0";
+  if (!woven.has_weave()) woven.mutable_weave()->set_preset("cotton_twill");
+  woven.set_repeats_u(kFiberTileRepeats);
+  woven.set_repeats_v(kFiberTileRepeats);
+  YarnJob& job = out->yarn;
+  job.limits.max_fibers = static_cast<int64_t>(kMaxRenderFibers);
+  job.limits.max_control_points = static_cast<int64_t>(kMaxRenderFiberPoints);
+  job.detail.threads = 2;
+  job.detail.footprint = 0;  // every fiber: the texels are finer than a ply
+  if (std::string e = YarnJobOf(registry, f.yarn(), &woven, 0, &job); !e.empty()) return "fibers." + e;
+  return "";
+}
+
+// The fiber source's bytes on top of BuildBytes: the generated curves while the BVH is built (the BVH itself is
+// admitted once estimated), the layout's polylines and one piece's queries.
+size_t FiberSourceBytes(const FiberSource& f) {
+  return kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber + f.yarn.layout_bytes +
+         kFiberPieceQueries * kFiberBytesPerQuery;
+}
+
 // One CreateBtf call: the material prepared on the geometry worker; one view's images in flight on the batcher
 // at a time (every light and texel of the view: a bulk job); then compression and storing on the geometry
 // worker; progress written from the host worker, one write in flight.
 class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
  public:
   CreateBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, BtfJob job, v1::Material material,
-                Admission admission, Clock::time_point received)
+                std::unique_ptr<FiberSource> fibers, Admission admission, Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), job_(std::move(job)),
-        material_(std::move(material)) {
+        material_(std::move(material)), fibers_(std::move(fibers)) {
     deps_.geometry->Post([this] { Prepare(); });
   }
 
@@ -131,16 +182,20 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   void Prepare() {
     std::shared_ptr<const models::PreparedMaterial> prepared;
     grpc::Status s = PrepareMaterial(deps_, material_, &prepared);
-    if (s.ok() && !prepared->model->spatially_varying())
+    if (s.ok() && fibers_) s = PrepareFibers(*prepared);
+    else if (s.ok() && !prepared->model->spatially_varying())
       s = Invalid("material: model " + models::Quote(prepared->model->name()) +
                   " does not vary over the surface (a BTF needs one that does, e.g. woven)");
     if (s.ok() && prepared->transmission) s = Invalid("material.transmission: a BTF asset is a reflection model");
     if (s.ok()) {
-      const size_t n = job_.grid.size(), texels = size_t(job_.width) * job_.height;
+      const size_t n = job_.grid.size();
       images_.grid = job_.grid;
       images_.width = job_.width;
       images_.height = job_.height;
       images_.f.assign(n * n * images_.image_values(), 0.0f);
+    }
+    if (s.ok() && !capture_) {
+      const size_t n = job_.grid.size(), texels = size_t(job_.width) * job_.height;
       // Query (light l, texel t) of a view: wi the light's direction, uv the texel's centre.
       wi_.resize(3 * n * texels);
       uv_.resize(2 * n * texels);
@@ -158,6 +213,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     }
     Post([this, s, prepared] {
       prepared_ = prepared;
+      fiber_evaluator_ = {prepared_.get(), false, false, true};
       if (!s.ok() && status_.ok()) status_ = s;
       stage_ = Stage::kSynthesis;
       Pump();
@@ -169,7 +225,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     NoticeStop();
     if (status_.ok()) MaybeSubmitView();
     if (!status_.ok()) {
-      if (!job_in_flight_ && !compressing_ && !write_in_flight_) FinishCall(status_);
+      if (!job_in_flight_ && !compressing_ && !tracing_ && !write_in_flight_) FinishCall(status_);
       return;
     }
     if (write_in_flight_) return;
@@ -205,11 +261,35 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     StartWrite(&message_);
   }
 
+  // On the geometry worker: the fiber model checked, the patch's fibers generated and built, the capture set up.
+  grpc::Status PrepareFibers(const models::PreparedMaterial& prepared) {
+    if (prepared.model->fiber_axis_param().empty() || prepared.transmission)
+      return Invalid("material: a fiber source shades each fiber with a fiber model (e.g. preset cotton), not " +
+                     models::Quote(prepared.model->name()) + (prepared.transmission ? " with a layer" : ""));
+    std::shared_ptr<const yarn::FiberScene> scene;
+    grpc::Status s = BuildFiberScene(
+        &fibers_->yarn, [this] { return StopStatus(context_, deadline_); },
+        [this](size_t bytes) { return admission_.bytes.Grow(bytes); }, &scene, nullptr);
+    if (!s.ok()) return s;
+    const YarnJob& y = fibers_->yarn;
+    const double spacing = y.layout.spacing;
+    const render::BtfCaptureTile tile{y.pattern.warps * spacing, y.pattern.picks * spacing, y.pattern.warps * spacing,
+                                      y.pattern.picks * spacing};
+    capture_ = std::make_unique<render::BtfCapture>(scene, tile, job_.grid, job_.width, job_.height, fibers_->samples,
+                                                    fibers_->yarn.params.seed);
+    const size_t texels = size_t(job_.width) * job_.height;
+    // Texels per piece: as many as keep a piece's queries within kFiberPieceQueries at most.
+    piece_texels_ = std::clamp<size_t>(kFiberPieceQueries * texels / std::max<size_t>(capture_->MaxQueriesPerView(), 1),
+                                       1, texels);
+    return grpc::Status::OK;
+  }
+
   // The next view's images to the batcher when none is in flight; after the last, compression.
   void MaybeSubmitView() {
-    if (stage_ != Stage::kSynthesis || job_in_flight_ || compressing_) return;
+    if (stage_ != Stage::kSynthesis || job_in_flight_ || compressing_ || tracing_) return;
     const size_t n = job_.grid.size(), texels = size_t(job_.width) * job_.height;
     if (next_view_ == n) return StartCompression();
+    if (capture_) return TracePiece();
     const size_t v = next_view_++;
     double w[3];
     job_.grid.Direction(v, w);
@@ -231,8 +311,47 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
       deps_.metrics->Evaluated(plan_->model(part).name(), false, plan_->size(part), result.batch_queries,
                                result.batch_requests, result.queue_seconds, result.kernel_seconds);
     }
-    if (job_in_flight_ == 0 && status_.ok()) ++views_done_;
+    if (job_in_flight_ == 0 && status_.ok()) {
+      if (!capture_) {
+        ++views_done_;
+      } else {
+        render::BtfCapture::Accumulate(bucket_, f_.data(), images_.image(next_view_, 0));
+        if (piece_begin_ == size_t(job_.width) * job_.height) {  // the view's last piece
+          ++views_done_;
+          ++next_view_;
+          piece_begin_ = 0;
+        }
+      }
+    }
     Pump();
+  }
+
+  // The fiber source: the next piece of the current view traced on the geometry worker (two threads), then its
+  // queries to the batcher; their results are added into the view's images as they come back.
+  void TracePiece() {
+    tracing_ = true;
+    const size_t texels = size_t(job_.width) * job_.height;
+    const size_t begin = piece_begin_, end = std::min(texels, begin + piece_texels_);
+    deps_.geometry->Post([this, begin, end] {
+      const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
+      capture_->TraceView(next_view_, begin, end, int(kTraceThreads), stop, &bucket_);
+      Post([this, end] {
+        tracing_ = false;
+        piece_begin_ = end;
+        if (!status_.ok() || !StopStatus(context_, deadline_).ok()) return Pump();
+        f_.assign(3 * bucket_.size(), 0.0f);
+        if (bucket_.size() == 0) {  // nothing seen or lit in this piece
+          job_in_flight_ = 1;
+          return OnViewDone(0, batching::JobResult{});
+        }
+        plan_ = render::PlanOf(fiber_evaluator_, bucket_);
+        job_in_flight_ = plan_->parts();
+        SubmitPlan(deps_.batcher, *plan_, runtime::ResultSink{.f32 = f_.data()}, false, batching::Priority::kBulk,
+                   deadline_, context_, client_, [this](size_t k, batching::JobResult result) {
+                     Post([this, k, result = std::move(result)] { OnViewDone(k, result); });
+                   });
+      });
+    });
   }
 
   // On the geometry worker: the PCA of every view, then the asset written to the store.
@@ -243,7 +362,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     deps_.geometry->Post([this] {
       std::shared_ptr<models::btf::BtfAsset> asset;
       grpc::Status s = CompressAndStore(
-          deps_, images_, job_, {Describe(), synthesis_seconds_, prepared_->model->ThreadsPerRepeat(prepared_->values)},
+          deps_, images_, job_, {Describe(), synthesis_seconds_, ThreadsPerTile()},
           [this](size_t done) { Post([this, done] { compressed_ = done; Pump(); }); },
           [this] { return StopStatus(context_, deadline_); }, &asset);
       images_.f = {};  // the call's biggest buffer, not needed to answer
@@ -264,11 +383,31 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     const models::Model& m = *prepared_->model;
     std::string s = material_.preset().empty() ? "model " + m.name() : m.name() + " preset " + material_.preset();
     if (material_.params_size() > 0) s += " with " + std::to_string(material_.params_size()) + " parameters set";
-    return s + ", synthesised at texel centres";
+    if (!capture_) return s + ", synthesised at texel centres";
+    const YarnJob& y = fibers_->yarn;
+    char text[200];
+    std::snprintf(text, sizeof text, "fibers: %d x %d weave, spacing %.4g, crimp %.3g, yarn seed %llu, shaded by ",
+                  y.pattern.warps, y.pattern.picks, y.layout.spacing, y.layout.crimp,
+                  static_cast<unsigned long long>(y.params.seed));
+    return std::string(text) + s + ", " + std::to_string(fibers_->samples) + " rays per texel";
+  }
+
+  double ThreadsPerTile() const {
+    if (capture_) return std::max(fibers_->yarn.pattern.warps, fibers_->yarn.pattern.picks);
+    return prepared_->model->ThreadsPerRepeat(prepared_->values);
   }
 
   BtfJob job_;
   const v1::Material material_;
+  // The fiber source (null: the material's own f at texel centres): its patch, the capture of it, the piece of a
+  // view in flight (its queries, their results, its texels) and the texels a piece takes.
+  const std::unique_ptr<FiberSource> fibers_;
+  std::unique_ptr<render::BtfCapture> capture_;
+  render::Evaluator fiber_evaluator_;
+  render::QueryBucket bucket_;
+  std::vector<float> f_;
+  size_t piece_begin_ = 0, piece_texels_ = 1;
+  bool tracing_ = false;
   Stage stage_ = Stage::kPreparing;
   std::shared_ptr<const models::PreparedMaterial> prepared_;
   models::btf::BtfImages images_;
@@ -470,9 +609,18 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
   std::shared_ptr<const models::PreparedMaterial> cached;
   if (std::string e = deps.materials->Peek(request->material(), *deps.registry, &model, &cached); !e.empty())
     return reject(Invalid(e));
+  std::unique_ptr<FiberSource> fibers;
+  if (request->has_fibers()) {
+    fibers = std::make_unique<FiberSource>();
+    if (std::string e = FiberSourceOf(*deps.registry, request->fibers(), fibers.get()); !e.empty())
+      return reject(Invalid(e));
+  }
   Admission admission;
-  if (grpc::Status s = AdmitLongCall(deps, *context, BuildBytes(job), &admission); !s.ok()) return reject(s);
-  return new CreateBtfCall(deps, context, std::move(job), request->material(), std::move(admission), received);
+  if (grpc::Status s = AdmitLongCall(deps, *context, BuildBytes(job) + (fibers ? FiberSourceBytes(*fibers) : 0), &admission);
+      !s.ok())
+    return reject(s);
+  return new CreateBtfCall(deps, context, std::move(job), request->material(), std::move(fibers), std::move(admission),
+                           received);
 }
 
 grpc::ServerReadReactor<v1::UploadBtfMessage>* HandleUploadBtf(const ServiceDeps& deps,

@@ -242,48 +242,11 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // client is there, and within the memory budget (the BVH's bytes, estimated before it is built, are
   // admitted first and bound the build).
   grpc::Status BuildFibers() {
-    const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
-    fiber_job_->detail.stop = stop;
-    std::vector<yarn::YarnGeometry> yarns;
-    std::vector<LaidYarn> laid;
-    if (std::string e = GenerateYarnJob(fiber_job_.get(), &yarns, &laid); !e.empty()) {
-      if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return s;
-      return Invalid("yarn: " + e + " (Render's fiber limits; README \"Render: fibers\")");
-    }
-    std::vector<const yarn::YarnGeometry*> pointers;
-    for (const yarn::YarnGeometry& y : yarns) pointers.push_back(&y);
-    const yarn::FiberSceneEstimate estimate = yarn::EstimateFiberScene(pointers);
-    if (!admission_.bytes.Grow(static_cast<size_t>(estimate.total_bytes)))
-      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
-              "bvh_memory: the fibers' BVH needs up to " + std::to_string(estimate.total_bytes) +
-                  " bytes, more than the server has free now"};
-    yarn::FiberSceneOptions options;
-    options.max_bytes = std::max<int64_t>(estimate.total_bytes, 1);
-    options.threads = 2;
-    options.cancel = stop;
-    auto scene = std::make_shared<yarn::FiberScene>();
-    std::string e = yarn::FiberScene::Build(pointers, options, scene.get());
-    if (!e.empty()) {
-      if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return s;
-      if (e.rfind("bvh_memory", 0) == 0) return {grpc::StatusCode::RESOURCE_EXHAUSTED, e};
-      return {grpc::StatusCode::INTERNAL, "building the fibers' BVH: " + e};
-    }
-    fibers_ = std::move(scene);
-    fiber_count_ = static_cast<uint64_t>(fibers_->stats().curves);
-    // The cheap visibility (cross-section slices and occlusion, other yarns as tubes of the layout's radius):
-    // a few tubes and a shared cross-section, so built whatever the request chose (the chooser's pilot uses it).
-    std::vector<std::shared_ptr<const yarn::YarnCurve>> centres;
-    for (const LaidYarn& l : laid) centres.push_back(l.centre);
-    const double tube_radius = fiber_job_->woven ? fiber_job_->layout.yarn_radius : fiber_job_->params.yarn_radius;
-    auto visibility = std::make_shared<yarn::YarnVisibility>();
-    if (std::string v = yarn::YarnVisibility::Make(fiber_job_->params, std::move(centres), tube_radius, {}, stop,
-                                                   visibility.get());
-        !v.empty()) {
-      if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return s;
-      return {grpc::StatusCode::INTERNAL, "the yarn's cross-section: " + v};
-    }
-    fiber_visibility_ = std::move(visibility);
-    return grpc::Status::OK;
+    grpc::Status s = BuildFiberScene(
+        fiber_job_.get(), [this] { return StopStatus(context_, deadline_); },
+        [this](size_t bytes) { return admission_.bytes.Grow(bytes); }, &fibers_, &fiber_visibility_);
+    if (s.ok()) fiber_count_ = static_cast<uint64_t>(fibers_->stats().curves);
+    return s;
   }
 
   // Scene, camera, lights, environment and the fidelity choice; on failure status_ says why.

@@ -321,6 +321,50 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns
   return error;
 }
 
+grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
+                             const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility) {
+  const auto stopped = [stop] { return !stop().ok(); };  // a copy: job->detail keeps it
+  job->detail.stop = stopped;
+  std::vector<yarn::YarnGeometry> yarns;
+  std::vector<LaidYarn> laid;
+  if (std::string e = GenerateYarnJob(job, &yarns, &laid); !e.empty()) {
+    if (grpc::Status s = stop(); !s.ok()) return s;
+    return Invalid("yarn: " + e + " (the fiber limits; README \"Render: fibers\")");
+  }
+  std::vector<const yarn::YarnGeometry*> pointers;
+  for (const yarn::YarnGeometry& y : yarns) pointers.push_back(&y);
+  const yarn::FiberSceneEstimate estimate = yarn::EstimateFiberScene(pointers);
+  if (!grow(static_cast<size_t>(estimate.total_bytes)))
+    return {grpc::StatusCode::RESOURCE_EXHAUSTED, "bvh_memory: the fibers' BVH needs up to " +
+                                                      std::to_string(estimate.total_bytes) +
+                                                      " bytes, more than the server has free now"};
+  yarn::FiberSceneOptions options;
+  options.max_bytes = std::max<int64_t>(estimate.total_bytes, 1);
+  options.threads = 2;
+  options.cancel = stopped;
+  auto built = std::make_shared<yarn::FiberScene>();
+  if (std::string e = yarn::FiberScene::Build(pointers, options, built.get()); !e.empty()) {
+    if (grpc::Status s = stop(); !s.ok()) return s;
+    if (e.rfind("bvh_memory", 0) == 0) return {grpc::StatusCode::RESOURCE_EXHAUSTED, e};
+    return {grpc::StatusCode::INTERNAL, "building the fibers' BVH: " + e};
+  }
+  *scene = std::move(built);
+  if (!visibility) return grpc::Status::OK;
+  // A few tubes and a shared cross-section (the other yarns as tubes of the layout's radius).
+  std::vector<std::shared_ptr<const yarn::YarnCurve>> centres;
+  for (const LaidYarn& l : laid) centres.push_back(l.centre);
+  const double tube_radius = job->woven ? job->layout.yarn_radius : job->params.yarn_radius;
+  auto made = std::make_shared<yarn::YarnVisibility>();
+  if (std::string v = yarn::YarnVisibility::Make(job->params, std::move(centres), tube_radius, {}, stopped, made.get());
+      !v.empty()) {
+    if (grpc::Status s = stop(); !s.ok()) return s;
+    return {grpc::StatusCode::INTERNAL, "the yarn's cross-section: " + v};
+  }
+  *visibility = std::move(made);
+  return grpc::Status::OK;
+}
+
 grpc::ServerWriteReactor<v1::YarnGeometryChunk>* HandleYarnGeometry(const ServiceDeps& deps,
                                                                    grpc::CallbackServerContext* context,
                                                                    const v1::YarnGeometryRequest* request) {

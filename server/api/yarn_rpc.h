@@ -6,13 +6,16 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/service.h"
 #include "server/models/registry.h"
+#include "server/yarn/fiber_scene.h"
 #include "server/yarn/layout.h"
+#include "server/yarn/visibility.h"
 #include "server/yarn/yarn.h"
 
 namespace loomlight::api {
@@ -62,6 +65,16 @@ struct LaidYarn {
 // Generates a job's fibers (GenerateLayout or GenerateStraightYarn): one YarnGeometry per yarn. Returns "" or
 // their error ("cancelled", "max_fibers: ...", ...), leaving both outputs empty.
 std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns, std::vector<LaidYarn>* laid);
+
+// A job's fibers in an Embree BVH, for ray tracing them (Render's fiber scenes, CreateBtf's fiber source):
+// generates them, admits the BVH's estimated bytes through `grow` (RESOURCE_EXHAUSTED when it refuses) before
+// building it bounded by them, and with `visibility` not null also builds the yarns' cheap visibility
+// (cross-section slices and occlusion, other yarns as tubes). `stop` says why to stop (deadline, cancellation;
+// OK to go on) and is asked between fibers and during the build. OK, INVALID_ARGUMENT for the yarn's limits
+// ("yarn: ..."), or why it stopped.
+grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
+                             const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility);
 
 // The schema and presets ListModels reports under `yarn`.
 void DescribeYarnModel(v1::YarnModelInfo* out);

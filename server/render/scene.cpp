@@ -158,17 +158,68 @@ yarn::FiberRay ToFiberRay(Vec3 o, Vec3 d, double lo, double hi) {
 Vec3 ToVec(yarn::Float3 v) { return {v.x, v.y, v.z}; }
 }  // namespace
 
+namespace {
+
+// A periodic fiber scene traces at most this many hops from tile to tile (a ray along the cloth that long is
+// inside it: Intersect reports a miss, Occluded a blocked ray).
+constexpr int kMaxTileHops = 64;
+
+// Calls trace(origin, tnear, tfar) on the ray's pieces, the origin moved into the central tile for each (above):
+// `trace` returns true to stop (a hit). Returns the piece's start distance along the ray in *travelled; true
+// when a piece stopped it, false when the ray left the fibers' slab or ran out of hops (*exhausted).
+template <class Trace>
+bool TraceTiled(const Scene::Tiling& tiling, double z_lo, double z_hi, Vec3 origin, Vec3 direction,
+                double min_distance, double max_distance, Trace trace, double* travelled, bool* exhausted) {
+  *travelled = 0;
+  *exhausted = false;
+  for (int hop = 0; hop < kMaxTileHops; ++hop) {
+    origin.x -= std::floor((origin.x - tiling.x0) / tiling.period_x) * tiling.period_x;
+    origin.y -= std::floor((origin.y - tiling.y0) / tiling.period_y) * tiling.period_y;
+    // Distance until the piece leaves the 3 x 3 block laterally (at least one period from the central tile).
+    double exit = INFINITY;
+    const auto bound = [&](double o, double d, double lo, double period) {
+      if (d > 0) exit = std::min(exit, (lo + 2 * period - o) / d);
+      if (d < 0) exit = std::min(exit, (lo - period - o) / d);
+    };
+    bound(origin.x, direction.x, tiling.x0, tiling.period_x);
+    bound(origin.y, direction.y, tiling.y0, tiling.period_y);
+    const double lo = std::max(min_distance - *travelled, 0.0), hi = std::min(max_distance - *travelled, exit);
+    if (lo <= hi && trace(origin, lo, hi)) return true;
+    if (max_distance - *travelled <= exit) return false;
+    const Vec3 next = origin + exit * direction;
+    if ((direction.z >= 0 && next.z > z_hi) || (direction.z <= 0 && next.z < z_lo)) return false;  // out of the slab
+    origin = next;
+    *travelled += exit;
+  }
+  *exhausted = true;
+  return false;
+}
+
+}  // namespace
+
 bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const {
   bool found = false;
   if (fibers) {
-    const yarn::FiberRay ray = ToFiberRay(origin, direction, min_distance, max_distance);
     yarn::FiberHit h;
-    if (fibers->Intersect({&ray, 1}, {&h, 1}).empty() && h.hit && h.t < max_distance) {
+    Vec3 piece_origin = origin;
+    const auto trace = [&](Vec3 o, double lo, double hi) {
+      const yarn::FiberRay ray = ToFiberRay(o, direction, lo, hi);
+      piece_origin = o;
+      return fibers->Intersect({&ray, 1}, {&h, 1}).empty() && h.hit && h.t < hi;
+    };
+    double travelled = 0;
+    bool exhausted = false;
+    const bool hit_fiber =
+        tiling.period_x > 0
+            ? TraceTiled(tiling, fibers->lower().z, fibers->upper().z, origin, direction, min_distance, max_distance,
+                         trace, &travelled, &exhausted)
+            : trace(origin, min_distance, max_distance);
+    if (hit_fiber) {
       found = true;
-      max_distance = h.t;
-      hit->distance = h.t;
+      max_distance = travelled + h.t;
+      hit->distance = max_distance;
       hit->object = fiber_object;
-      hit->position = origin + double(h.t) * direction;
+      hit->position = piece_origin + double(h.t) * direction;  // in the central tile's copy when periodic
       hit->normal = ToVec(h.normal);
       hit->fiber = true;
       hit->fiber_axis = ToVec(h.shading_tangent);
@@ -202,9 +253,17 @@ bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance, double mi
     if (!object.fibers && IntersectShape(object.shape, origin, direction, min_distance, max_distance, &ignored))
       return true;
   if (!fibers) return false;
-  const yarn::FiberRay ray = ToFiberRay(origin, direction, min_distance, max_distance);
-  uint8_t occluded = 0;
-  return fibers->Occluded({&ray, 1}, {&occluded, 1}).empty() && occluded;
+  const auto trace = [&](Vec3 o, double lo, double hi) {
+    const yarn::FiberRay ray = ToFiberRay(o, direction, lo, hi);
+    uint8_t occluded = 0;
+    return fibers->Occluded({&ray, 1}, {&occluded, 1}).empty() && occluded;
+  };
+  if (tiling.period_x <= 0) return trace(origin, min_distance, max_distance);
+  double travelled = 0;
+  bool exhausted = false;
+  return TraceTiled(tiling, fibers->lower().z, fibers->upper().z, origin, direction, min_distance, max_distance, trace,
+                    &travelled, &exhausted) ||
+         exhausted;
 }
 
 namespace {

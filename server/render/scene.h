@@ -101,6 +101,15 @@ struct Scene {
   std::shared_ptr<const yarn::YarnVisibility> fiber_visibility;
   int fiber_object = -1;
   double default_ambient = 0;
+  // Fiber scenes standing for an endless periodic cloth (a BTF's tile, server/render/btf_capture.h): the fibers
+  // repeat with periods (period_x, period_y) in the xy plane, and `fibers` holds at least the 3 x 3 tiles
+  // around the central one, [x0, x0 + period_x] x [y0, y0 + period_y]. A ray is traced from its origin moved
+  // into the central tile by whole periods until it leaves the 3 x 3 block, then moved back again, so it never
+  // meets the block's edges. (Each hop meets a different instance of the random fibers: the seam is where a
+  // period would join in any case.) period_x = 0: not periodic.
+  struct Tiling {
+    double x0 = 0, y0 = 0, period_x = 0, period_y = 0;
+  } tiling;
 
   // The nearest hit with distance in (min_distance, max_distance); false when there is none.
   bool Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;

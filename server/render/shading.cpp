@@ -37,22 +37,23 @@ double PowerHeuristic(double a, double b) {
   return b > 0 ? 1 / (1 + (b / a) * (b / a)) : 1;  // as a ratio: no overflow for the sun's large densities
 }
 
-// Calls add(direction toward the light, distance to it, incident radiance over pdf times the MIS weight) for
-// every light, and (with_environment) one direction from each component of the environment (its bright regions,
+// Calls add(direction toward the light, distance to it, incident radiance over pdf times the MIS weight, index of
+// the light in setup.lights or -1) for every light, and (with_environment) one direction from each component of the environment (its bright regions,
 // the rest) as seen from `position`. material_pdf(direction) is the density the material sampling strategy has
 // toward a direction (0 where there is none), against which the environment's samples are weighed.
 template <class MaterialPdf, class Add>
 void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& points, MaterialPdf material_pdf, Add add,
                   bool with_environment = true) {
-  for (const Light& light : setup.lights) {
+  for (size_t index = 0; index < setup.lights.size(); ++index) {
+    const Light& light = setup.lights[index];
     if (light.type == Light::Type::kDirectional) {
-      add(light.direction, INFINITY, light.rgb);
+      add(light.direction, INFINITY, light.rgb, int(index));
     } else {
       const Vec3 to_light = light.position - position;
       const double d2 = Dot(to_light, to_light);
       if (d2 < 1e-12) continue;  // a light on the surface itself: no defined direction
       const double d = std::sqrt(d2);
-      add((1.0 / d) * to_light, d, (1.0 / d2) * light.rgb);
+      add((1.0 / d) * to_light, d, (1.0 / d2) * light.rgb, int(index));
     }
   }
   if (!setup.environment || !with_environment) return;
@@ -62,7 +63,7 @@ void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& p
     const Environment::Sample sample = setup.environment->Draw(component, u[0], u[1]);
     if (sample.pdf <= 0) continue;
     const double weight = PowerHeuristic(sample.pdf, material_pdf(sample.direction)) / sample.pdf;
-    if (weight > 0) add(sample.direction, INFINITY, weight * sample.radiance);
+    if (weight > 0) add(sample.direction, INFINITY, weight * sample.radiance, -1);
   }
 }
 
@@ -103,7 +104,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
       slices || occlusion ? approximate->Locate(hit.fiber_yarn, to_yarn(start.origin)) : yarn::CrossSectionPoint{};
   // A fiber's light comes from light sampling alone (its scattering is not sampled: the weights stay 1).
   const auto no_material_pdf = [](Vec3) { return 0.0; };
-  ForEachLight(setup, hit.position, points, no_material_pdf, [&](Vec3 wi_world, double max_distance, Rgb incident) {
+  ForEachLight(setup, hit.position, points, no_material_pdf, [&](Vec3 wi_world, double max_distance, Rgb incident, int light) {
     const Vec3 wi = frame.ToLocal(wi_world);
     const double along = Dot(wi, point->axis);
     const double cos_theta = std::sqrt(std::max(0.0, 1.0 - along * along));  // SPEC.md section 5's cos(theta_i)
@@ -115,7 +116,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
     } else if (setup.scene.Occluded(start.origin, wi_world, max_distance, start.MinDistance(wi_world))) {
       return;
     }
-    point->lights.push_back({wi, (cos_theta * transmittance) * incident});
+    point->lights.push_back({wi, (cos_theta * transmittance) * incident, light});
   });
   point->ambient = {};
   if (setup.ambient > 0) {
@@ -149,14 +150,17 @@ Frame ShadingFrame(const RenderSetup& setup, int object, const Hit& hit, float* 
 }
 
 void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoints& points, ShadingPoint* point) {
+  TraceRay(setup, setup.camera.position(), setup.camera.Direction(px, py), setup.camera.pixel_angle(), points, point);
+}
+
+void TraceRay(const RenderSetup& setup, Vec3 origin, Vec3 direction, double pixel_angle, const SamplePoints& points,
+              ShadingPoint* point) {
   point->object = -1;
   point->environment_folded = false;
   point->background = {};
   point->lights.clear();
   point->fiber = false;
   point->ambient = {};
-  const Vec3 origin = setup.camera.position();
-  const Vec3 direction = setup.camera.Direction(px, py);
   Hit hit;
   if (!setup.scene.Intersect(origin, direction, 0.0, INFINITY, &hit)) {
     if (setup.environment) point->background = setup.environment->Radiance(direction);
@@ -164,7 +168,7 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
   }
   point->object = hit.object;
   point->fiber = hit.fiber;
-  point->footprint = hit.distance * setup.camera.pixel_angle();
+  point->footprint = hit.distance * pixel_angle;
   if (hit.fiber) return ShadeFiber(setup, hit, direction, points, point);
   const Frame frame = ShadingFrame(setup, hit.object, hit, &point->u, &point->v);
 
@@ -193,12 +197,12 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
     l.z *= mirror;
     return l;
   };
-  const auto add = [&](Vec3 wi_world, double max_distance, Rgb incident) {
+  const auto add = [&](Vec3 wi_world, double max_distance, Rgb incident, int light) {
     const double side = Dot(wi_world, hit.normal) >= 0 ? 1.0 : -1.0;
     const Vec3 wi = to_local(wi_world);
     if (std::fabs(wi.z) < kMinCosine || (wi.z < 0 && !transmits)) return;  // light behind opaque cloth: no ray
     if (setup.scene.Occluded(hit.position + (side * kRayOffset) * hit.normal, wi_world, max_distance)) return;
-    point->lights.push_back({wi, std::fabs(wi.z) * incident});
+    point->lights.push_back({wi, std::fabs(wi.z) * incident, light});
   };
   // The material's own sampling strategy (when the object has one and there is an environment to find).
   const models::DirectionSampler* sampler =
@@ -221,7 +225,7 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
       const Environment::Found light = setup.environment->Lookup(wi_world);
       const double weight = PowerHeuristic(sample.pdf, light.pdf) / sample.pdf;
       if (weight > 0 && (light.radiance.x > 0 || light.radiance.y > 0 || light.radiance.z > 0))
-        add(wi_world, INFINITY, weight * light.radiance);
+        add(wi_world, INFINITY, weight * light.radiance, -1);
     }
   }
 }

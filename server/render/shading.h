@@ -69,6 +69,7 @@ struct RenderSetup {
 struct LightSample {
   Vec3 wi;     // toward the light, shading frame (z < 0: behind the cloth)
   Rgb weight;  // L_o = f(wi, wo) * weight: incident radiance (or irradiance) x |cos theta_i| / pdf
+  int light = -1;  // its light's index in RenderSetup::lights; -1: an environment or material sample
 };
 
 struct ShadingPoint {
@@ -99,6 +100,10 @@ Frame ShadingFrame(const RenderSetup& setup, int object, const Hit& hit, float* 
 // direction from each of the environment's components and one from the hit's material (setup.object_samplers),
 // weighed by multiple importance sampling; `points` supplies the sample's random numbers (its pairs 1 and up).
 void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoints& points, ShadingPoint* point);
+// The same for any ray (unit direction): TraceSample's camera ray, or a BTF capture's parallel rays
+// (server/render/btf_capture.h). pixel_angle: the footprint's growth per unit distance (0 for parallel rays).
+void TraceRay(const RenderSetup& setup, Vec3 origin, Vec3 direction, double pixel_angle, const SamplePoints& points,
+              ShadingPoint* point);
 
 // The pixel sample `sample` of pixel `pixel` (index y * width + x): its position in the pixel and its points
 // (Owen-scrambled Sobol), a pure function of (seed, pixel, sample).

@@ -47,6 +47,8 @@ void Usage() {
                "  --data-dir DIR             BTF assets live under DIR/btf (default $XDG_STATE_HOME/loomlight,\n"
                "                             else ~/.local/state/loomlight)\n"
                "  --btf-store-mb N           all BTF assets together, in MiB (default 2048)\n"
+               "  --btf-sync-seconds N       look for assets other replicas sharing --data-dir added, replaced or\n"
+               "                             deleted every N s (default 5; 0: only at start and on SIGHUP)\n"
                "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
                "  --max-long-calls N         TextureSlice, Tabulate and Render calls at once (default 16)\n"
                "  --max-long-calls-per-client N  of them, one client's (its token's name, else the address a\n"
@@ -182,6 +184,7 @@ int main(int argc, char** argv) {
     else if (arg == "--environment-dir") options.environment_dir = value();
     else if (arg == "--data-dir") options.data_dir = value();
     else if (arg == "--btf-store-mb") options.btf_store_bytes = mebibytes();
+    else if (arg == "--btf-sync-seconds") options.btf_sync_period = std::chrono::seconds(std::min(number(), 86400ULL));
     else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
     else if (arg == "--max-long-calls") options.limits.max_long_running_calls = positive();
     else if (arg == "--max-long-calls-per-client") options.limits.max_long_calls_per_client = positive();
@@ -222,6 +225,7 @@ int main(int argc, char** argv) {
       const std::string reload_error = server->ReloadTokens();
       std::fprintf(stderr, "loomlight-server: SIGHUP: %s\n",
                    reload_error.empty() ? "tokens reloaded" : ("tokens kept: " + reload_error).c_str());
+      server->SyncBtfAssets();
     }
   }
   std::fprintf(stderr, "loomlight-server: shutting down (in-flight calls get %lld s)\n",

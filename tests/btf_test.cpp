@@ -3,6 +3,7 @@
 // asset reports, the BRDF as the BTF's tile mean, and the RPCs end to end on a real server: a woven twill
 // synthesised and compressed, evaluated, kept across a restart, deleted; bad names and materials rejected.
 #include <gtest/gtest.h>
+#include <signal.h>
 
 #include <algorithm>
 #include <cmath>
@@ -753,6 +754,83 @@ TEST_F(BtfRpcTest, FiberSourceCapturesAWovenPatchOfFibers) {
   for (const v1::BtfAssetInfo& a : listed.assets()) EXPECT_NE(a.name(), "big");
   s = Create(*stub, FiberRequest("after"), &info);
   EXPECT_TRUE(s.ok()) << s.error_message();
+}
+
+// Replicas sharing one data directory (a volume): each sees the assets another creates, replaces and deletes,
+// within its sync period or at once on SIGHUP, and none overwrites another's asset without `replace`.
+TEST(BtfSharedDirectory, ReplicasSeeEachOthersAssets) {
+  const auto dir = std::filesystem::temp_directory_path() / ("loomlight-btf-shared-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  testing::ServerProcess a({"--data-dir", dir.string(), "--btf-sync-seconds", "1"});
+  testing::ServerProcess b({"--data-dir", dir.string(), "--btf-sync-seconds", "0"});  // syncs on SIGHUP only
+  testing::ServerProcess c({"--data-dir", dir.string(), "--btf-sync-seconds", "1"});
+  auto on_a = testing::Connect(a.port()), on_b = testing::Connect(b.port()), on_c = testing::Connect(c.port());
+  const auto listed = [](v1::Loomlight::Stub& stub, const std::string& name) {
+    grpc::ClientContext ctx;
+    v1::ListBtfsResponse out;
+    if (!stub.ListBtfs(&ctx, v1::ListBtfsRequest(), &out).ok()) return std::string("(list failed)");
+    for (const v1::BtfAssetInfo& asset : out.assets())
+      if (asset.name() == name) return asset.source() + " c=" + std::to_string(asset.components());
+    return std::string();
+  };
+  const auto wait_until = [](const std::function<bool()>& ok) {
+    for (int i = 0; i < 100; ++i) {
+      if (ok()) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    return false;
+  };
+  // f at a few (wi, wo, uv), or the error.
+  const auto evaluate = [](v1::Loomlight::Stub& stub) {
+    v1::EvaluateRequest r = BtfEvaluate("shared", 0);
+    for (int i = 0; i < 8; ++i) {
+      r.add_wi(0.3f), r.add_wi(0.1f * i), r.add_wi(std::sqrt(1 - 0.09f - 0.01f * i * i));
+      r.add_wo(0), r.add_wo(0), r.add_wo(1);
+      r.add_uv(0.1f * i), r.add_uv(0.05f * i);
+    }
+    grpc::ClientContext ctx;
+    v1::EvaluateResponse out;
+    const grpc::Status s = stub.Evaluate(&ctx, r, &out);
+    return s.ok() ? std::vector<float>(out.f().begin(), out.f().end()) : std::vector<float>{};
+  };
+
+  v1::BtfAssetInfo info;
+  grpc::Status s = Create(*on_a, TwillRequest("shared"), &info);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  // B has not looked at the directory since it started, yet does not overwrite A's asset without `replace`.
+  EXPECT_EQ(listed(*on_b, "shared"), "");
+  s = Create(*on_b, TwillRequest("shared"), &info);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::ALREADY_EXISTS) << s.error_message();
+  // C finds it within its period and reconstructs exactly what A does.
+  ASSERT_TRUE(wait_until([&] { return !listed(*on_c, "shared").empty(); }));
+  const std::vector<float> first = evaluate(*on_a);
+  ASSERT_EQ(first.size(), 24u);
+  EXPECT_EQ(evaluate(*on_c), first);
+  // B on SIGHUP.
+  ASSERT_EQ(::kill(b.pid(), SIGHUP), 0);
+  ASSERT_TRUE(wait_until([&] { return !listed(*on_b, "shared").empty(); }));
+  EXPECT_EQ(evaluate(*on_b), first);
+  // Replaced on A with fewer components: C serves the new tables (its cached material dropped with them).
+  v1::CreateBtfRequest fewer = TwillRequest("shared");
+  fewer.mutable_compression()->set_max_components(2);
+  fewer.set_replace(true);
+  s = Create(*on_a, fewer, &info);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  const std::vector<float> second = evaluate(*on_a);
+  ASSERT_EQ(second.size(), 24u);
+  EXPECT_NE(second, first);
+  EXPECT_TRUE(wait_until([&] { return evaluate(*on_c) == second; }));
+  EXPECT_NE(listed(*on_c, "shared").find("c=2"), std::string::npos) << listed(*on_c, "shared");
+  // Deleted on A: gone from C.
+  {
+    grpc::ClientContext ctx;
+    v1::DeleteBtfRequest del;
+    del.set_name("shared");
+    v1::DeleteBtfResponse out;
+    ASSERT_TRUE(on_a->DeleteBtf(&ctx, del, &out).ok());
+  }
+  EXPECT_TRUE(wait_until([&] { return listed(*on_c, "shared").empty() && evaluate(*on_c).empty(); }));
+  std::filesystem::remove_all(dir);
 }
 
 TEST_F(BtfRpcTest, UploadedImagesGiveTheServerSynthesisedAsset) {

@@ -96,6 +96,8 @@ std::string LoomlightServer::ReloadTokens() {
   return "";
 }
 
+void LoomlightServer::SyncBtfAssets() { service_->SyncBtfAssets(); }
+
 void LoomlightServer::UpdateServing() {
   std::lock_guard<std::mutex> lock(mutex_);  // held throughout, so concurrent updates cannot end stale
   const bool serving = warm_ && !draining_ && !stuck_;
@@ -108,9 +110,14 @@ void LoomlightServer::UpdateServing() {
 void LoomlightServer::Watch() {
   const auto period = std::min<std::chrono::milliseconds>(std::chrono::milliseconds(500), options_.stall_limit / 4);
   std::unique_lock<std::mutex> lock(mutex_);
+  auto next_sync = batching::Clock::now() + options_.btf_sync_period;
   while (!draining_) {
     wake_.wait_for(lock, period, [this] { return draining_; });
     if (draining_) return;
+    if (options_.btf_sync_period.count() > 0 && batching::Clock::now() >= next_sync) {
+      service_->SyncBtfAssets();  // queued on the asset loader: the watchdog does no disk work itself
+      next_sync = batching::Clock::now() + options_.btf_sync_period;
+    }
     metrics_->Resources({memory_->in_use(), memory_->limit(), long_calls_->in_use(), long_calls_->limit(),
                          service_->materials().bytes(), warm_ && !stuck_});
     metrics_->Queues(batcher_->Stats());

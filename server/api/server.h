@@ -29,6 +29,9 @@ struct ServerOptions {
   std::string environment_dir;                 // maps clients may name ("" = none)
   std::string data_dir;                        // BTF assets live under DATA_DIR/btf ("" = none: no asset RPCs)
   uint64_t btf_store_bytes = uint64_t{2} << 30;  // all BTF assets together (float32 tables)
+  // How often the assets are brought up to date with the data directory (another replica sharing it may have
+  // written or deleted one); 0 = only at start and on SyncBtfAssets (SIGHUP).
+  std::chrono::seconds btf_sync_period{5};
   size_t environment_cache_bytes = size_t{256} << 20;  // decoded maps kept (within the memory budget)
   size_t grpc_memory_bytes = size_t{512} << 20;        // gRPC's own buffers (its resource quota)
   // Health reports NOT_SERVING while the host worker, the asset loader or a kernel launch has been busy
@@ -48,6 +51,9 @@ class LoomlightServer {
   void Shutdown();
   // Reads the tokens file again (SIGHUP); "" on success, else why the old tokens stay.
   std::string ReloadTokens();
+  // Brings the BTF assets up to date with the data directory now (SIGHUP; the watchdog does it every
+  // btf_sync_period), on the asset loader.
+  void SyncBtfAssets();
   int port() const { return port_; }
   int metrics_port() const { return metrics_->port(); }
   const Metrics& metrics() const { return *metrics_; }

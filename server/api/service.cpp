@@ -1,5 +1,7 @@
 #include "server/api/service.h"
 
+#include <cstdio>
+
 #include <algorithm>
 #include <cmath>
 #include <mutex>
@@ -91,6 +93,18 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
   deps_.loader = &loader_;
   deps_.geometry = &geometry_;
   deps_.preparer = &preparer_;
+}
+
+void LoomlightService::SyncBtfAssets() {
+  if (!deps_.btf_store || sync_queued_.exchange(true)) return;
+  loader_.Post([this] {
+    sync_queued_ = false;
+    const int changes = deps_.btf_store->Sync(
+        [](const std::string& line) { std::fprintf(stderr, "loomlight-server: %s\n", line.c_str()); });
+    if (changes == 0) return;
+    materials_.Clear();  // no material may keep a replaced or deleted asset's packing
+    folds_.Clear();
+  });
 }
 
 grpc::Status LoomlightService::Serving() const {

@@ -107,6 +107,10 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   const models::MaterialCache& materials() const { return materials_; }
   // Cancels the uploads that stopped sending (the watchdog's round).
   void CancelIdleUploads() { idle_uploads_.CancelIdle(); }
+  // Brings the BTF assets up to date with the data directory (another server sharing it may have written), on
+  // the asset loader; a change empties the caches holding assets' tables. Does nothing without a store, or while
+  // the last sync is still queued.
+  void SyncBtfAssets();
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
                                        v1::ListModelsResponse* response) override;
@@ -147,6 +151,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   ClientSlots client_long_calls_;
   IdleStreams idle_uploads_;
   std::atomic<bool> serving_{false};
+  std::atomic<bool> sync_queued_{false};
   // Declared last, so destroyed first (the preparer and the loader before the worker): their remaining tasks
   // may still use the members above.
   HostWorker worker_;

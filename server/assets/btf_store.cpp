@@ -1,7 +1,9 @@
 #include "server/assets/btf_store.h"
 
+#include <sys/stat.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstdio>
 #include <cctype>
 #include <algorithm>
@@ -108,8 +110,9 @@ std::unique_ptr<BtfStore> BtfStore::Open(const std::string& data_dir, uint64_t m
   uint64_t total = 0;
   for (const fs::directory_entry& entry : fs::directory_iterator(dir, ec)) {
     const std::string name = entry.path().filename().string();
-    if (name.rfind(".", 0) == 0) {  // what a crash left of a write or a delete
-      fs::remove_all(entry.path(), ec);
+    if (name.rfind(".", 0) == 0) {  // what a crash left of a write or a delete, or another server's write in flight
+      const auto age = fs::file_time_type::clock::now() - fs::last_write_time(entry.path(), ec);
+      if (!ec && age > std::chrono::hours(1)) fs::remove_all(entry.path(), ec);
       continue;
     }
     if (!ValidateAssetName(name).empty() || !entry.is_directory()) continue;
@@ -124,8 +127,70 @@ std::unique_ptr<BtfStore> BtfStore::Open(const std::string& data_dir, uint64_t m
     auto previous = Assets::Global().FindName(name);  // a store opened again in this process
     Assets::Global().Add(asset);
     if (previous) Assets::Global().Remove(previous->id);
+    store->stamps_[name] = store->StampOf(name);
   }
   return store;
+}
+
+std::string BtfStore::StampOf(const std::string& name) const {
+  struct stat st {};
+  if (::stat((fs::path(dir_) / name / "manifest.pb").c_str(), &st) != 0) return "";
+  return std::to_string(st.st_ino) + ":" + std::to_string(st.st_size) + ":" + std::to_string(st.st_mtim.tv_sec) + "." +
+         std::to_string(st.st_mtim.tv_nsec);
+}
+
+std::string BtfStore::UniqueTag() {
+  char host[128] = {};
+  if (::gethostname(host, sizeof host - 1) != 0) host[0] = 0;
+  std::string h;
+  for (const char* c = host; *c && h.size() < 64; ++c) h += std::isalnum(static_cast<unsigned char>(*c)) ? *c : '_';
+  return h + "-" + std::to_string(::getpid()) + "-" + std::to_string(++counter_);
+}
+
+int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto say = [&](const std::string& line) {
+    if (log) log(line);
+  };
+  int changes = 0;
+  std::map<std::string, std::string> on_disk;
+  std::error_code ec;
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir_, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (!ValidateAssetName(name).empty() || !entry.is_directory(ec)) continue;
+    on_disk[name] = StampOf(name);
+  }
+  if (ec) return 0;  // the directory unreadable for now: keep what is registered
+  for (const auto& asset : Assets::Global().List()) {
+    if (on_disk.count(asset->name) || !stamps_.count(asset->name)) continue;  // not this store's (a test's) or kept
+    Assets::Global().Remove(asset->id);
+    stamps_.erase(asset->name);
+    say("BTF asset '" + asset->name + "' deleted by another server: dropped");
+    ++changes;
+  }
+  uint64_t total = 0;
+  for (const auto& a : Assets::Global().List()) total += a->bytes();
+  for (const auto& [name, stamp] : on_disk) {
+    if (stamp.empty()) continue;  // no manifest yet
+    const auto known = stamps_.find(name);
+    if (known != stamps_.end() && known->second == stamp) continue;
+    std::shared_ptr<BtfAsset> asset;
+    std::string why = Load(name, &asset);
+    auto old = Assets::Global().FindName(name);
+    if (why.empty() && total - (old ? old->bytes() : 0) + asset->bytes() > max_bytes_)
+      why = "over the store's bound (--btf-store-mb)";
+    stamps_[name] = stamp;  // tried once per version, loaded or not
+    if (!why.empty()) {
+      say("BTF asset '" + name + "' not loaded: " + why);
+      continue;
+    }
+    total += asset->bytes() - (old ? old->bytes() : 0);
+    Assets::Global().Add(asset);
+    if (old) Assets::Global().Remove(old->id);
+    say("BTF asset '" + name + "' " + (old ? "replaced" : "added") + " by another server: loaded");
+    ++changes;
+  }
+  return changes;
 }
 
 std::string BtfStore::Load(const std::string& name, std::shared_ptr<BtfAsset>* out) const {
@@ -167,7 +232,9 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
   }
   std::lock_guard<std::mutex> lock(mutex_);
   auto old = Assets::Global().FindName(asset->name);
-  if (old && !replace) {
+  const fs::path final_dir = fs::path(dir_) / asset->name;
+  std::error_code exists_error;
+  if ((old || fs::exists(final_dir, exists_error)) && !replace) {  // on disk only: another server's
     *error = "an asset of that name exists (set replace)";
     return Outcome::kExists;
   }
@@ -179,9 +246,8 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
              std::to_string(max_bytes_ >> 20) + " MiB (--btf-store-mb); delete assets first";
     return Outcome::kFull;
   }
-  const std::string tag = std::to_string(::getpid()) + "-" + std::to_string(++counter_);
-  const fs::path final_dir = fs::path(dir_) / asset->name, incoming = fs::path(dir_) / (".incoming-" + tag),
-                 trash = fs::path(dir_) / (".trash-" + tag);
+  const std::string tag = UniqueTag();
+  const fs::path incoming = fs::path(dir_) / (".incoming-" + tag), trash = fs::path(dir_) / (".trash-" + tag);
   v1::BtfAssetInfo info;
   DescribeAsset(*asset, &info);
   const std::string manifest = info.SerializeAsString();
@@ -204,6 +270,7 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
   fs::remove_all(trash, ec);
   Assets::Global().Add(asset);
   if (old) Assets::Global().Remove(old->id);
+  stamps_[asset->name] = StampOf(asset->name);
   return Outcome::kOk;
 }
 
@@ -211,16 +278,22 @@ bool BtfStore::Delete(const std::string& name) {
   if (!ValidateAssetName(name).empty()) return false;
   std::lock_guard<std::mutex> lock(mutex_);
   auto asset = Assets::Global().FindName(name);
-  if (!asset) return false;
-  const fs::path trash = fs::path(dir_) / (".trash-" + std::to_string(::getpid()) + "-" + std::to_string(++counter_));
+  std::error_code exists_error;
+  if (!asset && !fs::exists(fs::path(dir_) / name, exists_error)) return false;  // on disk only: another server's
+  const fs::path trash = fs::path(dir_) / (".trash-" + UniqueTag());
   std::error_code ec;
   fs::rename(fs::path(dir_) / name, trash, ec);
   fs::remove_all(trash, ec);
-  Assets::Global().Remove(asset->id);
+  if (asset) Assets::Global().Remove(asset->id);
+  stamps_.erase(name);
   return true;
 }
 
-bool BtfStore::Exists(const std::string& name) const { return Assets::Global().FindName(name) != nullptr; }
+bool BtfStore::Exists(const std::string& name) const {
+  std::error_code ec;  // on disk only: another server sharing the directory wrote it
+  return Assets::Global().FindName(name) != nullptr ||
+         (ValidateAssetName(name).empty() && fs::exists(fs::path(dir_) / name, ec));
+}
 
 std::vector<std::shared_ptr<const BtfAsset>> BtfStore::List() const { return Assets::Global().List(); }
 

@@ -4,9 +4,16 @@
 // An asset is written into a hidden directory and renamed into place, so a crash leaves the old asset or the
 // new one, never half of one. Names are checked before any path is made from them; nothing a client sends
 // becomes a path otherwise. Loaded assets are registered with models::btf::Assets (what the `btf` model reads).
+//
+// Several servers may share one data directory (replicas on a shared volume): each writes under names unique to
+// its host and process, refuses to overwrite an asset another wrote unless asked to replace it, and Sync brings
+// its registry up to date with the directory (assets another added, replaced or deleted), keyed by each asset's
+// manifest file (inode, size, modification time): a replaced asset is a new directory renamed into place.
 #pragma once
 
 #include <cstdint>
+#include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -40,6 +47,10 @@ class BtfStore {
   Outcome Put(const std::shared_ptr<models::btf::BtfAsset>& asset, bool replace, std::string* error);
   // Removes the asset; false when there is none of that name.
   bool Delete(const std::string& name);
+  // Registers what the directory holds and this store has not seen (another server's writes): new and replaced
+  // assets loaded, deleted ones dropped. Returns how many assets changed (callers then empty the caches that
+  // hold assets' tables); `log` gets a line per change or asset that could not be loaded.
+  int Sync(const std::function<void(const std::string&)>& log = nullptr);
   bool Exists(const std::string& name) const;
   std::vector<std::shared_ptr<const models::btf::BtfAsset>> List() const;
   uint64_t bytes() const;
@@ -50,11 +61,17 @@ class BtfStore {
   BtfStore(std::string dir, uint64_t max_bytes) : dir_(std::move(dir)), max_bytes_(max_bytes) {}
   // Reads DATA_DIR/btf/NAME into *asset; "" or why not.
   std::string Load(const std::string& name, std::shared_ptr<models::btf::BtfAsset>* asset) const;
+  // Which version of NAME's files the directory holds (its manifest's inode, size and modification time; empty
+  // when there is none).
+  std::string StampOf(const std::string& name) const;
+  // A name for a hidden directory no other server sharing the directory uses (host, process, counter).
+  std::string UniqueTag();
 
   const std::string dir_;  // DATA_DIR/btf
   const uint64_t max_bytes_;
   mutable std::mutex mutex_;  // one writer at a time; names -> ids live in models::btf::Assets
   uint64_t counter_ = 0;
+  std::map<std::string, std::string> stamps_;  // per registered asset: StampOf when it was loaded or written
 };
 
 }  // namespace loomlight::assets

@@ -74,6 +74,9 @@ void BtfCapture::TraceTexels(size_t view, size_t begin, size_t end, const std::f
       if (point.object < 0) continue;
       one[0].Clear();
       AppendQueries(point, shading, evaluators, 0, &one);
+      // One query per light sample on a fiber, in order (AppendQueries keeps every one: a fiber scatters from the
+      // whole sphere), and every sample from a grid light (the setup has no environment).
+      if (one[0].size() != point.lights.size()) continue;
       // Each query's weight over samples x cos theta_i (the light of its index), tagged with its image value.
       for (size_t q = 0; q < point.lights.size(); ++q) {
         const int light = point.lights[q].light;

@@ -719,6 +719,11 @@ TEST_F(BtfRpcTest, FiberSourceCapturesAWovenPatchOfFibers) {
   c = {FiberRequest("bad"), "fibers.woven.weave"};
   c.request.mutable_fibers()->mutable_woven()->mutable_weave()->set_preset("cotton");  // a fiber model: no pattern
   cases.push_back(c);
+  c = {FiberRequest("bad"), "fibers.yarn"};  // 24 yarns x 3 plies x 20,000 fibers: over the fiber limit
+  v1::Param* many = c.request.mutable_fibers()->mutable_yarn()->add_params();
+  many->set_name("fibers_per_ply");
+  many->add_values(20000);
+  cases.push_back(c);
   c = {FiberRequest("bad"), "material"};  // the woven model shades no fibers
   c.request.mutable_material()->set_preset("cotton_twill");
   cases.push_back(c);

@@ -323,14 +323,14 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns
 
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
-                             std::shared_ptr<const yarn::YarnVisibility>* visibility) {
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility, const std::string& yarn_field) {
   const auto stopped = [stop] { return !stop().ok(); };  // a copy: job->detail keeps it
   job->detail.stop = stopped;
   std::vector<yarn::YarnGeometry> yarns;
   std::vector<LaidYarn> laid;
   if (std::string e = GenerateYarnJob(job, &yarns, &laid); !e.empty()) {
     if (grpc::Status s = stop(); !s.ok()) return s;
-    return Invalid("yarn: " + e + " (the fiber limits; README \"Render: fibers\")");
+    return Invalid(yarn_field + ": " + e + " (the fiber limits; README \"Render: fibers\")");
   }
   std::vector<const yarn::YarnGeometry*> pointers;
   for (const yarn::YarnGeometry& y : yarns) pointers.push_back(&y);

@@ -71,10 +71,11 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns
 // building it bounded by them, and with `visibility` not null also builds the yarns' cheap visibility
 // (cross-section slices and occlusion, other yarns as tubes). `stop` says why to stop (deadline, cancellation;
 // OK to go on) and is asked between fibers and during the build. OK, INVALID_ARGUMENT for the yarn's limits
-// ("yarn: ..."), or why it stopped.
+// ("<yarn_field>: ..."), or why it stopped.
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
-                             std::shared_ptr<const yarn::YarnVisibility>* visibility);
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility,
+                             const std::string& yarn_field = "yarn");
 
 // The schema and presets ListModels reports under `yarn`.
 void DescribeYarnModel(v1::YarnModelInfo* out);

@@ -358,6 +358,12 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   void StartCompression() {
     compressing_ = true;
     stage_ = Stage::kCompression;
+    bucket_ = {};  // the synthesis' queries and results, not needed any more
+    f_ = {};
+    wi_ = {};
+    wo_ = {};
+    uv_ = {};
+    plan_.reset();
     synthesis_seconds_ = SecondsSince(received_);
     deps_.geometry->Post([this] {
       std::shared_ptr<models::btf::BtfAsset> asset;

@@ -24,7 +24,7 @@ using render::Vec3;
 
 struct Patch {
   std::shared_ptr<const yarn::FiberScene> fibers;
-  render::BtfCaptureTile tile;
+  render::Scene::Tiling tile;
 };
 
 // cotton1 woven as cotton_twill, 3 x 3 repeats around the central tile (as CreateBtf lays it out).
@@ -74,7 +74,7 @@ TEST(PeriodicFibers, RaysOnePeriodApartMeetTheSameFibers) {
   ASSERT_TRUE(patch.fibers);
   render::Scene scene = render::MakeScene(render::SceneKind::kWovenPatch);
   scene.fibers = patch.fibers;
-  scene.tiling = {patch.tile.x0, patch.tile.y0, patch.tile.size_x, patch.tile.size_y};
+  scene.tiling = patch.tile;
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> unit(0, 1);
   int rays = 0, hits = 0, same = 0, grazing = 0, grazing_hits = 0;
@@ -82,7 +82,7 @@ TEST(PeriodicFibers, RaysOnePeriodApartMeetTheSameFibers) {
     // Downward rays from above the patch, a third of them at 80-85 degrees (they cross several tiles).
     const bool graze = i % 3 == 0;
     const Vec3 d = -1.0 * FromAngles(graze ? 80 + 5 * unit(rng) : 70 * unit(rng), 360 * unit(rng));
-    const Vec3 o{patch.tile.x0 + unit(rng) * patch.tile.size_x, patch.tile.y0 + unit(rng) * patch.tile.size_y,
+    const Vec3 o{patch.tile.x0 + unit(rng) * patch.tile.period_x, patch.tile.y0 + unit(rng) * patch.tile.period_y,
                  double(patch.fibers->upper().z) + 0.01};
     render::Hit first;
     const bool hit = scene.Intersect(o, d, 0, INFINITY, &first);
@@ -91,7 +91,7 @@ TEST(PeriodicFibers, RaysOnePeriodApartMeetTheSameFibers) {
     grazing += graze;
     grazing_hits += graze && hit;
     const int k = 1 + i % 5, m = -2 + i % 4;  // far outside the patch's own 3 x 3 repeats
-    const Vec3 shifted = o + Vec3{k * patch.tile.size_x, m * patch.tile.size_y, 0};
+    const Vec3 shifted = o + Vec3{k * patch.tile.period_x, m * patch.tile.period_y, 0};
     render::Hit second;
     const bool hit2 = scene.Intersect(shifted, d, 0, INFINITY, &second);
     if (hit == hit2 && (!hit || std::fabs(first.distance - second.distance) < 1e-4 * (1 + first.distance))) ++same;

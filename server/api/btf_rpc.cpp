@@ -164,8 +164,9 @@ size_t FiberSourceBytes(const FiberSource& f) {
 }
 
 // One CreateBtf call: the material prepared on the geometry worker; one view's images in flight on the batcher
-// at a time (every light and texel of the view: a bulk job); then compression and storing on the geometry
-// worker; progress written from the host worker, one write in flight.
+// at a time (every light and texel of the view: a bulk job; from fibers, a piece of the view's texels traced on
+// the geometry worker, then its queries); then compression and storing on the geometry worker; progress written
+// from the host worker, one write in flight.
 class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
  public:
   CreateBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, BtfJob job, v1::Material material,
@@ -273,7 +274,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     if (!s.ok()) return s;
     const YarnJob& y = fibers_->yarn;
     const double spacing = y.layout.spacing;
-    const render::BtfCaptureTile tile{y.pattern.warps * spacing, y.pattern.picks * spacing, y.pattern.warps * spacing,
+    const render::Scene::Tiling tile{y.pattern.warps * spacing, y.pattern.picks * spacing, y.pattern.warps * spacing,
                                       y.pattern.picks * spacing};
     capture_ = std::make_unique<render::BtfCapture>(scene, tile, job_.grid, job_.width, job_.height, fibers_->samples,
                                                     fibers_->yarn.params.seed);

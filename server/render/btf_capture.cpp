@@ -8,13 +8,13 @@
 
 namespace loomlight::render {
 
-BtfCapture::BtfCapture(std::shared_ptr<const yarn::FiberScene> fibers, const BtfCaptureTile& tile,
+BtfCapture::BtfCapture(std::shared_ptr<const yarn::FiberScene> fibers, const Scene::Tiling& tile,
                        const models::btf::DirectionGrid& grid, int width, int height, int samples, uint64_t seed)
     : tile_(tile), grid_(grid), width_(width), height_(height), samples_(std::max(samples, 1)) {
   RenderSetup& s = setup_;
   s.scene = MakeScene(SceneKind::kWovenPatch);
   s.scene.fibers = fibers;
-  s.scene.tiling = {tile.x0, tile.y0, tile.size_x, tile.size_y};
+  s.scene.tiling = tile;
   s.fiber_shadows = yarn::ShadowMethod::kTraced;
   s.fiber_occlusion = yarn::OcclusionMethod::kTraced;
   s.ambient = 0;
@@ -27,7 +27,7 @@ BtfCapture::BtfCapture(std::shared_ptr<const yarn::FiberScene> fibers, const Btf
     s.lights.push_back({Light::Type::kDirectional, {w[0], w[1], w[2]}, {}, {1, 1, 1}});
     inverse_cosine_.push_back(1 / w[2]);  // grid directions keep theta <= 89 degrees: w[2] >= 0.017
   }
-  ray_start_z_ = double(fibers->upper().z) + 1e-3 * std::max(tile.size_x, tile.size_y);
+  ray_start_z_ = double(fibers->upper().z) + 1e-3 * std::max(tile.period_x, tile.period_y);
 }
 
 size_t BtfCapture::MaxQueriesPerView() const {
@@ -68,8 +68,8 @@ void BtfCapture::TraceTexels(size_t view, size_t begin, size_t end, const std::f
       // The texel's samples: Owen-scrambled Sobol points over its cell (a (0, k, 2)-net for 2^k samples).
       const SamplePoints points(setup_.seed ^ (uint64_t(view) << 40), t, uint32_t(s));
       const std::array<double, 2> u = points.Get2D(0);
-      const Vec3 on_plane{tile_.x0 + (iu + u[0]) / width_ * tile_.size_x,
-                          tile_.y0 + (iv + u[1]) / height_ * tile_.size_y, 0};
+      const Vec3 on_plane{tile_.x0 + (iu + u[0]) / width_ * tile_.period_x,
+                          tile_.y0 + (iv + u[1]) / height_ * tile_.period_y, 0};
       TraceRay(setup_, on_plane + to_start * wo, -1.0 * wo, 0, points, &point);
       if (point.object < 0) continue;
       one[0].Clear();

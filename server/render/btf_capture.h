@@ -4,7 +4,7 @@
 // direction.
 //
 // Readings (ours):
-// - The tile is [x0, x0 + size_x] x [y0, y0 + size_y] of the plane z = 0 (the cloth's mid-plane; normal +z,
+// - The tile is [x0, x0 + period_x] x [y0, y0 + period_y] of the plane z = 0 (the cloth's mid-plane; normal +z,
 //   thread 1 = texture u along +x as SPEC.md section 1), repeated without end (Scene::tiling). Texel (iu, iv)
 //   covers u in [iu, iu + 1) / width, v likewise; its rays pass through jittered points of that cell of the
 //   plane along -wo, and meet the first fiber above or below it: parallax and self-occlusion are in the images,
@@ -27,15 +27,12 @@
 
 namespace loomlight::render {
 
-struct BtfCaptureTile {
-  double x0 = 0, y0 = 0, size_x = 1, size_y = 1;
-};
-
 class BtfCapture {
  public:
-  // The capture of `fibers` (which must hold the 3 x 3 tiles around `tile`) on `grid` at width x height texels,
-  // `samples` rays per texel. Every view's queries are then (light, texel) pairs of one fiber evaluator.
-  BtfCapture(std::shared_ptr<const yarn::FiberScene> fibers, const BtfCaptureTile& tile,
+  // The capture of `fibers` (which must hold the 3 x 3 tiles around `tile`, the BTF's tile and its periods) on
+  // `grid` at width x height texels, `samples` rays per texel. Every view's queries are then (light, texel) pairs
+  // of one fiber evaluator.
+  BtfCapture(std::shared_ptr<const yarn::FiberScene> fibers, const Scene::Tiling& tile,
              const models::btf::DirectionGrid& grid, int width, int height, int samples, uint64_t seed);
 
   // The most queries one view can give (every sample of every texel sees every light).
@@ -56,7 +53,7 @@ class BtfCapture {
   void TraceTexels(size_t view, size_t begin, size_t end, const std::function<bool()>& stop, QueryBucket* bucket) const;
 
   RenderSetup setup_;
-  BtfCaptureTile tile_;
+  Scene::Tiling tile_;
   models::btf::DirectionGrid grid_;
   int width_, height_, samples_;
   std::vector<double> inverse_cosine_;  // per light: 1 / cos theta_i

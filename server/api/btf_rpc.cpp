@@ -34,15 +34,6 @@ grpc::Status NoStore() {
   return {grpc::StatusCode::FAILED_PRECONDITION, "this server keeps no BTF assets (started without a data directory)"};
 }
 
-// A request's asset: its name, grid, tile and compression.
-struct BtfJob {
-  std::string name;
-  models::btf::DirectionGrid grid;
-  int width = 0, height = 0;  // texels of the tile
-  models::btf::CompressionOptions compression;
-  bool replace = false;
-};
-
 // The checks CreateBtf and UploadBtf share (fields named under `prefix`); the tile's size is the caller's.
 std::string CheckAssetRequest(const std::string& prefix, const std::string& name, const v1::BtfGrid& grid,
                               const v1::BtfCompression& compression, bool replace, BtfJob* job) {
@@ -127,12 +118,6 @@ constexpr int kFiberTileRepeats = 3;
 constexpr size_t kFiberPieceQueries = size_t{1} << 18;
 constexpr size_t kFiberBytesPerQuery = 2 * 52 + 12;
 
-// What a fiber source asks for: the patch's yarn and layout, rays per texel.
-struct FiberSource {
-  YarnJob yarn;
-  int samples = 1;
-};
-
 // The request's fiber source: its yarn on its weave (cotton_twill by default), laid out 3 x 3 repeats, at full
 // detail within Render's fiber limits. "" or "fibers.field: reason".
 std::string FiberSourceOf(const models::Registry& registry, const v1::FiberBtfSource& f, FiberSource* out) {
@@ -141,9 +126,10 @@ std::string FiberSourceOf(const models::Registry& registry, const v1::FiberBtfSo
            std::to_string(f.samples_per_texel());
   out->samples = int(f.samples_per_texel() == 0 ? kDefaultFiberSamples : f.samples_per_texel());
   v1::WovenYarnLayout woven = f.woven();
-  if (woven.repeats_u() != 0 || woven.repeats_v() != 0)
-    return "fibers.woven.repeats_u, repeats_v: the tile is one repeat and the server lays out the patch around it; "
-           "leave them 0";
+  for (const auto& [field, repeats] : {std::pair{"repeats_u", woven.repeats_u()}, {"repeats_v", woven.repeats_v()}})
+    if (repeats != 0)
+      return std::string("fibers.woven.") + field +
+             ": the tile is one repeat and the server lays out the patch around it; leave it 0";
   if (!woven.has_weave()) woven.mutable_weave()->set_preset("cotton_twill");
   woven.set_repeats_u(kFiberTileRepeats);
   woven.set_repeats_v(kFiberTileRepeats);
@@ -598,6 +584,21 @@ std::string CompressionOf(const v1::BtfCompression& c, models::btf::CompressionO
   return "";
 }
 
+grpc::Status CheckCreateBtfRequest(const models::Registry& registry, const v1::CreateBtfRequest& request, BtfJob* job,
+                                   std::unique_ptr<FiberSource>* fibers, size_t* bytes) {
+  std::string e = CheckAssetRequest("", request.name(), request.grid(), request.compression(), request.replace(), job);
+  if (e.empty()) e = CheckTexels("resolution", request.resolution(), &job->width);
+  if (!e.empty()) return Invalid(e);
+  job->height = job->width;
+  fibers->reset();
+  if (request.has_fibers()) {
+    *fibers = std::make_unique<FiberSource>();
+    if (std::string f = FiberSourceOf(registry, request.fibers(), fibers->get()); !f.empty()) return Invalid(f);
+  }
+  *bytes = BuildBytes(*job) + (*fibers ? FiberSourceBytes(**fibers) : 0);
+  return grpc::Status::OK;
+}
+
 grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDeps& deps,
                                                                  grpc::CallbackServerContext* context,
                                                                  const v1::CreateBtfRequest* request) {
@@ -607,25 +608,16 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
   };
   if (!deps.btf_store) return reject(NoStore());
   BtfJob job;
-  std::string e = CheckAssetRequest("", request->name(), request->grid(), request->compression(), request->replace(), &job);
-  if (e.empty()) e = CheckTexels("resolution", request->resolution(), &job.width);
-  if (!e.empty()) return reject(Invalid(e));
-  job.height = job.width;
+  std::unique_ptr<FiberSource> fibers;
+  size_t bytes = 0;
+  if (grpc::Status s = CheckCreateBtfRequest(*deps.registry, *request, &job, &fibers, &bytes); !s.ok()) return reject(s);
   if (grpc::Status s = CheckNameFree(deps, job, ""); !s.ok()) return reject(s);
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> cached;
   if (std::string e = deps.materials->Peek(request->material(), *deps.registry, &model, &cached); !e.empty())
     return reject(Invalid(e));
-  std::unique_ptr<FiberSource> fibers;
-  if (request->has_fibers()) {
-    fibers = std::make_unique<FiberSource>();
-    if (std::string e = FiberSourceOf(*deps.registry, request->fibers(), fibers.get()); !e.empty())
-      return reject(Invalid(e));
-  }
   Admission admission;
-  if (grpc::Status s = AdmitLongCall(deps, *context, BuildBytes(job) + (fibers ? FiberSourceBytes(*fibers) : 0), &admission);
-      !s.ok())
-    return reject(s);
+  if (grpc::Status s = AdmitLongCall(deps, *context, bytes, &admission); !s.ok()) return reject(s);
   return new CreateBtfCall(deps, context, std::move(job), request->material(), std::move(fibers), std::move(admission),
                            received);
 }

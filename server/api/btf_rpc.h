@@ -5,10 +5,12 @@
 #pragma once
 
 #include <cstddef>
+#include <memory>
 #include <string>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/service.h"
+#include "server/api/yarn_rpc.h"
 
 namespace loomlight::api {
 
@@ -16,6 +18,27 @@ namespace loomlight::api {
 constexpr uint32_t kDefaultBtfTexels = 64;
 constexpr uint32_t kMaxBtfTexels = 128;  // per side: 81 x 81 images of 128 x 128 are 1.3 GB in float
 constexpr uint32_t kDefaultBtfComponents = 16;
+
+// A request's asset: its name, grid, tile and compression.
+struct BtfJob {
+  std::string name;
+  models::btf::DirectionGrid grid;
+  int width = 0, height = 0;  // texels of the tile
+  models::btf::CompressionOptions compression;
+  bool replace = false;
+};
+
+// A CreateBtf fiber source (README "BTF assets: from fibers"): the patch's yarn and layout, rays per texel.
+struct FiberSource {
+  YarnJob yarn;
+  int samples = 1;
+};
+
+// CreateBtf's checks of its own fields (name, grid, resolution, compression, the fiber source), before the store
+// and the material are looked at: OK with *job filled in and *fibers set when the request has a fiber source, or
+// INVALID_ARGUMENT naming the field. *bytes: what the call is charged when admitted.
+grpc::Status CheckCreateBtfRequest(const models::Registry& registry, const v1::CreateBtfRequest& request, BtfJob* job,
+                                   std::unique_ptr<FiberSource>* fibers, size_t* bytes);
 
 grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDeps& deps,
                                                                  grpc::CallbackServerContext* context,

@@ -1,6 +1,7 @@
 // Fuzz target: request validation and planning, the server's code between a request's bytes and a plan or a
 // gRPC error, without an OpenCL device. Input: byte 0 picks the RPC (bits 0-1: Evaluate, Sample, Tabulate,
-// Render) and the device (bit 2 set: a device without fp64); the rest is that RPC's request, protobuf-encoded.
+// Render; bit 3 set: CreateBtf instead) and the device (bit 2 set: a device without fp64); the rest is that RPC's
+// request, protobuf-encoded.
 //
 // Each RPC runs its handler's checks in the handler's order: the material (MaterialCache::Peek, which resolves it
 // as Get does, without packing), then the request's Check* functions (server/api/). A rejection must be
@@ -14,6 +15,7 @@
 // A structure-aware mutator (LLVMFuzzerCustomMutator below) edits parsed requests through protobuf reflection,
 // with the registry's names as a dictionary, so mutations keep a valid encoding and reach past the parser.
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <cmath>
 #include <cstddef>
@@ -28,6 +30,7 @@
 #include <google/protobuf/stubs/logging.h>
 
 #include "loomlight/v1/loomlight.pb.h"
+#include "server/api/btf_rpc.h"
 #include "server/api/render_rpc.h"
 #include "server/api/sample_rpc.h"
 #include "server/api/service.h"
@@ -46,9 +49,12 @@ using google::protobuf::FieldDescriptor;
 using google::protobuf::Message;
 using google::protobuf::Reflection;
 
-enum class Rpc { kEvaluate, kSample, kTabulate, kRender };
+enum class Rpc { kEvaluate, kSample, kTabulate, kRender, kCreateBtf };
 constexpr uint8_t kRpcMask = 3;
 constexpr uint8_t kNoFp64Bit = 4;
+constexpr uint8_t kCreateBtfBit = 8;
+
+Rpc RpcOf(uint8_t first) { return first & kCreateBtfBit ? Rpc::kCreateBtf : static_cast<Rpc>(first & kRpcMask); }
 // Queries evaluated on the host per accepted Evaluate: enough to reach every part of a plan, few enough to keep
 // the fuzzer fast.
 constexpr size_t kMaxEvaluatedQueries = 64;
@@ -59,6 +65,7 @@ std::unique_ptr<Message> NewRequest(Rpc rpc) {
     case Rpc::kSample: return std::make_unique<v1::SampleRequest>();
     case Rpc::kTabulate: return std::make_unique<v1::TabulateRequest>();
     case Rpc::kRender: return std::make_unique<v1::RenderRequest>();
+    case Rpc::kCreateBtf: return std::make_unique<v1::CreateBtfRequest>();
   }
   return nullptr;
 }
@@ -198,6 +205,35 @@ void FuzzRender(const v1::RenderRequest& request, bool has_fp64) {
   FUZZ_CHECK(pixels >= 1 && request.width() <= api::kMaxRenderSide && request.height() <= api::kMaxRenderSide,
              std::to_string(request.width()) + " x " + std::to_string(request.height()));
   FUZZ_CHECK(api::RenderBytes(request) >= pixels, "admits less than a byte a pixel");
+}
+
+void FuzzCreateBtf(const v1::CreateBtfRequest& request) {
+  api::BtfJob job;
+  std::unique_ptr<api::FiberSource> fibers;
+  size_t bytes = 0;
+  if (grpc::Status s = api::CheckCreateBtfRequest(Registry(), request, &job, &fibers, &bytes); !s.ok())
+    return CheckRejection(s, true);
+  const models::Model* model = nullptr;
+  ResolveMaterial(request.material(), &model);
+  const size_t n = job.grid.size();
+  FUZZ_CHECK(n >= 1 && n <= models::btf::kMaxGridDirections, std::to_string(n) + " directions");
+  FUZZ_CHECK(job.width >= 1 && job.width <= int(api::kMaxBtfTexels) && job.height == job.width,
+             std::to_string(job.width) + " x " + std::to_string(job.height) + " texels");
+  FUZZ_CHECK(job.compression.max_components >= 1 && job.compression.max_components <= models::btf::kMaxComponents,
+             std::to_string(job.compression.max_components) + " components");
+  // Admitted: at least the images in float.
+  FUZZ_CHECK(bytes >= n * n * 3 * size_t(job.width) * job.height * sizeof(float), "admits less than its images");
+  FUZZ_CHECK(bool(fibers) == request.has_fibers(), "fiber source " + std::to_string(bool(fibers)));
+  if (!fibers) return;
+  FUZZ_CHECK(fibers->samples >= 1 && fibers->samples <= 64, std::to_string(fibers->samples) + " rays per texel");
+  FUZZ_CHECK(fibers->yarn.woven && fibers->yarn.layout.repeats_u == 3 && fibers->yarn.layout.repeats_v == 3,
+             "the fiber patch is not 3 x 3 repeats");
+  for (size_t v = 0; v < n; ++v) {
+    double w[3];
+    job.grid.Direction(v, w);
+    CheckUnit(std::array<float, 3>{float(w[0]), float(w[1]), float(w[2])}.data(), "grid direction " + std::to_string(v));
+    FUZZ_CHECK(w[2] > 0, "grid direction " + std::to_string(v) + " below the surface");
+  }
 }
 
 // ---- The structure-aware mutator ----
@@ -363,7 +399,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   // Strings that are not UTF-8 fail to parse, as gRPC would refuse them; protobuf's log line for each is noise.
   static const google::protobuf::LogSilencer quiet_protobuf;
   if (size == 0) return 0;
-  const Rpc rpc = static_cast<Rpc>(data[0] & kRpcMask);
+  const Rpc rpc = RpcOf(data[0]);
   const bool has_fp64 = (data[0] & kNoFp64Bit) == 0;
   std::unique_ptr<Message> request = NewRequest(rpc);
   if (!request->ParseFromArray(data + 1, static_cast<int>(size - 1))) return 0;  // gRPC would refuse it earlier
@@ -373,6 +409,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case Rpc::kSample: FuzzSample(static_cast<v1::SampleRequest&>(*request), has_fp64); break;
     case Rpc::kTabulate: FuzzTabulate(static_cast<v1::TabulateRequest&>(*request), has_fp64); break;
     case Rpc::kRender: FuzzRender(static_cast<v1::RenderRequest&>(*request), has_fp64); break;
+    case Rpc::kCreateBtf: FuzzCreateBtf(static_cast<v1::CreateBtfRequest&>(*request)); break;
   }
   return 0;
 }
@@ -384,7 +421,7 @@ extern "C" size_t LLVMFuzzerCustomMutator(uint8_t* data, size_t size, size_t max
   Mutator mutator(seed);
   std::unique_ptr<Message> request;
   if (size > 0 && seed % 2 == 0) {
-    request = NewRequest(static_cast<Rpc>(data[0] & kRpcMask));
+    request = NewRequest(RpcOf(data[0]));
     if (!request->ParseFromArray(data + 1, static_cast<int>(size - 1)) || !mutator.Mutate(request.get()))
       request.reset();
   }

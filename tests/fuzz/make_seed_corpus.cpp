@@ -16,7 +16,7 @@
 namespace loomlight {
 namespace {
 
-enum RpcByte : char { kEvaluate = 0, kSample = 1, kTabulate = 2, kRender = 3, kNoFp64 = 4 };
+enum RpcByte : char { kEvaluate = 0, kSample = 1, kTabulate = 2, kRender = 3, kNoFp64 = 4, kCreateBtf = 8 };
 
 std::filesystem::path out_dir;
 int written = 0;
@@ -205,6 +205,34 @@ void WriteRenderSeeds(const models::Registry& registry) {
   Write("render_woven_patch", kRender, yarn);
 }
 
+// CreateBtf: a woven material on rings, one from fibers on a preset grid, and a name that must be refused.
+void WriteCreateBtfSeeds() {
+  v1::CreateBtfRequest r;
+  r.set_name("twill_8");
+  *r.mutable_material() = Preset("cotton_twill");
+  r.set_resolution(8);
+  for (auto [theta, count] : {std::pair{0.0, 1u}, {30.0, 6u}, {60.0, 8u}}) {
+    v1::BtfRing* ring = r.mutable_grid()->add_rings();
+    ring->set_theta(theta);
+    ring->set_count(count);
+  }
+  r.mutable_compression()->set_max_components(4);
+  r.mutable_compression()->set_target_psnr_db(40);
+  Write("create_btf_rings", kCreateBtf, r);
+  v1::CreateBtfRequest fibers;
+  fibers.set_name("fibers");
+  *fibers.mutable_material() = Preset("cotton");
+  fibers.mutable_grid()->set_preset("h2");
+  fibers.set_resolution(16);
+  fibers.mutable_fibers()->mutable_yarn()->set_preset("cotton1");
+  *fibers.mutable_fibers()->mutable_woven()->mutable_weave() = Preset("cotton_twill");
+  fibers.mutable_fibers()->mutable_woven()->set_crimp(0.5);
+  fibers.mutable_fibers()->set_samples_per_texel(2);
+  Write("create_btf_fibers", kCreateBtf, fibers);
+  r.set_name("../escape");
+  Write("create_btf_refused_name", kCreateBtf, r);
+}
+
 }  // namespace
 }  // namespace loomlight
 
@@ -220,6 +248,7 @@ int main(int argc, char** argv) {
   loomlight::WriteSampleSeeds(registry);
   loomlight::WriteTabulateSeeds(registry);
   loomlight::WriteRenderSeeds(registry);
+  loomlight::WriteCreateBtfSeeds();
   std::printf("%d seeds written to %s\n", loomlight::written, argv[1]);
   return 0;
 }

@@ -150,11 +150,6 @@ replica_bulk_calls() {
   http_get "${replica_metrics[$1]}" /metrics |
     awk '/^loomlight_calls_total\{/ && /rpc="(Render|Tabulate)"/ { n += $NF } END { printf "%d\n", n }'
 }
-# Long-running calls a replica holds (its metrics sample them every half second).
-replica_long_calls() {
-  http_get "${replica_metrics[$1]}" /metrics |
-    awk '/^loomlight_resource\{/ && /name="long_calls_in_use"/ { n = $NF } END { printf "%d\n", n }'
-}
 
 # ---- the replicas ----
 
@@ -265,14 +260,6 @@ run_batch_and_kill() {  # NAME SERVER VICTIM
     for ((i = 0; i < 100; ++i)); do
       (($(haproxy_stat loomlight_replicas "$3" scur) >= 2)) && break
     done
-  else
-    # Without HAProxy, the victim's own count (a sample up to half a second old): a kill between two of its calls
-    # would interrupt nothing (seen once in six runs before this wait).
-    for ((i = 0; i < 50; ++i)); do
-      (($(replica_long_calls "$3") >= 2)) && break
-      sleep 0.1
-    done
-    echo "$name: $3 holds $(replica_long_calls "$3") long calls (its last sample) at the kill"
   fi
   victim_calls_before_kill=$(replica_bulk_calls "$3")
   kill -KILL "${replica_pid[$3]}"
@@ -298,7 +285,7 @@ check_batch() {  # NAME OUTPUT_DIRECTORY
   [[ $(tail -n +2 "$log" | cut -d, -f3 | sort -u) == "done" ]] || fail "$name: a job not done: $(grep -v ',done,' "$log")"
   # The kill cut calls short, and the batch tried them again.
   retried=$(tail -n +2 "$log" | awk -F, '$4 > 1' | wc -l)
-  ((retried > 0)) || fail "$name: no job needed a second attempt: the kill interrupted nothing"
+  ((retried > 0 || ${allow_no_retry:-0})) || fail "$name: no job needed a second attempt: the kill interrupted nothing"
   # The directory holds the jobs' outputs and nothing else (no temporary file), each identical to its reference.
   [[ $(find "$directory" -type f | wc -l) -eq $job_count ]] ||
     fail "$name: $(find "$directory" -type f | wc -l) files in $directory: $(find "$directory" -type f -name '*.tmp')"
@@ -341,14 +328,29 @@ stop_haproxy
 
 # ---- 4. the client's round_robin over the three addresses, replica2 dead, replica3 killed ----
 
-write_jobs "$work/round-robin.csv" "$work/round-robin-out"
-replica1_calls_before=$(replica_bulk_calls replica1)
-replica3_calls_before=$(replica_bulk_calls replica3)
-run_batch_and_kill round-robin "$(address replica1),$(address replica2),$(address replica3)" replica3
-check_batch round-robin "$work/round-robin-out"
-# Both live replicas served the batch: replica3 until it was killed, replica1 throughout.
-((victim_calls_before_kill > replica3_calls_before)) || fail "round-robin: replica3 served no call before the kill"
-(($(replica_bulk_calls replica1) > replica1_calls_before)) || fail "round-robin: replica1 served no call"
+# Without HAProxy the test cannot see when the victim holds a call: the client's picks come in bursts, and a kill
+# between two bursts interrupts nothing (about one run in six). Such a round keeps every other guarantee; the
+# victim is then started again and the batch run afresh, up to three rounds, and one must have interrupted calls.
+interrupted=0
+for ((round = 1; round <= 3 && interrupted == 0; ++round)); do
+  if ((round > 1)); then
+    echo "round-robin: round $((round - 1))'s kill interrupted nothing; replica3 started again"
+    start_replica replica3
+    read_replica_ports replica3
+    wait_serving replica3
+  fi
+  rm -rf "$work/round-robin-out" "$work/round-robin-jobs.log"  # a batch with a log resumes it: start afresh
+  write_jobs "$work/round-robin.csv" "$work/round-robin-out"
+  replica1_calls_before=$(replica_bulk_calls replica1)
+  replica3_calls_before=$(replica_bulk_calls replica3)
+  run_batch_and_kill round-robin "$(address replica1),$(address replica2),$(address replica3)" replica3
+  allow_no_retry=1 check_batch round-robin "$work/round-robin-out"
+  # Both live replicas served the batch: replica3 until it was killed, replica1 throughout.
+  ((victim_calls_before_kill > replica3_calls_before)) || fail "round-robin: replica3 served no call before the kill"
+  (($(replica_bulk_calls replica1) > replica1_calls_before)) || fail "round-robin: replica1 served no call"
+  ((retried > 0)) && interrupted=1
+done
+((interrupted)) || fail "round-robin: in three rounds no kill interrupted a call"
 
 echo "round-robin: replica1 and replica3 served the batch"
 

@@ -775,6 +775,31 @@ render::RenderSetup OneFiberSetup(yarn::FiberType type, double r, render::Vec3 l
   return setup;
 }
 
+// A render traces its pixel samples in packets (TracePixelSamples: camera rays cast together, Embree packets
+// for fibers): each sample must come out as when traced alone.
+TEST(FiberShading, PacketsTraceAsSingleSamples) {
+  const render::RenderSetup setup = OneFiberSetup(yarn::FiberType::kMigration, 0.01, render::Normalize({0.3, 0.8, -0.5}));
+  std::vector<render::PixelSample> samples;
+  for (uint64_t pixel = 0; pixel < 48 * 48; pixel += 5)
+    for (uint32_t s = 0; s < 3; ++s) samples.push_back({pixel, s});
+  std::vector<render::ShadingPoint> packed(samples.size());
+  render::TracePixelSamples(setup, samples, packed.data());
+  int fibers = 0;
+  for (size_t i = 0; i < samples.size(); ++i) {
+    render::ShadingPoint single;
+    render::TracePixelSample(setup, samples[i].pixel, samples[i].sample, &single);
+    const render::ShadingPoint& p = packed[i];
+    ASSERT_EQ(p.object, single.object) << i;
+    ASSERT_EQ(p.fiber, single.fiber) << i;
+    fibers += p.fiber;
+    EXPECT_NEAR(p.background.x, single.background.x, 1e-12) << i;
+    EXPECT_LT(render::Length(p.wo - single.wo), 1e-3) << i;
+    EXPECT_LT(render::Length(p.axis - single.axis), 1e-3) << i;
+    ASSERT_EQ(p.lights.size(), single.lights.size()) << i;
+  }
+  EXPECT_GT(fibers, 20);
+}
+
 // A core fiber stands for a bundle of fibers, a thick opaque cylinder: lit where its surface faces the light
 // and in its own shadow on the far side (a regular fiber, a line to its far-field model, is lit all round: the
 // test below).

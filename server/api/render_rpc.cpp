@@ -1,6 +1,7 @@
 #include "server/api/render_rpc.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <memory>
 #include <thread>
@@ -491,15 +492,18 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // Traces pixels [begin, end) of the chunk: their queries into `buckets`, what needs none into chunk.value.
   // Hits on objects with a folded environment get its radiance too, evaluated on the host for the range at once.
   void TraceRange(Chunk& chunk, uint64_t begin, uint64_t end, std::vector<render::QueryBucket>* buckets) const {
-    render::ShadingPoint point;
+    std::array<render::ShadingPoint, render::Scene::kMaxPacket> points;
+    std::array<render::PixelSample, render::Scene::kMaxPacket> batch;
+    std::array<uint32_t, render::Scene::kMaxPacket> batch_slot;
+    size_t queued = 0;
     std::vector<render::FoldedEnvironment::Query> folded;
     std::vector<uint32_t> folded_slot;
-    for (uint64_t p = begin; p < end; ++p) {
-      const uint64_t pixel = chunk.first_pixel + p;
-      uint32_t slot = chunk.slot_begin[p];
-      const auto [first, last] = PassSamples(pixel);
-      for (uint32_t s = first; s < last; ++s, ++slot) {
-        render::TracePixelSample(setup_, pixel, s, &point);
+    // Samples are traced a packet at a time, in pixel order (a pixel's queries stay in sample order).
+    const auto flush = [&] {
+      render::TracePixelSamples(setup_, {batch.data(), queued}, points.data());
+      for (size_t k = 0; k < queued; ++k) {
+        const render::ShadingPoint& point = points[k];
+        const uint32_t slot = batch_slot[k];
         if (point.object < 0) {
           chunk.value[slot] = point.background;
           continue;
@@ -511,7 +515,19 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
           if (!chunk.slot_folded.empty()) chunk.slot_folded[slot] = 1;
         }
       }
+      queued = 0;
+    };
+    for (uint64_t p = begin; p < end; ++p) {
+      const uint64_t pixel = chunk.first_pixel + p;
+      uint32_t slot = chunk.slot_begin[p];
+      const auto [first, last] = PassSamples(pixel);
+      for (uint32_t s = first; s < last; ++s, ++slot) {
+        batch[queued] = {pixel, s};
+        batch_slot[queued] = slot;
+        if (++queued == batch.size()) flush();
+      }
     }
+    flush();
     if (folded.empty()) return;
     std::vector<Rgb> radiance;
     setup_.folded_environment->Radiance(folded, &radiance);

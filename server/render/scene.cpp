@@ -1,6 +1,7 @@
 #include "server/render/scene.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <utility>
@@ -197,6 +198,45 @@ bool TraceTiled(const Scene::Tiling& tiling, double z_lo, double z_hi, Vec3 orig
 
 }  // namespace
 
+namespace {
+
+// A fiber hit as the renderer's Hit: at `distance` along the ray, at `position` (in the central tile's copy when
+// periodic).
+void FiberHitToHit(const yarn::FiberHit& h, double distance, Vec3 position, int object, Hit* hit) {
+  hit->distance = distance;
+  hit->object = object;
+  hit->position = position;
+  hit->normal = ToVec(h.normal);
+  hit->fiber = true;
+  hit->fiber_axis = ToVec(h.shading_tangent);
+  hit->fiber_radius = 0.5 * h.width;
+  hit->fiber_yarn = h.yarn;
+  hit->fiber_core = h.type == yarn::FiberType::kCore;
+  // The axis made perpendicular to the normal (they are perpendicular on a straight fiber's side).
+  Vec3 along = hit->fiber_axis - Dot(hit->fiber_axis, hit->normal) * hit->normal;
+  if (Length(along) < 1e-9) along = Cross(hit->normal, Length(Cross(hit->normal, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});
+  hit->tangent_s = Normalize(along);
+  hit->tangent_t = Cross(hit->normal, hit->tangent_s);
+  hit->s = hit->t = 0;
+}
+
+}  // namespace
+
+bool Scene::IntersectShapes(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const {
+  bool found = false;
+  for (size_t i = 0; i < objects.size(); ++i) {
+    if (objects[i].fibers) continue;
+    Hit candidate;
+    if (IntersectShape(objects[i].shape, origin, direction, min_distance, max_distance, &candidate)) {
+      max_distance = candidate.distance;
+      candidate.object = static_cast<int>(i);
+      *hit = candidate;
+      found = true;
+    }
+  }
+  return found;
+}
+
 bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const {
   bool found = false;
   if (fibers) {
@@ -217,34 +257,37 @@ bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double m
     if (hit_fiber) {
       found = true;
       max_distance = travelled + h.t;
-      hit->distance = max_distance;
-      hit->object = fiber_object;
-      hit->position = piece_origin + double(h.t) * direction;  // in the central tile's copy when periodic
-      hit->normal = ToVec(h.normal);
-      hit->fiber = true;
-      hit->fiber_axis = ToVec(h.shading_tangent);
-      hit->fiber_radius = 0.5 * h.width;
-      hit->fiber_yarn = h.yarn;
-      hit->fiber_core = h.type == yarn::FiberType::kCore;
-      // The axis made perpendicular to the normal (they are perpendicular on a straight fiber's side).
-      Vec3 along = hit->fiber_axis - Dot(hit->fiber_axis, hit->normal) * hit->normal;
-      if (Length(along) < 1e-9) along = Cross(hit->normal, Length(Cross(hit->normal, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});
-      hit->tangent_s = Normalize(along);
-      hit->tangent_t = Cross(hit->normal, hit->tangent_s);
-      hit->s = hit->t = 0;
+      FiberHitToHit(h, max_distance, piece_origin + double(h.t) * direction, fiber_object, hit);
     }
   }
-  for (size_t i = 0; i < objects.size(); ++i) {
-    if (objects[i].fibers) continue;
-    Hit candidate;
-    if (IntersectShape(objects[i].shape, origin, direction, min_distance, max_distance, &candidate)) {
-      max_distance = candidate.distance;
-      candidate.object = static_cast<int>(i);
-      *hit = candidate;
-      found = true;
+  return IntersectShapes(origin, direction, min_distance, max_distance, hit) || found;
+}
+
+void Scene::IntersectFrom(Vec3 origin, std::span<const Vec3> directions, std::span<Hit> hits,
+                          std::span<uint8_t> found) const {
+  const size_t n = directions.size();
+  if (!fibers || tiling.period_x > 0 || n < 2) {  // a periodic scene's rays part ways at its tiles' edges
+    for (size_t i = 0; i < n; ++i) found[i] = Intersect(origin, directions[i], 0.0, INFINITY, &hits[i]);
+    return;
+  }
+  std::array<yarn::FiberRay, kMaxPacket> rays;
+  std::array<yarn::FiberHit, kMaxPacket> fiber_hits;
+  for (size_t first = 0; first < n; first += kMaxPacket) {
+    const size_t m = std::min(kMaxPacket, n - first);
+    for (size_t k = 0; k < m; ++k) rays[k] = ToFiberRay(origin, directions[first + k], 0.0, INFINITY);
+    const bool traced = fibers->Intersect({rays.data(), m}, {fiber_hits.data(), m}).empty();
+    for (size_t k = 0; k < m; ++k) {
+      const size_t i = first + k;
+      const yarn::FiberHit& h = fiber_hits[k];
+      double max_distance = INFINITY;
+      found[i] = traced && h.hit;
+      if (found[i]) {
+        max_distance = h.t;
+        FiberHitToHit(h, max_distance, origin + double(h.t) * directions[i], fiber_object, &hits[i]);
+      }
+      found[i] = IntersectShapes(origin, directions[i], 0.0, max_distance, &hits[i]) || found[i];
     }
   }
-  return found;
 }
 
 bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance, double min_distance) const {

@@ -3,7 +3,9 @@
 // space is right-handed, +y up, lengths in scene units (README "Render").
 #pragma once
 
+#include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -113,7 +115,16 @@ struct Scene {
 
   // The nearest hit with distance in (min_distance, max_distance); false when there is none.
   bool Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;
+  // The closest hits of rays from one origin (a pixel's camera rays), as Intersect from 0 to infinity would
+  // find them: found[i] = 1 with hits[i] filled, or 0. The fibers take them as packets of up to kMaxPacket
+  // (Embree's coherent rays). Spans of one length.
+  static constexpr size_t kMaxPacket = 16;
+  void IntersectFrom(Vec3 origin, std::span<const Vec3> directions, std::span<Hit> hits, std::span<uint8_t> found) const;
   bool Occluded(Vec3 origin, Vec3 direction, double max_distance, double min_distance = 0) const;
+
+ private:
+  // The analytic objects only: the closest hit closer than max_distance, into *hit.
+  bool IntersectShapes(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;
 };
 
 Scene MakeScene(SceneKind kind);

@@ -155,17 +155,24 @@ void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoi
 
 void TraceRay(const RenderSetup& setup, Vec3 origin, Vec3 direction, double pixel_angle, const SamplePoints& points,
               ShadingPoint* point) {
+  Hit hit;
+  const bool found = setup.scene.Intersect(origin, direction, 0.0, INFINITY, &hit);
+  ShadeHit(setup, direction, pixel_angle, points, found ? &hit : nullptr, point);
+}
+
+void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, const SamplePoints& points, const Hit* found,
+              ShadingPoint* point) {
   point->object = -1;
   point->environment_folded = false;
   point->background = {};
   point->lights.clear();
   point->fiber = false;
   point->ambient = {};
-  Hit hit;
-  if (!setup.scene.Intersect(origin, direction, 0.0, INFINITY, &hit)) {
+  if (found == nullptr) {
     if (setup.environment) point->background = setup.environment->Radiance(direction);
     return;
   }
+  const Hit& hit = *found;
   point->object = hit.object;
   point->fiber = hit.fiber;
   point->footprint = hit.distance * pixel_angle;
@@ -231,10 +238,30 @@ void TraceRay(const RenderSetup& setup, Vec3 origin, Vec3 direction, double pixe
 }
 
 void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample, ShadingPoint* point) {
-  const SamplePoints points(setup.seed, pixel, sample);
-  const std::array<double, 2> u = points.Get2D(kPixelPair);
-  const double x = static_cast<double>(pixel % setup.width), y = static_cast<double>(pixel / setup.width);
-  TraceSample(setup, x + u[0], y + u[1], points, point);
+  const PixelSample one{pixel, sample};
+  TracePixelSamples(setup, {&one, 1}, point);
+}
+
+void TracePixelSamples(const RenderSetup& setup, std::span<const PixelSample> samples, ShadingPoint* points) {
+  std::array<Vec3, Scene::kMaxPacket> directions;
+  std::array<Hit, Scene::kMaxPacket> hits;
+  std::array<uint8_t, Scene::kMaxPacket> found;
+  for (size_t done = 0; done < samples.size(); done += Scene::kMaxPacket) {
+    const size_t n = std::min(samples.size() - done, Scene::kMaxPacket);
+    for (size_t k = 0; k < n; ++k) {
+      const PixelSample& p = samples[done + k];
+      const std::array<double, 2> u = SamplePoints(setup.seed, p.pixel, p.sample).Get2D(kPixelPair);
+      const double x = static_cast<double>(p.pixel % setup.width), y = static_cast<double>(p.pixel / setup.width);
+      directions[k] = setup.camera.Direction(x + u[0], y + u[1]);
+    }
+    // Cast together: neighbouring pixels' camera rays are as coherent as rays get (Embree packets, for fibers).
+    setup.scene.IntersectFrom(setup.camera.position(), {directions.data(), n}, {hits.data(), n}, {found.data(), n});
+    for (size_t k = 0; k < n; ++k) {
+      const PixelSample& p = samples[done + k];
+      ShadeHit(setup, directions[k], setup.camera.pixel_angle(), SamplePoints(setup.seed, p.pixel, p.sample),
+               found[k] ? &hits[k] : nullptr, &points[done + k]);
+    }
+  }
 }
 
 void QueryBucket::Clear() {

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <span>
 #include <vector>
 
 #include "server/models/material_plan.h"
@@ -108,6 +109,16 @@ void TraceRay(const RenderSetup& setup, Vec3 origin, Vec3 direction, double pixe
 // The pixel sample `sample` of pixel `pixel` (index y * width + x): its position in the pixel and its points
 // (Owen-scrambled Sobol), a pure function of (seed, pixel, sample).
 void TracePixelSample(const RenderSetup& setup, uint64_t pixel, uint32_t sample, ShadingPoint* point);
+// Several pixel samples into points[0, samples.size()): each as TracePixelSample traces it, the camera rays
+// cast together (neighbouring pixels' samples make coherent packets).
+struct PixelSample {
+  uint64_t pixel = 0;
+  uint32_t sample = 0;
+};
+void TracePixelSamples(const RenderSetup& setup, std::span<const PixelSample> samples, ShadingPoint* points);
+// TraceRay's shading of what the ray found: `hit` (null: a miss) on the ray along unit `direction`.
+void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, const SamplePoints& points, const Hit* hit,
+              ShadingPoint* point);
 
 // One kernel path: a prepared material (with a curtain's layer), evaluated with texture coordinates (its BTF)
 // or without, with light through the cloth (pairs on opposite sides, and what is seen through it) or without.

@@ -193,6 +193,7 @@ class FiberScene {
   };
   void Release();
   static Float3 ShadingTangent(const YarnTable& table, uint32_t seg, const float* v0, Float3 tangent, float u);
+  void Finish(const FiberRay& r, float tfar, uint32_t geom, uint32_t prim, float u, Float3 ng, FiberHit* out) const;
 
   RTCDeviceTy* device_ = nullptr;
   RTCSceneTy* scene_ = nullptr;

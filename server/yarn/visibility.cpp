@@ -284,7 +284,7 @@ bool YarnVisibility::OtherYarnsBlock(int yarn, Vec3 p, Vec3 w, double max_distan
 double YarnVisibility::Occlusion(const CrossSectionPoint& x, OcclusionMethod method) const {
   if (method == OcclusionMethod::kTraced || x.yarn < 0) return 1;
   return method == OcclusionMethod::kTexture ? cross_section_->Occlusion(x.x, x.y)
-                                             : cross_section_->DistanceOcclusion(std::hypot(x.x, x.y));
+                                             : cross_section_->DistanceOcclusion(std::sqrt(x.x * x.x + x.y * x.y));
 }
 
 }  // namespace loomlight::yarn

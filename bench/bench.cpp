@@ -15,7 +15,9 @@
 
 #include "bench/report.h"
 #include "bench/stats.h"
+#include "server/api/server.h"
 #include "server/models/registry.h"
+#include "server/runtime/allocator.h"
 
 namespace loomlight::bench {
 
@@ -130,6 +132,8 @@ int main(int argc, char** argv) {
   // As the server does (server/api/server.cpp): the benchmark's own gRPC clients skip Abseil's debug-only
   // lock-order graph too.
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
+  // The in-process servers' allocator as loomlight-server sets it (server/main.cpp).
+  loomlight::runtime::KeepFreedMemory(loomlight::api::ServerOptions().limits.memory_budget_bytes);
   Args args;
   const bool parsed = ParseArgs(argc, argv, &args);
   if (!parsed || args.help) {

@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "server/api/server.h"
+#include "server/runtime/allocator.h"
 
 namespace {
 
@@ -202,6 +203,9 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  // Freed call buffers stay with the process, up to the budget calls may hold (server/runtime/allocator.h).
+  if (!loomlight::runtime::KeepFreedMemory(options.limits.memory_budget_bytes))
+    std::fprintf(stderr, "loomlight-server: warning: the allocator refused its thresholds; calls may page-fault more\n");
   std::string error;
   auto server = loomlight::api::LoomlightServer::Start(options, &error);
   if (!server) {

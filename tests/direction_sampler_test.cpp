@@ -10,12 +10,61 @@
 #include <numbers>
 #include <random>
 
+#include "server/models/cdf.h"
 #include "server/models/direction_sampler.h"
 #include "server/models/material_plan.h"
 #include "server/models/registry.h"
 
 namespace loomlight {
 namespace {
+
+// CdfGuide (server/models/cdf.h) must find exactly SearchCdf's cell and remainder: empty cells, a heavy spike,
+// trailing zeros, float sums, targets on bucket edges and at the very top, and any bucket count.
+template <class T>
+void ExpectGuideMatchesSearch(const std::vector<T>& cdf, int buckets, std::mt19937_64& rng) {
+  const int n = int(cdf.size()) - 1;
+  const models::CdfGuide guide(cdf.data(), n, buckets);
+  const double total = double(cdf[n]);
+  std::vector<double> targets;
+  std::uniform_real_distribution<double> u01(0, 1);
+  for (int k = 0; k < 4000; ++k) targets.push_back(u01(rng) * total);
+  for (int g = 0; g <= buckets; ++g) {
+    const double edge = double(g) * total / buckets;
+    targets.insert(targets.end(), {edge, std::nextafter(edge, 0.0), std::nextafter(edge, 2 * total + 1)});
+  }
+  for (const T& c : cdf) targets.insert(targets.end(), {double(c), std::nextafter(double(c), 0.0)});
+  targets.insert(targets.end(), {0.0, total, std::nextafter(total, 0.0), 2 * total});
+  for (double t : targets) {
+    double want_r = -1, got_r = -2;
+    const int want = models::SearchCdf(cdf.data(), n, t, &want_r);
+    const int got = guide.Search(cdf.data(), n, t, &got_r);
+    ASSERT_EQ(got, want) << "target " << t << " of " << total << ", " << buckets << " buckets";
+    ASSERT_EQ(got_r, want_r) << "target " << t;
+  }
+}
+
+TEST(CdfGuide, FindsWhatBinarySearchFinds) {
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u01(0, 1);
+  for (int n : {1, 2, 7, 64, 1000}) {
+    std::vector<double> cdf(size_t(n) + 1, 0.0);
+    std::vector<float> cdf_f(size_t(n) + 1, 0.0f);
+    for (int i = 0; i < n; ++i) {
+      double w = u01(rng) < 0.3 ? 0.0 : u01(rng);  // empty cells
+      if (i == n / 3) w = 1e4;                      // a spike: most targets in one cell
+      if (i >= n - n / 5) w = 0;                    // trailing zeros
+      cdf[size_t(i) + 1] = cdf[size_t(i)] + w;
+      cdf_f[size_t(i) + 1] = cdf_f[size_t(i)] + float(w);
+    }
+    for (int buckets : {1, 3, std::max(1, n / 4), n, 4 * n}) {
+      ExpectGuideMatchesSearch(cdf, buckets, rng);
+      ExpectGuideMatchesSearch(cdf_f, buckets, rng);
+    }
+  }
+  // No weight at all: the guide is empty and searches as SearchCdf does.
+  ExpectGuideMatchesSearch(std::vector<double>(9, 0.0), 8, rng);
+}
+
 
 using models::DirectionSampler;
 using Dir = DirectionSampler::Dir;

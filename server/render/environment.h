@@ -13,6 +13,7 @@
 #include <string_view>
 #include <vector>
 
+#include "server/models/cdf.h"
 #include "server/render/vec.h"
 
 namespace loomlight::render {
@@ -107,6 +108,9 @@ class Environment {
     std::vector<uint32_t> bright_pixels;
     std::vector<double> bright_cdf;  // bright_pixels.size() + 1
     double total_weight[2] = {0, 0};  // kBright, kRest: luminance x sin(theta) summed
+    // Guide tables for the three searches (the same cells, found in a few reads).
+    models::CdfGuide row_guide, bright_guide;
+    std::vector<models::CdfGuide> column_guides;  // per row
   };
   // A pixel's sampling weight and density per steradian at image row position py (continuous).
   double PixelDensity(double weight, Component component, double py) const;

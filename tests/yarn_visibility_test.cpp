@@ -57,6 +57,15 @@ TEST(PolylineYarnCurve, ClosestArcFindsTheCrossSectionOfPointsAroundTheCurve) {
       // The interpolated frame's plane is not the polyline's perpendicular exactly: within a small fraction of
       // the radius along the curve.
       EXPECT_NEAR(y.curve.ClosestArc(p), arc, 0.25 * 0.0378) << (y.warp ? "warp " : "weft ") << y.index;
+      // ClosestFrame is At(ClosestArc) found in one search (the frame from the segment it ends on).
+      double found = -1;
+      const CurveFrame g = y.curve.ClosestFrame(p, &found);
+      const double closest = y.curve.ClosestArc(p);
+      EXPECT_NEAR(found, closest, 1e-12);
+      const CurveFrame h = y.curve.At(closest);
+      EXPECT_LT(Norm(g.position - h.position), 1e-12);
+      EXPECT_LT(Norm(g.tangent - h.tangent), 1e-9);
+      EXPECT_LT(Norm(g.normal - h.normal), 1e-9);
     }
   }
   // A curve that doubles back is searched segment by segment.

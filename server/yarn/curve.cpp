@@ -78,16 +78,10 @@ std::string PolylineYarnCurve::Make(std::vector<Vec3> vertices, std::vector<Vec3
   return "";
 }
 
-double PolylineYarnCurve::ClosestOnSegment(size_t i, Vec3 p, double* distance2) const {
-  const Vec3 d = vertices_[i + 1] - vertices_[i];
-  const double u = std::clamp(Dot(p - vertices_[i], d) / Dot(d, d), 0.0, 1.0);
-  const Vec3 off = p - (vertices_[i] + u * d);
-  *distance2 = Dot(off, off);
-  return arc_[i] + u * (arc_[i + 1] - arc_[i]);
-}
-
-double PolylineYarnCurve::ClosestArc(Vec3 p) const {
-  if (vertices_.size() < 2 || !Finite(p)) return 0;
+void PolylineYarnCurve::ClosestSegment(Vec3 p, size_t* segment, double* u) const {
+  *segment = 0;
+  *u = 0;
+  if (vertices_.size() < 2 || !Finite(p)) return;
   const size_t segments = vertices_.size() - 1;
   size_t lo = 0, hi = segments;
   if (!keys_.empty()) {
@@ -97,20 +91,41 @@ double PolylineYarnCurve::ClosestArc(Vec3 p) const {
     lo = k > 3 ? k - 3 : 0;
     hi = std::min(segments, k + 2);
   }
-  double best = INFINITY, arc = 0;
+  double best = INFINITY;
   for (size_t i = lo; i < hi; ++i) {
-    double d2 = 0;
-    const double a = ClosestOnSegment(i, p, &d2);
-    if (d2 < best) best = d2, arc = a;
+    const Vec3 d = vertices_[i + 1] - vertices_[i];
+    const double along = std::clamp(Dot(p - vertices_[i], d) / Dot(d, d), 0.0, 1.0);
+    const Vec3 off = p - (vertices_[i] + along * d);
+    const double d2 = Dot(off, off);
+    if (d2 < best) best = d2, *segment = i, *u = along;
   }
-  return arc;
+}
+
+double PolylineYarnCurve::ClosestArc(Vec3 p) const {
+  size_t i;
+  double u;
+  ClosestSegment(p, &i, &u);
+  return arc_.size() < 2 ? 0 : arc_[i] + u * (arc_[i + 1] - arc_[i]);
+}
+
+CurveFrame PolylineYarnCurve::ClosestFrame(Vec3 p, double* arc) const {
+  *arc = 0;
+  if (vertices_.size() < 2) return {};  // not made
+  size_t i;
+  double u;
+  ClosestSegment(p, &i, &u);
+  *arc = arc_.size() < 2 ? 0 : arc_[i] + u * (arc_[i + 1] - arc_[i]);
+  return FrameOnSegment(i, u);
 }
 
 CurveFrame PolylineYarnCurve::At(double arc) const {
   const double a = std::clamp(arc, 0.0, Length());
   // The segment holding `a`: the last vertex whose arc length is <= a, short of the final vertex.
   const size_t i = std::min<size_t>(std::upper_bound(arc_.begin(), arc_.end(), a) - arc_.begin(), arc_.size() - 1) - 1;
-  const double u = (a - arc_[i]) / (arc_[i + 1] - arc_[i]);
+  return FrameOnSegment(i, (a - arc_[i]) / (arc_[i + 1] - arc_[i]));
+}
+
+CurveFrame PolylineYarnCurve::FrameOnSegment(size_t i, double u) const {
   CurveFrame f;
   f.position = vertices_[i] + u * (vertices_[i + 1] - vertices_[i]);
   f.tangent = Normalized((1 - u) * tangents_[i] + u * tangents_[i + 1]);

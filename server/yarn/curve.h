@@ -45,6 +45,11 @@ class YarnCurve {
   virtual CurveFrame At(double arc) const = 0;
   // The arc length of the curve point nearest to p (for a point within the yarn: where its cross-section is).
   virtual double ClosestArc(Vec3 p) const = 0;
+  // At(ClosestArc(p)), with that arc in *arc: curves that find the frame on the way override it.
+  virtual CurveFrame ClosestFrame(Vec3 p, double* arc) const {
+    *arc = ClosestArc(p);
+    return At(*arc);
+  }
   // The centre as a polyline (a straight yarn: its two ends), e.g. for a thick tube standing for the yarn.
   virtual std::vector<Vec3> CentrePolyline() const = 0;
 };
@@ -83,10 +88,15 @@ class PolylineYarnCurve final : public YarnCurve {
   // Polylines that advance along their chord (every segment does: a woven layout's yarns) are searched by
   // binary search on the chord and the neighbouring segments; others segment by segment.
   double ClosestArc(Vec3 p) const override;
+  // The frame on the closest segment found, without At's search for the segment again (once per shading point
+  // of a fiber render).
+  CurveFrame ClosestFrame(Vec3 p, double* arc) const override;
   std::vector<Vec3> CentrePolyline() const override { return vertices_; }
 
  private:
-  double ClosestOnSegment(size_t i, Vec3 p, double* distance2) const;
+  // The segment nearest to p and the position along it, u in [0, 1] (segment 0, u 0 for a degenerate input).
+  void ClosestSegment(Vec3 p, size_t* segment, double* u) const;
+  CurveFrame FrameOnSegment(size_t i, double u) const;
 
   std::vector<Vec3> vertices_;
   std::vector<Vec3> normals_;

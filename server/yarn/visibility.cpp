@@ -252,8 +252,8 @@ CrossSectionPoint YarnVisibility::Locate(int yarn, Vec3 p) const {
   CrossSectionPoint out;
   if (yarn < 0 || yarn >= yarns()) return out;
   const YarnCurve& curve = *centres_[size_t(yarn)];
-  const double arc = curve.ClosestArc(p);
-  const CurveFrame f = curve.At(arc);
+  double arc = 0;
+  const CurveFrame f = curve.ClosestFrame(p, &arc);
   out.yarn = yarn;
   out.normal = f.normal;
   out.binormal = Cross(f.tangent, f.normal);

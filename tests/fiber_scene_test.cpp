@@ -7,6 +7,7 @@
 #include "server/yarn/fiber_scene.h"
 
 #include <gtest/gtest.h>
+#include <xmmintrin.h>
 
 #include <algorithm>
 #include <atomic>
@@ -578,6 +579,22 @@ TEST(FiberSceneTest, PacketsFindWhatSingleRaysFind) {
   EXPECT_FALSE(packed[40].hit);
   EXPECT_FALSE(packed[41].hit);
   EXPECT_GT(hits, 1500);
+}
+
+TEST(FiberSceneTest, QueriesLeaveTheCallersFloatingPointModes) {
+  // Embree runs with denormals flushed (embree_mxcsr.h); the caller's arithmetic must keep them after a query.
+  const YarnGeometry g = Cotton1(0.5);
+  const FiberScene scene = MustBuild({&g});
+  const std::vector<FiberRay> rays = RaysAtYarn(40, 22, 0.5);
+  const unsigned before = _mm_getcsr();
+  std::vector<FiberHit> hits(rays.size());
+  ASSERT_EQ(scene.Intersect(rays, hits), "");
+  ASSERT_EQ(scene.Intersect({rays.data(), 1}, {hits.data(), 1}), "");
+  std::vector<uint8_t> occluded(rays.size());
+  ASSERT_EQ(scene.Occluded(rays, occluded), "");
+  EXPECT_EQ(_mm_getcsr(), before);
+  volatile double tiny = std::numeric_limits<double>::min();
+  EXPECT_GT(tiny / 4, 0.0);  // a denormal, not flushed to zero
 }
 
 TEST(FiberSceneTest, SameInputSameHits) {

@@ -10,6 +10,8 @@
 #include <mutex>
 #include <utility>
 
+#include "server/yarn/embree_mxcsr.h"
+
 namespace loomlight::yarn {
 namespace {
 
@@ -537,7 +539,10 @@ std::string FiberScene::Intersect(std::span<const FiberRay> rays, std::span<Fibe
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
     // A lone ray: on random rays at a cotton1 yarn (one thread, AVX2) rtcIntersect1 ran 1.9 Mrays/s,
     // rtcIntersect1M 1.6-2.0 and rtcIntersect8 packets 1.9-2.0.
-    rtcIntersect1(scene_, &context, &rh);
+    {
+      const FlushDenormalsScope flush;
+      rtcIntersect1(scene_, &context, &rh);
+    }
     Finish(r, rh.ray.tfar, rh.hit.geomID, rh.hit.primID, rh.hit.u, {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z}, &hits[0]);
     return "";
   }
@@ -566,7 +571,10 @@ std::string FiberScene::Intersect(std::span<const FiberRay> rays, std::span<Fibe
       rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
       rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
     }
-    rtcIntersect16(valid, scene_, &context, &rh);
+    {
+      const FlushDenormalsScope flush;
+      rtcIntersect16(valid, scene_, &context, &rh);
+    }
     for (size_t k = 0; k < n; ++k) {
       if (!valid[k]) continue;
       Finish(rays[first + k], rh.ray.tfar[k], rh.hit.geomID[k], rh.hit.primID[k], rh.hit.u[k],
@@ -600,7 +608,10 @@ std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8
     ray.mask = ~0u;
     ray.id = 0;
     ray.flags = 0;
-    rtcOccluded1(scene_, &context, &ray);
+    {
+      const FlushDenormalsScope flush;
+      rtcOccluded1(scene_, &context, &ray);
+    }
     // Embree marks an occluded ray by setting tfar to -inf.
     occluded[i] = ray.tfar < 0 ? 1 : 0;
   }

@@ -9,6 +9,8 @@
 #include <numbers>
 #include <utility>
 
+#include "server/yarn/embree_mxcsr.h"
+
 namespace loomlight::yarn {
 namespace {
 
@@ -191,7 +193,10 @@ bool TubeMesh::Blocks(int yarn, Vec3 p, Vec3 w, double max_distance) const {
   ray.mask = yarn >= 0 && yarn < 32 && yarns_ <= 32 ? ~(1u << yarn) : ~0u;
   ray.id = 0;
   ray.flags = 0;
-  rtcOccluded1(scene_, &context.base, &ray);
+  {
+    const FlushDenormalsScope flush;
+    rtcOccluded1(scene_, &context.base, &ray);
+  }
   return ray.tfar < 0;  // Embree marks an occluded ray by setting tfar to -inf
 }
 

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <numbers>
 #include <random>
+#include <thread>
 #include <vector>
 
 #include "server/yarn/fiber_scene.h"
@@ -133,7 +134,8 @@ TEST(YarnVisibility, ApproximationsOnAWovenPatchAgainstRaysTracedThroughTheFiber
   const double light[3] = {-0.5, 0.4, 0.768};  // unit, toward the light (the woven scene's)
   std::mt19937_64 rng(9);
   std::uniform_real_distribution<double> unit(0, 1);
-  double shadow_traced = 0, shadow_slices = 0, ambient_traced = 0, ambient_texture = 0, ambient_distance = 0;
+  double shadow_traced = 0, shadow_slices = 0, ambient_traced = 0, ambient_texture = 0, ambient_distance = 0,
+         ambient_open_distance = 0;
   int hits = 0;
   const int ambient_rays = 32;
   for (int k = 0; k < 1200; ++k) {
@@ -167,16 +169,96 @@ TEST(YarnVisibility, ApproximationsOnAWovenPatchAgainstRaysTracedThroughTheFiber
     const CrossSectionPoint at = patch->visibility.Locate(hit.yarn, origin);
     ambient_texture += tubes * patch->visibility.Occlusion(at, OcclusionMethod::kTexture);
     ambient_distance += tubes * patch->visibility.Occlusion(at, OcclusionMethod::kDistance);
+    // As the renderer shades it: the tubes' tabulated openness instead of rays.
+    ambient_open_distance += patch->visibility.OtherYarnsOpenness(at) * patch->visibility.Occlusion(at, OcclusionMethod::kDistance);
     ++hits;
   }
   ASSERT_GT(hits, 400);
-  for (double* v : {&shadow_traced, &shadow_slices, &ambient_traced, &ambient_texture, &ambient_distance}) *v /= hits;
-  printf("woven cotton1: %d hits; shadow traced %.3f slices %.3f; ambient traced %.3f texture %.3f distance %.3f\n",
-         hits, shadow_traced, shadow_slices, ambient_traced, ambient_texture, ambient_distance);
+  for (double* v : {&shadow_traced, &shadow_slices, &ambient_traced, &ambient_texture, &ambient_distance,
+                    &ambient_open_distance})
+    *v /= hits;
+  printf("woven cotton1: %d hits; shadow traced %.3f slices %.3f; ambient traced %.3f texture %.3f distance %.3f "
+         "(tabulated openness %.3f)\n",
+         hits, shadow_traced, shadow_slices, ambient_traced, ambient_texture, ambient_distance, ambient_open_distance);
   EXPECT_NEAR(shadow_slices, shadow_traced, 0.08);
   EXPECT_NEAR(ambient_texture, ambient_traced, 0.08);
   EXPECT_NEAR(ambient_distance, ambient_traced, 0.08);
+  EXPECT_NEAR(ambient_open_distance, ambient_traced, 0.08);
+  EXPECT_NEAR(ambient_open_distance, ambient_distance, 0.02);
   EXPECT_EQ(patch->visibility.Occlusion(patch->visibility.Locate(0, {0, 0, 0}), OcclusionMethod::kTraced), 1);
+}
+
+// The tabulated openness against its definition: at fibers seen from above and from below and at points in
+// the gaps between yarns, the share of 512 random directions that no other yarn's tube blocks.
+TEST(YarnVisibility, OpennessIsTheShareOfDirectionsTheTubesLeaveOpen) {
+  const auto patch = MakePatch();
+  const YarnVisibility& v = patch->visibility;
+  std::mt19937_64 rng(31);
+  std::uniform_real_distribution<double> unit(0, 1);
+  std::vector<std::pair<int, Vec3>> points;
+  for (int k = 0; k < 400 && points.size() < 300; ++k) {
+    const float x = float(0.1 + 0.48 * unit(rng)), y = float(0.1 + 0.48 * unit(rng));
+    const float z = k % 2 ? 1.0f : -1.0f;  // from above and from below
+    FiberRay camera{{x, y, z}, {0.01f, -0.02f, -z}};
+    FiberHit hit;
+    ASSERT_EQ(patch->fibers.Intersect({&camera, 1}, {&hit, 1}), "");
+    if (!hit.hit) continue;
+    const float r = 0.5f * hit.width;
+    points.push_back({hit.yarn, {hit.position.x - r * hit.normal.x, hit.position.y - r * hit.normal.y,
+                                 hit.position.z - r * hit.normal.z}});
+  }
+  ASSERT_GT(points.size(), 200u);
+  double sum_abs = 0, sum_table = 0, sum_rays = 0, worst = 0;
+  int low = 0;
+  for (const auto& [yarn, p] : points) {
+    const double table = v.OtherYarnsOpenness(v.Locate(yarn, p));
+    ASSERT_GE(table, 0.0);
+    ASSERT_LE(table, 1.0);
+    const int n = 512;
+    int open = 0;
+    for (int m = 0; m < n; ++m) {
+      const double z = 1 - 2 * unit(rng), phi = 2 * kPi * unit(rng), rho = std::sqrt(1 - z * z);
+      open += v.OtherYarnsBlock(yarn, p, {rho * std::cos(phi), rho * std::sin(phi), z}, INFINITY) ? 0 : 1;
+    }
+    const double rays = double(open) / n;
+    low += rays < 0.8;
+    sum_abs += std::fabs(table - rays);
+    worst = std::max(worst, std::fabs(table - rays));
+    sum_table += table;
+    sum_rays += rays;
+  }
+  const double count = double(points.size());
+  printf("openness at %zu fiber points: table %.3f, rays %.3f, mean |difference| %.3f, worst %.3f (%d points under "
+         "0.8)\n",
+         points.size(), sum_table / count, sum_rays / count, sum_abs / count, worst, low);
+  EXPECT_GT(low, 20);  // the points see the other yarns: a table of ones would fail
+  EXPECT_NEAR(sum_table / count, sum_rays / count, 0.01);
+  EXPECT_LT(sum_abs / count, 0.05);  // 512 rays alone differ by ~0.015 from the truth
+  EXPECT_LT(worst, 0.25);
+}
+
+// Nodes are traced on first use; whichever thread and order gets there, the values are the same.
+TEST(YarnVisibility, OpennessDoesNotDependOnTheOrderOfQueries) {
+  const auto a = MakePatch();
+  const auto b = MakePatch();
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> unit(0, 1);
+  std::vector<CrossSectionPoint> at;
+  for (int k = 0; k < 4000; ++k) {
+    const Vec3 p{0.05 + 0.6 * unit(rng), 0.05 + 0.6 * unit(rng), 0.06 * (unit(rng) - 0.5)};
+    const int yarn = int(unit(rng) * a->layout.yarns.size());
+    at.push_back(a->visibility.Locate(yarn, p));
+  }
+  std::vector<double> forward(at.size()), racing(at.size());
+  for (size_t i = 0; i < at.size(); ++i) forward[i] = a->visibility.OtherYarnsOpenness(at[i]);
+  std::thread other([&] {
+    for (size_t i = at.size(); i-- > at.size() / 2;) racing[i] = b->visibility.OtherYarnsOpenness(at[i]);
+  });
+  for (size_t i = 0; i < at.size() / 2; ++i) racing[i] = b->visibility.OtherYarnsOpenness(at[i]);
+  other.join();
+  EXPECT_EQ(forward, racing);
+  EXPECT_GT(a->visibility.openness_bytes(), 0u);
+  EXPECT_LE(a->visibility.openness_bytes(), YarnVisibility::kMaxOpennessBytes);
 }
 
 TEST(YarnVisibility, RefusesBadInput) {
@@ -194,6 +276,10 @@ TEST(YarnVisibility, RefusesBadInput) {
   EXPECT_EQ(v.SelfShadow(v.Locate(7, {0, 0, 0.5}), {1, 0, 0}, 0.001), 1);
   EXPECT_EQ(v.Occlusion(v.Locate(-3, {0, 0, 0.5}), OcclusionMethod::kTexture), 1);
   EXPECT_FALSE(v.OtherYarnsBlock(-1, {0, 0, 0.5}, {1, 0, 0}, INFINITY));
+  // One yarn: nothing else to block, no table.
+  EXPECT_EQ(v.OtherYarnsOpenness(v.Locate(0, {0, 0, 0.5})), 1);
+  EXPECT_EQ(v.OtherYarnsOpenness(v.Locate(9, {0, 0, 0.5})), 1);
+  EXPECT_EQ(v.openness_bytes(), 0u);
 }
 
 }  // namespace

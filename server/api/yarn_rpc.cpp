@@ -361,6 +361,11 @@ grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& 
     if (grpc::Status s = stop(); !s.ok()) return s;
     return {grpc::StatusCode::INTERNAL, "the yarn's cross-section: " + v};
   }
+  // The other yarns' openness table (at most YarnVisibility::kMaxOpennessBytes), filled while rendering.
+  if (!grow(made->openness_bytes()))
+    return {grpc::StatusCode::RESOURCE_EXHAUSTED, "bvh_memory: the other yarns' openness table needs " +
+                                                      std::to_string(made->openness_bytes()) +
+                                                      " bytes, more than the server has free now"};
   *visibility = std::move(made);
   return grpc::Status::OK;
 }

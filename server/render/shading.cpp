@@ -120,20 +120,19 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
   });
   point->ambient = {};
   if (setup.ambient > 0) {
-    // Ambient visibility: one uniformly distributed direction on the sphere per sample, traced through the
-    // fibers, or through the other yarns' tubes times the yarn's own occlusion.
-    const std::array<double, 2> u = points.Get2D(kAmbientPair);
-    const double z = 1 - 2 * u[0], phi = 2 * std::numbers::pi * u[1];
-    const double r = std::sqrt(std::max(0.0, 1 - z * z));
-    const Vec3 w{r * std::cos(phi), r * std::sin(phi), z};
+    // Ambient visibility: traced, one uniformly distributed direction on the sphere per sample through the
+    // fibers; approximated, the other yarns' openness times the yarn's own occlusion (a core: the half of the
+    // sphere its surface faces).
     double visibility = 0;
-    if (behind_core(w)) {
-      // in the core's own shadow
-    } else if (occlusion) {
-      if (!approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(w), INFINITY))
-        visibility = approximate->Occlusion(in_yarn, setup.fiber_occlusion);
-    } else if (!setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w))) {
-      visibility = 1;
+    if (occlusion) {
+      visibility = (core ? 0.5 : 1.0) * approximate->OtherYarnsOpenness(in_yarn) *
+                   approximate->Occlusion(in_yarn, setup.fiber_occlusion);
+    } else {
+      const std::array<double, 2> u = points.Get2D(kAmbientPair);
+      const double z = 1 - 2 * u[0], phi = 2 * std::numbers::pi * u[1];
+      const double r = std::sqrt(std::max(0.0, 1 - z * z));
+      const Vec3 w{r * std::cos(phi), r * std::sin(phi), z};
+      if (!behind_core(w) && !setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w))) visibility = 1;
     }
     point->ambient = (setup.ambient * visibility) * Rgb{1, 1, 1};
   }

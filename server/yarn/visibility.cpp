@@ -2,6 +2,8 @@
 
 #include <embree3/rtcore.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <deque>
 #include <limits>
@@ -232,6 +234,57 @@ std::string SharedCrossSection(const YarnParams& params, const CrossSectionOptio
   return "";
 }
 
+// The openness nodes of each yarn: one set per arc step along the centre, kOpennessAngles about it (a
+// "diamond" angle: the quadrant plus |b| / (|n| + |b|) within it, monotone in the angle without a
+// trigonometric call) and kOpennessRadii distances from it, up to kOpennessReach tube radii (fibers lie within
+// about 1.2; farther points, hairs, take the outermost node).
+constexpr double kOpennessArcStep = 0.5;  // tube radii: ~9 nodes per crossing interval at the default spacing
+constexpr int kOpennessAngles = 8;
+constexpr int kOpennessRadii = 3;
+constexpr double kOpennessReach = 1.2;
+constexpr int kOpennessZ = 8;  // the directions' strata: 8 in z (equal areas of the sphere) x 8 in azimuth
+
+struct YarnVisibility::OpennessTable {
+  struct Yarn {
+    double step = 1;  // arc length between nodes
+    int arcs = 0;
+    size_t first = 0;  // its first node
+  };
+  std::vector<Yarn> yarns;
+  double radius = 1;  // the tubes'
+  // Per node: its openness, or -1 until traced. Relaxed atomics: a node raced to by two threads gets the same
+  // value from both.
+  std::unique_ptr<std::atomic<float>[]> nodes;
+  size_t count = 0;
+};
+
+namespace {
+
+// The point (n, b) of a diamond angle d in [0, 4) on the unit circle.
+void DiamondToUnit(double d, double* n, double* b) {
+  const int quadrant = static_cast<int>(d) & 3;
+  const double f = d - std::floor(d);
+  double x = 1 - f, y = f;
+  const double length = std::sqrt(x * x + y * y);
+  x /= length, y /= length;
+  for (int q = 0; q < quadrant; ++q) std::swap(x, y), x = -x;  // a quarter turn each
+  *n = x, *b = y;
+}
+
+// The diamond angle of (n, b), in [0, 4); 0 at the origin.
+double UnitToDiamond(double n, double b) {
+  const double sum = std::fabs(n) + std::fabs(b);
+  if (!(sum > 0)) return 0;
+  if (b >= 0) return n >= 0 ? b / sum : 1 + (-n) / sum;
+  return n < 0 ? 2 + (-b) / sum : 3 + n / sum;
+}
+
+// A node's own azimuth offset for its strata, from its index (Weyl sequence): neighbouring nodes do not share
+// their directions' aliasing.
+double NodeJitter(size_t node) { return std::fmod(0.5 + 0.6180339887498949 * double(node), 1.0); }
+
+}  // namespace
+
 std::string YarnVisibility::Make(const YarnParams& params, std::vector<std::shared_ptr<const YarnCurve>> centres,
                                  double tube_radius, const CrossSectionOptions& options, std::function<bool()> stop,
                                  YarnVisibility* out) {
@@ -247,6 +300,26 @@ std::string YarnVisibility::Make(const YarnParams& params, std::vector<std::shar
     auto tubes = std::make_shared<TubeMesh>();
     if (std::string e = TubeMesh::Make(centres, tube_radius, stop, tubes.get()); !e.empty()) return "tubes: " + e;
     v.tubes_ = std::move(tubes);
+    auto table = std::make_shared<OpennessTable>();
+    table->radius = tube_radius;
+    // The arc step grows when the yarns are long enough to take the table over its byte cap.
+    double length = 0;
+    for (const auto& c : centres) length += c->Length();
+    const size_t per_arc = size_t{kOpennessAngles} * kOpennessRadii;
+    const double max_arcs = double(kMaxOpennessBytes / sizeof(float) / per_arc) - 2.0 * double(centres.size());
+    if (!(max_arcs >= 2.0 * double(centres.size()))) return "centres: too many yarns for the openness table";
+    const double step = std::max(kOpennessArcStep * tube_radius, length / max_arcs);
+    for (const auto& c : centres) {
+      OpennessTable::Yarn y;
+      y.arcs = std::max(2, static_cast<int>(std::ceil(c->Length() / step)) + 1);
+      y.step = c->Length() / (y.arcs - 1);
+      y.first = table->count;
+      table->count += size_t(y.arcs) * per_arc;
+      table->yarns.push_back(y);
+    }
+    table->nodes = std::make_unique<std::atomic<float>[]>(table->count);
+    for (size_t i = 0; i < table->count; ++i) table->nodes[i].store(-1.0f, std::memory_order_relaxed);
+    v.openness_ = std::move(table);
   }
   v.centres_ = std::move(centres);
   *out = std::move(v);
@@ -267,6 +340,9 @@ CrossSectionPoint YarnVisibility::Locate(int yarn, Vec3 p) const {
   out.sin_phase = std::sin(phase);
   const Vec3 d = p - f.position;
   const double n = Dot(d, out.normal), b = Dot(d, out.binormal);
+  out.arc = arc;
+  out.n = n;
+  out.b = b;
   // Turned back by the phase: ply j's centre is then at angle 2 pi j / K, as in the cross-section.
   out.x = out.cos_phase * n + out.sin_phase * b;
   out.y = -out.sin_phase * n + out.cos_phase * b;
@@ -290,6 +366,54 @@ double YarnVisibility::Occlusion(const CrossSectionPoint& x, OcclusionMethod met
   if (method == OcclusionMethod::kTraced || x.yarn < 0) return 1;
   return method == OcclusionMethod::kTexture ? cross_section_->Occlusion(x.x, x.y)
                                              : cross_section_->DistanceOcclusion(std::sqrt(x.x * x.x + x.y * x.y));
+}
+
+size_t YarnVisibility::openness_bytes() const { return openness_ ? openness_->count * sizeof(float) : 0; }
+
+double YarnVisibility::OtherYarnsOpenness(const CrossSectionPoint& x) const {
+  if (!openness_ || x.yarn < 0 || x.yarn >= yarns()) return 1;
+  const OpennessTable& table = *openness_;
+  const OpennessTable::Yarn& y = table.yarns[size_t(x.yarn)];
+  const YarnCurve& curve = *centres_[size_t(x.yarn)];
+  // Trilinear in (arc, angle, distance); the angle wraps.
+  const double fa = std::clamp(x.arc / y.step, 0.0, double(y.arcs - 1));
+  const double fd = UnitToDiamond(x.n, x.b) * (kOpennessAngles / 4.0);
+  const double fr = std::min(std::sqrt(x.n * x.n + x.b * x.b) / (kOpennessReach * table.radius), 1.0) * (kOpennessRadii - 1);
+  const int a0 = std::min(static_cast<int>(fa), y.arcs - 2), d0 = static_cast<int>(fd) % kOpennessAngles,
+            r0 = std::min(static_cast<int>(fr), kOpennessRadii - 2);
+  const double ta = fa - a0, td = fd - std::floor(fd), tr = fr - r0;
+  const auto node = [&](int a, int d, int r) -> double {
+    const size_t index = y.first + (size_t(a) * kOpennessAngles + size_t(d % kOpennessAngles)) * kOpennessRadii + size_t(r);
+    const float known = table.nodes[index].load(std::memory_order_relaxed);
+    if (known >= 0) return known;
+    // Trace it: the node's point, rays in kOpennessDirections directions, one per equal-area stratum.
+    const CurveFrame f = curve.At(a * y.step);
+    double un = 0, ub = 0;
+    DiamondToUnit(4.0 * (d % kOpennessAngles) / kOpennessAngles, &un, &ub);
+    const double distance = kOpennessReach * table.radius * r / (kOpennessRadii - 1);
+    const Vec3 p = f.position + (distance * un) * f.normal + (distance * ub) * Cross(f.tangent, f.normal);
+    const double jitter = NodeJitter(index);
+    constexpr int kAzimuths = kOpennessDirections / kOpennessZ;
+    int open = 0;
+    for (int i = 0; i < kOpennessZ; ++i) {
+      const double z = 1 - 2 * (i + 0.5) / kOpennessZ, s = std::sqrt(std::max(0.0, 1 - z * z));
+      for (int j = 0; j < kAzimuths; ++j) {
+        const double phi = kTwoPi * (j + jitter) / kAzimuths;
+        if (!tubes_->Blocks(x.yarn, p, {s * std::cos(phi), s * std::sin(phi), z}, INFINITY)) ++open;
+      }
+    }
+    const float value = float(open) / float(kOpennessDirections);
+    table.nodes[index].store(value, std::memory_order_relaxed);
+    return value;
+  };
+  double sum = 0;
+  for (int da = 0; da < 2; ++da)
+    for (int dd = 0; dd < 2; ++dd)
+      for (int dr = 0; dr < 2; ++dr) {
+        const double w = (da ? ta : 1 - ta) * (dd ? td : 1 - td) * (dr ? tr : 1 - tr);
+        if (w > 0) sum += w * node(a0 + da, d0 + dd, r0 + dr);
+      }
+  return sum;
 }
 
 }  // namespace loomlight::yarn

@@ -8,8 +8,9 @@
 // - A point is placed in its yarn's cross-section by the nearest point of the yarn's centre curve (its arc
 //   length a), its offset in that frame's (N_yarn, B_yarn), turned back by the ply phase 2 pi a / alpha_yarn
 //   (yarn.cpp's ply frame), the light's direction likewise by its projection onto (N_yarn, B_yarn).
-// - Sec. 4.2's occlusion is within the yarn only; other yarns' occlusion ("existing techniques") is one ray per
-//   sample against their tubes, so both methods see the neighbouring yarns.
+// - Sec. 4.2's occlusion is within the yarn only; other yarns' occlusion ("existing techniques") is their
+//   tubes' precomputed openness (OtherYarnsOpenness: the share of the sphere they leave open, traced once per
+//   node of a table along each yarn), so both methods see the neighbouring yarns without a ray per sample.
 #pragma once
 
 #include <cstdint>
@@ -39,6 +40,8 @@ struct CrossSectionPoint {
   double x = 0, y = 0;
   double cos_phase = 1, sin_phase = 0;  // the ply twist turned back: phase 2 pi arc / alpha_yarn
   Vec3 normal, binormal;                // the yarn's N_yarn and B_yarn there
+  double arc = 0;                       // along the yarn's centre curve
+  double n = 0, b = 0;                  // the offset from the centre along N_yarn and B_yarn (before the turn)
 };
 
 class YarnVisibility {
@@ -59,6 +62,17 @@ class YarnVisibility {
   bool OtherYarnsBlock(int yarn, Vec3 p, Vec3 w, double max_distance) const;
   // Mean visibility at x within its yarn: the occlusion texture or its radial mean (kTraced: 1).
   double Occlusion(const CrossSectionPoint& x, OcclusionMethod method) const;
+  // The share of directions, uniform on the sphere, in which no other yarn's tube blocks a ray from x: the
+  // expectation of !OtherYarnsBlock over the sphere, interpolated in a table per yarn over arc length, angle
+  // about the centre and distance from it. A node is traced on first use (kOpennessDirections stratified
+  // directions; the same value whichever thread gets there first, so images do not depend on timing). 1 with
+  // one yarn or outside a yarn.
+  double OtherYarnsOpenness(const CrossSectionPoint& x) const;
+  // Bytes of the openness table (allocated by Make, at most kMaxOpennessBytes).
+  size_t openness_bytes() const;
+
+  static constexpr int kOpennessDirections = 64;
+  static constexpr size_t kMaxOpennessBytes = size_t{4} << 20;
 
   const YarnCrossSection& cross_section() const { return *cross_section_; }
   int yarns() const { return static_cast<int>(centres_.size()); }
@@ -67,6 +81,8 @@ class YarnVisibility {
   std::shared_ptr<const YarnCrossSection> cross_section_;
   std::vector<std::shared_ptr<const YarnCurve>> centres_;
   std::shared_ptr<const TubeMesh> tubes_;  // null with one yarn (nothing else to block)
+  struct OpennessTable;
+  std::shared_ptr<const OpennessTable> openness_;  // null without tubes
   double alpha_yarn_ = 1;
 };
 

@@ -292,7 +292,7 @@ std::string FiberSourceBlock(const Sizes& sizes) {
   grpc::Status built = grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
                                     api::YarnJobOf(models::Registry::Global(), v1::Yarn(), &woven, 0, &job));
   if (built.error_message().empty())
-    built = api::BuildFiberScene(&job, [] { return grpc::Status::OK; }, [](size_t) { return true; }, &fibers, nullptr);
+    built = api::BuildFiberScene(&job, [] { return grpc::Status::OK; }, [](size_t) { return true; }, &fibers, nullptr, nullptr);
   if (!built.ok()) return "Fiber source: the patch could not be built: " + built.error_message() + "\n\n";
   const double build_seconds = SecondsSince(build_start);
   const double s_u = job.pattern.warps * job.layout.spacing, s_v = job.pattern.picks * job.layout.spacing;

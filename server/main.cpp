@@ -56,6 +56,8 @@ void Usage() {
                "                             --trusted-proxy forwarded, else its connection; default 8)\n"
                "  --material-cache-mb N      packed materials kept, in MiB (default 64)\n"
                "  --fold-cache-mb N          BTF environment folds kept across renders, in MiB (default 128)\n"
+               "  --fiber-cache-mb N         fiber scenes (fibers' BVH, tubes, openness) kept across calls, in MiB\n"
+               "                             (default 256)\n"
                "  --upload-idle-seconds N    an UploadBtf that sends nothing for N s is cancelled (default 60)\n"
                "  --environment-cache-mb N   decoded environment maps kept, in MiB (default 256)\n"
                "  --grpc-memory-mb N         gRPC's own buffers, in MiB (default 512)\n"
@@ -191,6 +193,7 @@ int main(int argc, char** argv) {
     else if (arg == "--max-long-calls-per-client") options.limits.max_long_calls_per_client = positive();
     else if (arg == "--material-cache-mb") options.limits.material_cache_bytes = mebibytes();
     else if (arg == "--fold-cache-mb") options.limits.fold_cache_bytes = mebibytes();
+    else if (arg == "--fiber-cache-mb") options.limits.fiber_cache_bytes = mebibytes();
     else if (arg == "--upload-idle-seconds") options.limits.upload_idle_timeout = std::chrono::seconds(positive());
     else if (arg == "--environment-cache-mb") options.environment_cache_bytes = mebibytes();
     else if (arg == "--grpc-memory-mb") options.grpc_memory_bytes = mebibytes();

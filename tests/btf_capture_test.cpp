@@ -41,7 +41,7 @@ const Patch& TwillPatch() {
     woven.set_repeats_v(3);
     EXPECT_EQ(api::YarnJobOf(models::Registry::Global(), v1::Yarn(), &woven, 0, &job), "");
     const grpc::Status s = api::BuildFiberScene(
-        &job, [] { return grpc::Status::OK; }, [](size_t) { return true; }, &p.fibers, nullptr);
+        &job, [] { return grpc::Status::OK; }, [](size_t) { return true; }, &p.fibers, nullptr, nullptr);
     EXPECT_TRUE(s.ok()) << s.error_message();
     const double s_u = job.pattern.warps * job.layout.spacing, s_v = job.pattern.picks * job.layout.spacing;
     p.tile = {s_u, s_v, s_u, s_v};

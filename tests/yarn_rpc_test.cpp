@@ -54,6 +54,72 @@ void SetParam(v1::YarnGeometryRequest* r, const std::string& name, double value)
   p->add_values(value);
 }
 
+// The fiber-scene cache: a job with the same fibers gets the scene built before (nothing admitted, the same
+// objects); any field that changes the fibers misses; least recently used first out, by bytes.
+TEST(FiberSceneCache, FindsTheSameFibersOnlyAndBoundsItsBytes) {
+  const auto job = [](uint64_t seed, double footprint, double length) {
+    api::YarnJob j;
+    v1::Yarn yarn;
+    yarn.set_preset("cotton1");
+    yarn.set_seed(seed);
+    EXPECT_EQ(api::YarnJobOf(models::Registry::Global(), yarn, nullptr, length, &j), "");
+    j.detail.footprint = footprint;
+    return j;
+  };
+  struct Built {
+    grpc::Status status;
+    size_t admitted = 0;
+    std::shared_ptr<const yarn::FiberScene> fibers;
+    std::shared_ptr<const yarn::YarnVisibility> visibility;
+  };
+  const auto build = [](api::YarnJob j, api::FiberSceneCache* cache, bool visibility) {
+    Built b;
+    b.status = api::BuildFiberScene(
+        &j, [] { return grpc::Status::OK; }, [&b](size_t bytes) { return b.admitted += bytes, true; }, &b.fibers,
+        visibility ? &b.visibility : nullptr, cache);
+    return b;
+  };
+  api::FiberSceneCache cache(size_t{1} << 30);
+  const Built first = build(job(1, 0, 0.2), &cache, true);
+  ASSERT_TRUE(first.status.ok()) << first.status.error_message();
+  EXPECT_GT(first.admitted, 0u);
+  EXPECT_EQ(cache.entries(), 1u);
+  const Built again = build(job(1, 0, 0.2), &cache, true);
+  ASSERT_TRUE(again.status.ok());
+  EXPECT_EQ(again.admitted, 0u);
+  EXPECT_EQ(again.fibers, first.fibers);
+  EXPECT_EQ(again.visibility, first.visibility);
+  // Another seed, another level of detail, another length: other fibers.
+  for (const api::YarnJob& other : {job(2, 0, 0.2), job(1, 0.01, 0.2), job(1, 0, 0.25)}) {
+    const Built b = build(other, &cache, true);
+    ASSERT_TRUE(b.status.ok());
+    EXPECT_GT(b.admitted, 0u);
+    EXPECT_NE(b.fibers, first.fibers);
+  }
+  EXPECT_EQ(cache.entries(), 4u);
+  // Kept without its visibility (CreateBtf's way), then asked with it: built again, replacing the entry.
+  EXPECT_GT(build(job(3, 0, 0.2), &cache, false).admitted, 0u);
+  EXPECT_EQ(build(job(3, 0, 0.2), &cache, false).admitted, 0u);
+  const Built with = build(job(3, 0, 0.2), &cache, true);
+  EXPECT_GT(with.admitted, 0u);
+  ASSERT_TRUE(with.visibility);
+  EXPECT_EQ(cache.entries(), 5u);
+  EXPECT_EQ(build(job(3, 0, 0.2), &cache, false).admitted, 0u);  // the entry with visibility serves both
+
+  // Bounded: room for one scene keeps the last; a scene over the bound is not kept.
+  const size_t one = cache.bytes() / cache.entries();
+  api::FiberSceneCache small(one + one / 2);
+  ASSERT_TRUE(build(job(1, 0, 0.2), &small, true).status.ok());
+  ASSERT_TRUE(build(job(2, 0, 0.2), &small, true).status.ok());
+  EXPECT_EQ(small.entries(), 1u);
+  EXPECT_LE(small.bytes(), one + one / 2);
+  EXPECT_EQ(build(job(2, 0, 0.2), &small, true).admitted, 0u);
+  EXPECT_GT(build(job(1, 0, 0.2), &small, true).admitted, 0u);
+  api::FiberSceneCache tiny(16);
+  ASSERT_TRUE(build(job(1, 0, 0.2), &tiny, true).status.ok());
+  EXPECT_EQ(tiny.entries(), 0u);
+}
+
 class YarnRpcTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() { server_ = testing::StartInProcessServer().release(); }

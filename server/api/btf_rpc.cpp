@@ -256,7 +256,8 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     std::shared_ptr<const yarn::FiberScene> scene;
     grpc::Status s = BuildFiberScene(
         &fibers_->yarn, [this] { return StopStatus(context_, deadline_); },
-        [this](size_t bytes) { return admission_.bytes.Grow(bytes); }, &scene, nullptr, "fibers.yarn");
+        [this](size_t bytes) { return admission_.bytes.Grow(bytes); }, &scene, nullptr, deps_.fiber_scenes,
+        "fibers.yarn");
     if (!s.ok()) return s;
     const YarnJob& y = fibers_->yarn;
     const double spacing = y.layout.spacing;

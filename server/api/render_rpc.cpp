@@ -245,7 +245,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   grpc::Status BuildFibers() {
     grpc::Status s = BuildFiberScene(
         fiber_job_.get(), [this] { return StopStatus(context_, deadline_); },
-        [this](size_t bytes) { return admission_.bytes.Grow(bytes); }, &fibers_, &fiber_visibility_);
+        [this](size_t bytes) { return admission_.bytes.Grow(bytes); }, &fibers_, &fiber_visibility_,
+        deps_.fiber_scenes);
     if (s.ok()) fiber_count_ = static_cast<uint64_t>(fibers_->stats().curves);
     return s;
   }

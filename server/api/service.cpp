@@ -83,10 +83,12 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
     : deps_(deps),
       materials_(limits.material_cache_bytes),
       folds_(limits.fold_cache_bytes),
+      fiber_scenes_(std::make_unique<FiberSceneCache>(limits.fiber_cache_bytes)),
       client_long_calls_(limits.max_long_calls_per_client),
       idle_uploads_(limits.upload_idle_timeout) {
   deps_.materials = &materials_;
   deps_.folds = &folds_;
+  deps_.fiber_scenes = fiber_scenes_.get();
   deps_.idle_uploads = &idle_uploads_;
   deps_.client_long_calls = &client_long_calls_;
   deps_.worker = &worker_;
@@ -94,6 +96,8 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
   deps_.geometry = &geometry_;
   deps_.preparer = &preparer_;
 }
+
+LoomlightService::~LoomlightService() = default;
 
 void LoomlightService::SyncBtfAssets() {
   if (!deps_.btf_store || sync_queued_.exchange(true)) return;

@@ -22,6 +22,8 @@
 
 namespace loomlight::api {
 
+class FiberSceneCache;  // server/api/yarn_rpc.h
+
 // Documented limits (README "Limits").
 constexpr size_t kMaxQueriesPerCall = size_t{1} << 20;  // 1,048,576 direction pairs
 constexpr double kUnitTolerance = 1e-4;                 // | |w| - 1 | accepted (then renormalised)
@@ -43,6 +45,7 @@ struct ServiceLimits {
   size_t max_long_calls_per_client = 8;          // of them, one client's (its name, else its connection)
   size_t material_cache_bytes = size_t{64} << 20;
   size_t fold_cache_bytes = size_t{128} << 20;  // BTF environment folds kept across Render calls
+  size_t fiber_cache_bytes = size_t{256} << 20;  // fiber scenes (BVH, tubes, openness) kept across calls
   // A client-streaming call (UploadBtf) that sends nothing for this long is cancelled (server/api/idle_streams.h).
   std::chrono::milliseconds upload_idle_timeout{60000};
 };
@@ -56,6 +59,7 @@ struct ServiceDeps {
   Metrics* metrics = nullptr;
   models::MaterialCache* materials = nullptr;
   render::FoldCache* folds = nullptr;  // BTF environment folds (render::FoldCache), kept across Render calls
+  FiberSceneCache* fiber_scenes = nullptr;  // built fiber scenes (server/api/yarn_rpc.h), kept across calls
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
   HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
   HostWorker* geometry = nullptr;  // generating yarn geometry, off the host worker
@@ -96,6 +100,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   // `deps` names the registry, batcher, metrics, budgets and environment maps (owned by the caller, outliving
   // the service); the service adds its material cache and workers.
   LoomlightService(const ServiceDeps& deps, const ServiceLimits& limits);
+  ~LoomlightService() override;
 
   // Until set, every RPC is answered UNAVAILABLE (health reports NOT_SERVING meanwhile too).
   void SetServing(bool serving) { serving_ = serving; }
@@ -148,6 +153,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   ServiceDeps deps_;
   models::MaterialCache materials_;
   render::FoldCache folds_;
+  std::unique_ptr<FiberSceneCache> fiber_scenes_;
   ClientSlots client_long_calls_;
   IdleStreams idle_uploads_;
   std::atomic<bool> serving_{false};

@@ -292,6 +292,7 @@ std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, co
     return "straight.length: must be a finite number in [" + std::to_string(yarn::kMinLength) + ", " +
            std::to_string(yarn::kMaxLength) + "]";
   job->straight_length = length;
+  job->params.length = length;  // set here, not only when generating, so SameFibers compares like with like
   return "";
 }
 
@@ -321,9 +322,59 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns
   return error;
 }
 
+bool SameFibers(const YarnJob& a, const YarnJob& b) {
+  return a.params == b.params && a.detail.SameOutput(b.detail) && a.limits == b.limits && a.woven == b.woven &&
+         (a.woven ? a.pattern == b.pattern && a.layout == b.layout : a.straight_length == b.straight_length);
+}
+
+bool FiberSceneCache::Find(const YarnJob& job, bool need_visibility, Scene* out) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto it = entries_.begin(); it != entries_.end(); ++it) {
+    if (!SameFibers(it->job, job) || (need_visibility && !it->scene.visibility)) continue;
+    entries_.splice(entries_.begin(), entries_, it);
+    *out = entries_.front().scene;
+    return true;
+  }
+  return false;
+}
+
+void FiberSceneCache::Keep(const YarnJob& job, Scene scene, size_t bytes) {
+  if (bytes > capacity_bytes_) return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  entries_.remove_if([&](const Entry& e) {
+    const bool same = SameFibers(e.job, job);
+    if (same) bytes_ -= e.bytes;
+    return same;
+  });
+  while (!entries_.empty() && bytes_ + bytes > capacity_bytes_) {
+    bytes_ -= entries_.back().bytes;
+    entries_.pop_back();
+  }
+  Entry entry{job, std::move(scene), bytes};
+  entry.job.detail.stop = nullptr;  // it may reach into the call that built the scene
+  entries_.push_front(std::move(entry));
+  bytes_ += bytes;
+}
+
+size_t FiberSceneCache::bytes() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return bytes_;
+}
+
+size_t FiberSceneCache::entries() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return entries_.size();
+}
+
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
-                             std::shared_ptr<const yarn::YarnVisibility>* visibility, const std::string& yarn_field) {
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility, FiberSceneCache* cache,
+                             const std::string& yarn_field) {
+  if (FiberSceneCache::Scene found; cache && cache->Find(*job, visibility != nullptr, &found)) {
+    *scene = std::move(found.fibers);
+    if (visibility) *visibility = std::move(found.visibility);
+    return grpc::Status::OK;
+  }
   const auto stopped = [stop] { return !stop().ok(); };  // a copy: job->detail keeps it
   job->detail.stop = stopped;
   std::vector<yarn::YarnGeometry> yarns;
@@ -350,7 +401,10 @@ grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& 
     return {grpc::StatusCode::INTERNAL, "building the fibers' BVH: " + e};
   }
   *scene = std::move(built);
-  if (!visibility) return grpc::Status::OK;
+  if (!visibility) {
+    if (cache) cache->Keep(*job, {*scene, nullptr}, static_cast<size_t>(estimate.total_bytes));
+    return grpc::Status::OK;
+  }
   // A few tubes and a shared cross-section (the other yarns as tubes of the layout's radius).
   std::vector<std::shared_ptr<const yarn::YarnCurve>> centres;
   for (const LaidYarn& l : laid) centres.push_back(l.centre);
@@ -366,6 +420,7 @@ grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& 
     return {grpc::StatusCode::RESOURCE_EXHAUSTED, "bvh_memory: the other yarns' openness table needs " +
                                                       std::to_string(made->openness_bytes()) +
                                                       " bytes, more than the server has free now"};
+  if (cache) cache->Keep(*job, {*scene, made}, static_cast<size_t>(estimate.total_bytes) + made->openness_bytes() + job->layout_bytes);
   *visibility = std::move(made);
   return grpc::Status::OK;
 }

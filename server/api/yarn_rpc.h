@@ -7,7 +7,9 @@
 
 #include <cstdint>
 #include <functional>
+#include <list>
 #include <memory>
+#include <mutex>
 #include <string>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
@@ -66,15 +68,50 @@ struct LaidYarn {
 // their error ("cancelled", "max_fibers: ...", ...), leaving both outputs empty.
 std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns, std::vector<LaidYarn>* laid);
 
+// Fiber scenes kept across calls (Render's fiber scenes, CreateBtf's fiber source): generating a woven patch's
+// fibers and building their BVH takes about a tenth of a second, and an editor renders the same patch again
+// under another light or from another side (the same detail); the openness nodes one render traced serve the
+// next. Least recently used first out, bounded in bytes (the BVH's estimate and the openness table); an entry
+// matches a job with the same yarn, layout, pattern, detail and limits (SameFibers).
+class FiberSceneCache {
+ public:
+  explicit FiberSceneCache(size_t capacity_bytes) : capacity_bytes_(capacity_bytes) {}
+  struct Scene {
+    std::shared_ptr<const yarn::FiberScene> fibers;
+    std::shared_ptr<const yarn::YarnVisibility> visibility;  // null where it was built without
+  };
+  // The scene built for a job with the same fibers (with its visibility when `need_visibility`); false if none.
+  bool Find(const YarnJob& job, bool need_visibility, Scene* out);
+  // Keeps `scene` for `job` (replacing an entry for the same fibers) unless it alone is over the bound.
+  void Keep(const YarnJob& job, Scene scene, size_t bytes);
+  size_t bytes() const;
+  size_t entries() const;
+
+ private:
+  struct Entry {
+    YarnJob job;  // its stop predicate cleared
+    Scene scene;
+    size_t bytes = 0;
+  };
+  const size_t capacity_bytes_;
+  mutable std::mutex mutex_;
+  std::list<Entry> entries_;  // most recently used first
+  size_t bytes_ = 0;
+};
+
+// Whether two jobs generate the same fibers along the same centres.
+bool SameFibers(const YarnJob& a, const YarnJob& b);
+
 // A job's fibers in an Embree BVH, for ray tracing them (Render's fiber scenes, CreateBtf's fiber source):
 // generates them, admits the BVH's estimated bytes through `grow` (RESOURCE_EXHAUSTED when it refuses) before
 // building it bounded by them, and with `visibility` not null also builds the yarns' cheap visibility
 // (cross-section slices and occlusion, other yarns as tubes). `stop` says why to stop (deadline, cancellation;
 // OK to go on) and is asked between fibers and during the build. OK, INVALID_ARGUMENT for the yarn's limits
-// ("<yarn_field>: ..."), or why it stopped.
+// ("<yarn_field>: ..."), or why it stopped. With a `cache`, a scene it holds for the same fibers is used as it
+// is (nothing generated, built or admitted), and a scene built here is kept there.
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
-                             std::shared_ptr<const yarn::YarnVisibility>* visibility,
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility, FiberSceneCache* cache,
                              const std::string& yarn_field = "yarn");
 
 // The schema and presets ListModels reports under `yarn`.

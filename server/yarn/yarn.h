@@ -148,6 +148,11 @@ struct DetailOptions {
   // Polled between fibers (from the generating threads); once it returns true, generation ends with
   // "cancelled" and no geometry. Unset: never. For deadlines and clients that go away.
   std::function<bool()> stop;
+  // Whether `o` generates the same fibers: every field but threads and stop (a new field belongs here too).
+  bool SameOutput(const DetailOptions& o) const {
+    return core == o.core && core_radius == o.core_radius && footprint == o.footprint &&
+           points_per_twist == o.points_per_twist;
+  }
 };
 std::string ValidateDetailOptions(const DetailOptions& o);
 
@@ -156,6 +161,7 @@ std::string ValidateDetailOptions(const DetailOptions& o);
 struct YarnLimits {
   int64_t max_fibers = 100'000;           // fiber curves returned; the yarn's plies * fibers_per_ply too
   int64_t max_control_points = 4'000'000; // control points returned, all curves together
+  bool operator==(const YarnLimits&) const = default;
 };
 
 enum class FiberType : uint8_t {

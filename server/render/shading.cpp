@@ -121,18 +121,24 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
   point->ambient = {};
   if (setup.ambient > 0) {
     // Ambient visibility: traced, one uniformly distributed direction on the sphere per sample through the
-    // fibers; approximated, the other yarns' openness times the yarn's own occlusion (a core: the half of the
-    // sphere its surface faces).
+    // fibers; approximated, the yarn's own occlusion times the other yarns' tabulated openness, or for a core
+    // (open only on the side its surface faces, which the table does not know) times one ray at their tubes.
     double visibility = 0;
-    if (occlusion) {
-      visibility = (core ? 0.5 : 1.0) * approximate->OtherYarnsOpenness(in_yarn) *
-                   approximate->Occlusion(in_yarn, setup.fiber_occlusion);
+    if (occlusion && !core) {
+      visibility = approximate->OtherYarnsOpenness(in_yarn) * approximate->Occlusion(in_yarn, setup.fiber_occlusion);
     } else {
       const std::array<double, 2> u = points.Get2D(kAmbientPair);
       const double z = 1 - 2 * u[0], phi = 2 * std::numbers::pi * u[1];
       const double r = std::sqrt(std::max(0.0, 1 - z * z));
       const Vec3 w{r * std::cos(phi), r * std::sin(phi), z};
-      if (!behind_core(w) && !setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w))) visibility = 1;
+      if (behind_core(w)) {
+        // in the core's own shadow
+      } else if (occlusion) {
+        if (!approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(w), INFINITY))
+          visibility = approximate->Occlusion(in_yarn, setup.fiber_occlusion);
+      } else if (!setup.scene.Occluded(start.origin, w, INFINITY, start.MinDistance(w))) {
+        visibility = 1;
+      }
     }
     point->ambient = (setup.ambient * visibility) * Rgb{1, 1, 1};
   }

@@ -257,6 +257,9 @@ TEST(YarnVisibility, OpennessDoesNotDependOnTheOrderOfQueries) {
   for (size_t i = 0; i < at.size() / 2; ++i) racing[i] = b->visibility.OtherYarnsOpenness(at[i]);
   other.join();
   EXPECT_EQ(forward, racing);
+  CrossSectionPoint nowhere = at[0];
+  nowhere.arc = NAN;
+  EXPECT_EQ(a->visibility.OtherYarnsOpenness(nowhere), 1);
   EXPECT_GT(a->visibility.openness_bytes(), 0u);
   EXPECT_LE(a->visibility.openness_bytes(), YarnVisibility::kMaxOpennessBytes);
 }

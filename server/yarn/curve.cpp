@@ -105,7 +105,7 @@ double PolylineYarnCurve::ClosestArc(Vec3 p) const {
   size_t i;
   double u;
   ClosestSegment(p, &i, &u);
-  return arc_.size() < 2 ? 0 : arc_[i] + u * (arc_[i + 1] - arc_[i]);
+  return ArcOnSegment(i, u);
 }
 
 CurveFrame PolylineYarnCurve::ClosestFrame(Vec3 p, double* arc) const {
@@ -114,8 +114,12 @@ CurveFrame PolylineYarnCurve::ClosestFrame(Vec3 p, double* arc) const {
   size_t i;
   double u;
   ClosestSegment(p, &i, &u);
-  *arc = arc_.size() < 2 ? 0 : arc_[i] + u * (arc_[i + 1] - arc_[i]);
+  *arc = ArcOnSegment(i, u);
   return FrameOnSegment(i, u);
+}
+
+double PolylineYarnCurve::ArcOnSegment(size_t i, double u) const {
+  return arc_.size() < 2 ? 0 : arc_[i] + u * (arc_[i + 1] - arc_[i]);
 }
 
 CurveFrame PolylineYarnCurve::At(double arc) const {

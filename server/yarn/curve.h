@@ -97,6 +97,7 @@ class PolylineYarnCurve final : public YarnCurve {
   // The segment nearest to p and the position along it, u in [0, 1] (segment 0, u 0 for a degenerate input).
   void ClosestSegment(Vec3 p, size_t* segment, double* u) const;
   CurveFrame FrameOnSegment(size_t i, double u) const;
+  double ArcOnSegment(size_t i, double u) const;
 
   std::vector<Vec3> vertices_;
   std::vector<Vec3> normals_;

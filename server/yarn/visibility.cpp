@@ -372,6 +372,7 @@ size_t YarnVisibility::openness_bytes() const { return openness_ ? openness_->co
 
 double YarnVisibility::OtherYarnsOpenness(const CrossSectionPoint& x) const {
   if (!openness_ || x.yarn < 0 || x.yarn >= yarns()) return 1;
+  if (!std::isfinite(x.arc + x.n + x.b)) return 1;  // not a place in the table (the indices below need finite input)
   const OpennessTable& table = *openness_;
   const OpennessTable::Yarn& y = table.yarns[size_t(x.yarn)];
   const YarnCurve& curve = *centres_[size_t(x.yarn)];

@@ -591,6 +591,7 @@ std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8
   }
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
+  const FlushDenormalsScope flush;  // once for the whole loop: it does no arithmetic of its own
   for (size_t i = 0; i < rays.size(); ++i) {
     const FiberRay& r = rays[i];
     occluded[i] = 0;
@@ -608,10 +609,7 @@ std::string FiberScene::Occluded(std::span<const FiberRay> rays, std::span<uint8
     ray.mask = ~0u;
     ray.id = 0;
     ray.flags = 0;
-    {
-      const FlushDenormalsScope flush;
-      rtcOccluded1(scene_, &context, &ray);
-    }
+    rtcOccluded1(scene_, &context, &ray);
     // Embree marks an occluded ray by setting tfar to -inf.
     occluded[i] = ray.tfar < 0 ? 1 : 0;
   }

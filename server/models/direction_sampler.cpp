@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "server/models/cdf.h"
+#include "server/models/float_angles.h"
 #include "server/models/material_plan.h"
 
 namespace loomlight::models {
@@ -22,9 +23,10 @@ Dir FromZPhi(double z, double phi) {
   return {r * std::cos(phi), r * std::sin(phi), z};
 }
 
-// phi in [0, 2 pi).
+// phi in [0, 2 pi). In float: it only finds a table cell or node (to ~1e-7 rad), and library atan2 was the
+// largest single cost of MIS's density lookups.
 double PhiOf(const Dir& w) {
-  const double phi = std::atan2(w[1], w[0]);
+  const double phi = float_angles::Atan2(float(w[1]), float(w[0]));
   return phi < 0 ? phi + 2 * kPi : phi;
 }
 
@@ -119,6 +121,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
       }
     }
   nodes_.resize(size_t(res_.wo_z) * res_.wo_phi);
+  cell_pdf_.assign(nodes_.size() * size_t(cells), 0.0f);
   // Nodes are independent: kBuildThreads threads take every kBuildThreads-th node, each with its own wo and f.
   const auto build_nodes = [&](int first) {
     std::vector<float> wo(3 * n);
@@ -150,6 +153,20 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
         row_sum += column_sum;
         node.row_cdf[r + 1] = float(row_sum);
       }
+      // Each cell's density as DrawNode picks it from the stored sums (the row's probability, then the cell's
+      // within the row, over its solid angle dz dphi): one read per node where MIS asks for densities.
+      float* cell_pdf = &cell_pdf_[size_t(index) * cells];
+      const double total = node.row_cdf.back();
+      for (int r = 0; r < wi_rows_; ++r) {
+        const float* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+        const double row = double(node.row_cdf[r + 1]) - double(node.row_cdf[r]), row_total = column[res_.wi_phi];
+        for (int c = 0; c < res_.wi_phi; ++c)
+          cell_pdf[r * res_.wi_phi + c] =
+              !(total > 0)                 ? -1.0f  // an empty node: TablePdf uses the cosine density instead
+              : row > 0 && row_total > 0 ? float(row / total * ((double(column[c + 1]) - double(column[c])) / row_total) /
+                                                 (dz * dphi))
+                                         : 0.0f;
+      }
     }
   };
   std::vector<std::thread> helpers;
@@ -161,7 +178,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
 size_t DirectionSampler::bytes() const {
   size_t total = sizeof(*this);
   for (const Node& node : nodes_) total += (node.row_cdf.size() + node.column_cdf.size()) * sizeof(float);
-  return total;
+  return total + cell_pdf_.size() * sizeof(float);
 }
 
 Dir DirectionSampler::ToTable(const Dir& w) const {
@@ -222,19 +239,11 @@ Dir DirectionSampler::DrawCosine(double u1, double u2) const {
 }
 
 double DirectionSampler::NodePdf(int node, double z, double phi) const {
-  const Node& n = nodes_[node];
-  const double total = n.row_cdf.back();
-  if (!(total > 0)) return -1;
-  if (z < z_min_) return 0;
+  if (z < z_min_) return nodes_[node].row_cdf.back() > 0 ? 0 : -1;
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
   const int r = std::clamp(int((z - z_min_) / dz), 0, wi_rows_ - 1);
   const int c = std::clamp(int(phi / dphi), 0, res_.wi_phi - 1);
-  const float* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
-  const double row = double(n.row_cdf[r + 1]) - double(n.row_cdf[r]), row_total = column[res_.wi_phi];
-  if (!(row > 0 && row_total > 0)) return 0;
-  // The row's and then the cell's probability as DrawNode picks them from the stored sums, over the cell's solid
-  // angle dz dphi.
-  return row / total * ((double(column[c + 1]) - double(column[c])) / row_total) / (dz * dphi);
+  return cell_pdf_[(size_t(node) * wi_rows_ + r) * res_.wi_phi + c];
 }
 
 void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, double* phi) const {

@@ -9,6 +9,7 @@
 #include <numbers>
 
 #include "server/models/cdf.h"
+#include "server/models/float_angles.h"
 
 namespace loomlight::render {
 namespace {
@@ -67,8 +68,11 @@ Environment Environment::Builtin() {
 size_t Environment::DecodeBytes(long long width, long long height, int channels) {
   const size_t pixels = size_t(width) * size_t(height);
   const size_t bright = size_t(double(pixels) * kMaxBrightFraction) + 1;
-  return pixels * (3 * sizeof(float) + sizeof(double) + std::min(channels, 3) * sizeof(float)) +
-         size_t(height) * 2 * sizeof(double) + bright * (sizeof(uint32_t) + sizeof(double));
+  // Per pixel: the map, the column sums, the decoder's buffer and the column guides' (a bucket per 4 pixels);
+  // per row: the row sums, row sines and a column guide; the bright pixels and their sums.
+  return pixels * (3 * sizeof(float) + sizeof(double) + std::min(channels, 3) * sizeof(float) + sizeof(int)) +
+         size_t(height) * (3 * sizeof(double) + sizeof(models::CdfGuide) + 2 * sizeof(int)) +
+         bright * (sizeof(uint32_t) + sizeof(double));
 }
 
 std::string Environment::Decode(std::string_view bytes, const std::function<bool()>& stop,
@@ -135,7 +139,9 @@ size_t Environment::bytes() const {
   size_t guides = map_->row_guide.bytes() + map_->bright_guide.bytes();
   for (const models::CdfGuide& g : map_->column_guides) guides += sizeof g + g.bytes();
   return map_->rgb.size() * sizeof(float) + map_->bright_pixels.size() * sizeof(uint32_t) +
-         (map_->row_cdf.size() + map_->column_cdf.size() + map_->bright_cdf.size()) * sizeof(double) + guides;
+         (map_->row_cdf.size() + map_->column_cdf.size() + map_->bright_cdf.size() + map_->row_sine.size()) *
+             sizeof(double) +
+         guides;
 }
 
 std::string Environment::Identity() const {
@@ -154,15 +160,19 @@ void Environment::SetTransform(double intensity, double rotation_deg) {
 void Environment::ToImage(Vec3 d, double* x, double* y) const {
   // World to map: rotate by -rotation about +y.
   const Vec3 m{d.x * cos_rotation_ - d.z * sin_rotation_, d.y, d.x * sin_rotation_ + d.z * cos_rotation_};
-  const double u = 0.5 + std::atan2(m.x, -m.z) / (2 * kPi);
-  const double v = std::acos(std::clamp(m.y, -1.0, 1.0)) / kPi;
+  // The angles in float (~1e-7 rad, a millionth of a pixel here), without library calls.
+  const double u = 0.5 + models::float_angles::Atan2(float(m.x), float(-m.z)) / (2 * kPi);
+  const double v = models::float_angles::Acos(float(m.y)) / kPi;
   *x = std::clamp(u * width_, 0.0, std::nextafter(double(width_), 0.0));
   *y = std::clamp(v * height_, 0.0, std::nextafter(double(height_), 0.0));
 }
 
-Vec3 Environment::FromImage(double x, double y) const {
-  const double phi = (x / width_ - 0.5) * 2 * kPi, theta = y / height_ * kPi;
-  const Vec3 m{std::sin(theta) * std::sin(phi), std::cos(theta), -std::sin(theta) * std::cos(phi)};
+Vec3 Environment::FromImage(double x, double y, double* sin_theta) const {
+  // The angles' sines and cosines in float (directions to ~1e-7, as rays and kernels take them), for speed.
+  const float phi = float((x / width_ - 0.5) * 2 * kPi), theta = float(y / height_ * kPi);
+  const double st = std::sin(theta), ct = std::cos(theta), sp = std::sin(phi), cp = std::cos(phi);
+  if (sin_theta) *sin_theta = st;
+  const Vec3 m{st * sp, ct, -st * cp};
   // Map to world: rotate by +rotation about +y.
   return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
 }
@@ -178,8 +188,10 @@ Rgb Environment::Radiance(Vec3 direction) const {
   return Pixel(static_cast<int>(x), static_cast<int>(y));
 }
 
-double Environment::Weight(const float* p, int y, int height) {
-  return Luminance({p[0], p[1], p[2]}) * std::sin((y + 0.5) / height * kPi);
+double Environment::RowSine(int y, int height) { return std::sin((y + 0.5) / height * kPi); }
+
+double Environment::Weight(const float* p, int y) const {
+  return Luminance({p[0], p[1], p[2]}) * map_->row_sine[size_t(y)];
 }
 
 std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int height, std::vector<float> rgb) {
@@ -188,8 +200,14 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
   map->height = height;
   map->rgb = std::move(rgb);
   const size_t pixels = size_t(width) * height;
+  map->row_sine.resize(size_t(height));
+  for (int y = 0; y < height; ++y) map->row_sine[size_t(y)] = RowSine(y, height);
+  const auto weight = [&](size_t p) {
+    const float* rgb = &map->rgb[3 * p];
+    return Luminance({rgb[0], rgb[1], rgb[2]}) * map->row_sine[p / size_t(width)];
+  };
   double total = 0;
-  for (size_t p = 0; p < pixels; ++p) total += Weight(&map->rgb[3 * p], int(p / width), height);
+  for (size_t p = 0; p < pixels; ++p) total += weight(p);
   // The bright component: pixels far above the map's mean radiance, unless there are too many of them to be
   // small lights.
   std::vector<double> luminance(pixels);
@@ -205,7 +223,7 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
     double* cdf = &map->column_cdf[size_t(y) * (width + 1)];
     for (int x = 0; x < width; ++x) {
       const size_t p = size_t(y) * width + x;
-      const double w = Weight(&map->rgb[3 * p], y, height);
+      const double w = weight(p);
       const bool is_bright = luminance[p] > map->bright_luminance;
       cdf[x + 1] = cdf[x] + (is_bright ? 0.0 : w);
       if (is_bright) {
@@ -230,8 +248,7 @@ bool Environment::Has(Component component) const {
   return map_ && intensity_ > 0 && map_->total_weight[component] > 0;
 }
 
-double Environment::PixelDensity(double weight, Component component, double py) const {
-  const double sin_theta = std::sin(py / height_ * kPi);
+double Environment::PixelDensity(double weight, Component component, double sin_theta) const {
   if (sin_theta < 1e-6) return 0;  // at a pole the density is singular: such samples are dropped
   // pdf(pixel) W H over the pixel's (u, v) area, divided by the Jacobian 2 pi^2 sin(theta) to steradians.
   return weight / map_->total_weight[component] * width_ * height_ / (2 * kPi * kPi * sin_theta);
@@ -257,11 +274,12 @@ Environment::Sample Environment::Draw(Component component, double u1, double u2)
     if (cdf[width_] <= 0) return sample;
     x = map.column_guides[size_t(y)].Search(cdf, width_, u2 * cdf[width_], &fx);
   }
-  const double weight = Weight(&map.rgb[3 * (size_t(y) * width_ + x)], y, height_);
+  const double weight = Weight(&map.rgb[3 * (size_t(y) * width_ + x)], y);
   if (weight <= 0) return sample;
-  sample.direction = FromImage(x + fx, y + fy);
+  double sin_theta;
+  sample.direction = FromImage(x + fx, y + fy, &sin_theta);
   sample.radiance = Pixel(x, y);
-  sample.pdf = PixelDensity(weight, component, y + fy);
+  sample.pdf = PixelDensity(weight, component, sin_theta);
   return sample;
 }
 
@@ -305,7 +323,9 @@ Environment::Found Environment::Lookup(Vec3 direction) const {
   const float* p = &map_->rgb[3 * (size_t(y) * width_ + x)];
   found.radiance = Pixel(x, y);
   found.component = Luminance({p[0], p[1], p[2]}) > map_->bright_luminance ? kBright : kRest;
-  if (Has(found.component)) found.pdf = PixelDensity(Weight(p, y, height_), found.component, py);
+  // sin(theta) of the direction itself (the map's rotation is about +y), as Draw's density has it.
+  const double sin_theta = std::sqrt(std::max(0.0, 1 - direction.y * direction.y));
+  if (Has(found.component)) found.pdf = PixelDensity(Weight(p, y), found.component, sin_theta);
   return found;
 }
 

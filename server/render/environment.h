@@ -91,15 +91,18 @@ class Environment {
  private:
   // Pixel coordinates (continuous) of a world direction, and back.
   void ToImage(Vec3 direction, double* x, double* y) const;
-  Vec3 FromImage(double x, double y) const;
+  Vec3 FromImage(double x, double y, double* sin_theta = nullptr) const;
   Rgb Pixel(int x, int y) const;
-  static double Weight(const float* rgb, int y, int height);
+  // A pixel's sampling weight: its luminance times its row's sin(theta) (at the row's centre).
+  static double RowSine(int y, int height);
+  double Weight(const float* rgb, int y) const;
 
   // The decoded map and its sampling tables: immutable once built, so copies (each with its own transform)
   // share one, and a cached map costs its bytes once however many renders use it.
   struct Map {
     int width = 0, height = 0;
     std::vector<float> rgb;
+    std::vector<double> row_sine;  // RowSine per row
     double bright_luminance = INFINITY;  // pixels above it are the bright component
     // The rest: rows, then columns within a row (bright pixels weigh 0 here).
     std::vector<double> row_cdf;     // height + 1 values
@@ -112,8 +115,8 @@ class Environment {
     models::CdfGuide row_guide, bright_guide;
     std::vector<models::CdfGuide> column_guides;  // per row
   };
-  // A pixel's sampling weight and density per steradian at image row position py (continuous).
-  double PixelDensity(double weight, Component component, double py) const;
+  // The density per steradian of a pixel of sampling weight `weight`, at a direction with this sin(theta).
+  double PixelDensity(double weight, Component component, double sin_theta) const;
   static std::shared_ptr<const Map> BuildMap(int width, int height, std::vector<float> rgb);
 
   std::shared_ptr<const Map> map_;

@@ -470,29 +470,28 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     chunk.slot_folded.assign(adaptive_ && pass_ == 0 ? slots : 0, 0);
     chunk.queries = 0;
     // Chunks are traced on kTraceThreads threads (casting rays and sampling lights and materials is the host's
-    // share of a render), each a contiguous run of pixels with about as many samples into its own buckets,
-    // appended in pixel order: every pixel's queries stay in sample order and the image does not depend on the split.
+    // share of a render), thread t taking every threads-th block of kTraceBlockPixels pixels into its own
+    // buckets, appended in thread order. Interleaved blocks share the work evenly: as contiguous halves, a chunk
+    // whose upper rows were sky and lower rows cloth kept one thread waiting for the other (18 vs 58 ms on the
+    // satin cylinders). Each sample's queries stay together and in order, and the blocks are fixed by the
+    // chunk, so the image does not depend on the threads' timing.
     const uint64_t threads = std::clamp<uint64_t>(chunk.pixels, 1, kTraceThreads);
-    std::vector<uint64_t> split(threads + 1, chunk.pixels);
-    split[0] = 0;
-    for (uint64_t t = 1; t < threads; ++t)
-      split[t] = std::lower_bound(chunk.slot_begin.begin(), chunk.slot_begin.end() - 1, slots * t / threads) -
-                 chunk.slot_begin.begin();
     std::vector<std::vector<render::QueryBucket>> parts(threads > 1 ? threads - 1 : 0,
                                                         std::vector<render::QueryBucket>(plan_.evaluators.size()));
     std::vector<std::thread> workers;
     for (uint64_t t = 1; t < threads; ++t)
-      workers.emplace_back([this, &chunk, &parts, &split, t] { TraceRange(chunk, split[t], split[t + 1], &parts[t - 1]); });
-    TraceRange(chunk, split[0], split[1], &chunk.buckets);
+      workers.emplace_back([this, &chunk, &parts, t, threads] { TraceBlocks(chunk, t, threads, &parts[t - 1]); });
+    TraceBlocks(chunk, 0, threads, &chunk.buckets);
     for (std::thread& w : workers) w.join();
     for (const std::vector<render::QueryBucket>& part : parts)
       for (size_t e = 0; e < part.size(); ++e) chunk.buckets[e].Append(part[e]);
     for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
   }
 
-  // Traces pixels [begin, end) of the chunk: their queries into `buckets`, what needs none into chunk.value.
-  // Hits on objects with a folded environment get its radiance too, evaluated on the host for the range at once.
-  void TraceRange(Chunk& chunk, uint64_t begin, uint64_t end, std::vector<render::QueryBucket>* buckets) const {
+  // Traces the chunk's pixel blocks first, first + stride, ... (blocks of kTraceBlockPixels): their queries into
+  // `buckets`, what needs none into chunk.value. Hits on objects with a folded environment get its radiance
+  // too, evaluated on the host for all the blocks at once.
+  void TraceBlocks(Chunk& chunk, uint64_t first, uint64_t stride, std::vector<render::QueryBucket>* buckets) const {
     std::array<render::ShadingPoint, render::Scene::kMaxPacket> points;
     std::array<render::PixelSample, render::Scene::kMaxPacket> batch;
     std::array<uint32_t, render::Scene::kMaxPacket> batch_slot;
@@ -518,14 +517,17 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       }
       queued = 0;
     };
-    for (uint64_t p = begin; p < end; ++p) {
-      const uint64_t pixel = chunk.first_pixel + p;
-      uint32_t slot = chunk.slot_begin[p];
-      const auto [first, last] = PassSamples(pixel);
-      for (uint32_t s = first; s < last; ++s, ++slot) {
-        batch[queued] = {pixel, s};
-        batch_slot[queued] = slot;
-        if (++queued == batch.size()) flush();
+    for (uint64_t block = first; block * kTraceBlockPixels < chunk.pixels; block += stride) {
+      const uint64_t end = std::min<uint64_t>((block + 1) * kTraceBlockPixels, chunk.pixels);
+      for (uint64_t p = block * kTraceBlockPixels; p < end; ++p) {
+        const uint64_t pixel = chunk.first_pixel + p;
+        uint32_t slot = chunk.slot_begin[p];
+        const auto [first_sample, last_sample] = PassSamples(pixel);
+        for (uint32_t s = first_sample; s < last_sample; ++s, ++slot) {
+          batch[queued] = {pixel, s};
+          batch_slot[queued] = slot;
+          if (++queued == batch.size()) flush();
+        }
       }
     }
     flush();

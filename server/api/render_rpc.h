@@ -38,6 +38,9 @@ constexpr uint64_t kMaxRenderFibers = 100'000;
 constexpr uint64_t kMaxRenderFiberPoints = 2'000'000;
 // Threads a chunk is traced on (ray casting, light and material sampling: the host's share of a render).
 constexpr uint64_t kTraceThreads = 2;
+// Pixels per block the trace threads take turns over: small enough that sky and cloth fall to both, large
+// enough that neighbouring samples make coherent ray packets.
+constexpr uint64_t kTraceBlockPixels = 16;
 
 using RenderDeps = ServiceDeps;
 

@@ -425,7 +425,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       pixel_queries_.assign(total_pixels_, 0.0f);
     }
     setup_seconds_ = SecondsSince(received_);
-    for (Chunk& c : chunks_) Prepare(c);
+    // The first chunk goes to the device before the second is traced, so the two overlap from the start.
+    Prepare(chunks_[next_chunk_]);
+    MaybeSubmit();
+    Prepare(chunks_[1 - next_chunk_]);
   }
 
   // The one step of the state machine (as Tabulate's): notice a stop, keep one chunk in flight, keep one
@@ -600,8 +603,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
         // Both buffers are free: the other holds nothing (the pass is done), and this one was just accumulated.
         AllocateSamples();
         Prepare(chunks_[next_chunk_]);
+        MaybeSubmit();  // on the device while this buffer is traced
         Prepare(chunk);
-        MaybeSubmit();
       } else {
         Prepare(chunk);
       }

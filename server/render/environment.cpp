@@ -167,11 +167,10 @@ void Environment::ToImage(Vec3 d, double* x, double* y) const {
   *y = std::clamp(v * height_, 0.0, std::nextafter(double(height_), 0.0));
 }
 
-Vec3 Environment::FromImage(double x, double y, double* sin_theta) const {
+Vec3 Environment::FromImage(double x, double y) const {
   // The angles' sines and cosines in float (directions to ~1e-7, as rays and kernels take them), for speed.
   const float phi = float((x / width_ - 0.5) * 2 * kPi), theta = float(y / height_ * kPi);
   const double st = std::sin(theta), ct = std::cos(theta), sp = std::sin(phi), cp = std::cos(phi);
-  if (sin_theta) *sin_theta = st;
   const Vec3 m{st * sp, ct, -st * cp};
   // Map to world: rotate by +rotation about +y.
   return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
@@ -187,6 +186,9 @@ Rgb Environment::Radiance(Vec3 direction) const {
   ToImage(direction, &x, &y);
   return Pixel(static_cast<int>(x), static_cast<int>(y));
 }
+
+// sin(theta) of a direction (the map turns about +y): Draw and Lookup compute a direction's density alike.
+double Environment::SinTheta(Vec3 direction) { return std::sqrt(std::max(0.0, 1 - direction.y * direction.y)); }
 
 double Environment::RowSine(int y, int height) { return std::sin((y + 0.5) / height * kPi); }
 
@@ -276,10 +278,9 @@ Environment::Sample Environment::Draw(Component component, double u1, double u2)
   }
   const double weight = Weight(&map.rgb[3 * (size_t(y) * width_ + x)], y);
   if (weight <= 0) return sample;
-  double sin_theta;
-  sample.direction = FromImage(x + fx, y + fy, &sin_theta);
+  sample.direction = FromImage(x + fx, y + fy);
   sample.radiance = Pixel(x, y);
-  sample.pdf = PixelDensity(weight, component, sin_theta);
+  sample.pdf = PixelDensity(weight, component, SinTheta(sample.direction));
   return sample;
 }
 
@@ -323,9 +324,7 @@ Environment::Found Environment::Lookup(Vec3 direction) const {
   const float* p = &map_->rgb[3 * (size_t(y) * width_ + x)];
   found.radiance = Pixel(x, y);
   found.component = Luminance({p[0], p[1], p[2]}) > map_->bright_luminance ? kBright : kRest;
-  // sin(theta) of the direction itself (the map's rotation is about +y), as Draw's density has it.
-  const double sin_theta = std::sqrt(std::max(0.0, 1 - direction.y * direction.y));
-  if (Has(found.component)) found.pdf = PixelDensity(Weight(p, y), found.component, sin_theta);
+  if (Has(found.component)) found.pdf = PixelDensity(Weight(p, y), found.component, SinTheta(direction));
   return found;
 }
 

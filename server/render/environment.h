@@ -91,7 +91,8 @@ class Environment {
  private:
   // Pixel coordinates (continuous) of a world direction, and back.
   void ToImage(Vec3 direction, double* x, double* y) const;
-  Vec3 FromImage(double x, double y, double* sin_theta = nullptr) const;
+  Vec3 FromImage(double x, double y) const;
+  static double SinTheta(Vec3 direction);
   Rgb Pixel(int x, int y) const;
   // A pixel's sampling weight: its luminance times its row's sin(theta) (at the row's centre).
   static double RowSine(int y, int height);

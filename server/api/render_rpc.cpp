@@ -479,14 +479,19 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     // satin cylinders). Each sample's queries stay together and in order, and the blocks are fixed by the
     // chunk, so the image does not depend on the threads' timing.
     const uint64_t threads = std::clamp<uint64_t>(chunk.pixels, 1, kTraceThreads);
-    std::vector<std::vector<render::QueryBucket>> parts(threads > 1 ? threads - 1 : 0,
-                                                        std::vector<render::QueryBucket>(plan_.evaluators.size()));
+    // The other threads' buckets are kept from chunk to chunk: filled afresh each time, they page-faulted
+    // their memory in again, which made the second thread 15-25% slower than the first.
+    trace_parts_.resize(threads - 1);
+    for (std::vector<render::QueryBucket>& part : trace_parts_) {
+      part.resize(plan_.evaluators.size());
+      for (render::QueryBucket& b : part) b.Clear();
+    }
     std::vector<std::thread> workers;
     for (uint64_t t = 1; t < threads; ++t)
-      workers.emplace_back([this, &chunk, &parts, t, threads] { TraceBlocks(chunk, t, threads, &parts[t - 1]); });
+      workers.emplace_back([this, &chunk, t, threads] { TraceBlocks(chunk, t, threads, &trace_parts_[t - 1]); });
     TraceBlocks(chunk, 0, threads, &chunk.buckets);
     for (std::thread& w : workers) w.join();
-    for (const std::vector<render::QueryBucket>& part : parts)
+    for (const std::vector<render::QueryBucket>& part : trace_parts_)
       for (size_t e = 0; e < part.size(); ++e) chunk.buckets[e].Append(part[e]);
     for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
   }
@@ -785,6 +790,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   uint64_t total_pixels_ = 0, chunk_slots_ = 1, next_pixel_ = 0, pass_pixels_done_ = 0;
   uint64_t samples_done_ = 0, samples_sent_ = 0, samples_total_ = 0;
   std::vector<Rgb> sums_;  // per pixel: the sum over its samples
+  // Prepare: the queries of trace threads 1.. (per evaluator), before they join the chunk's buckets.
+  std::vector<std::vector<render::QueryBucket>> trace_parts_;
   // Sampling: pass 0 gives every pixel first_pass_ samples (all of samples_per_pixel when uniform); an adaptive
   // render's pass 1 then gives pixel p its samples up to counts_[p].
   bool adaptive_ = false;
@@ -807,12 +814,14 @@ size_t RenderBytes(const v1::RenderRequest& r) {
   // Per pixel: the sums (24), the linear image (12) and its encoding (at most 16), adaptive sampling's counts,
   // squares, queries and the allocation's arrays (56); two chunk buffers of queries (wi, wo, uv, axis, weight
   // and tag: 60; the kernel's result and its copy: 48) and of pixel samples (a slot each, at most one per query
-  // of the chunk's bound: radiance, queries and first slot, 30); the request's map bytes. A fiber scene's yarn
+  // of the chunk's bound: radiance, queries and first slot, 30); the second trace thread's queries before they
+  // join a chunk's (60); the request's map bytes. A fiber scene's yarn
   // and BVH are admitted when generated (RenderCall::BuildFibers).
   size_t fibers = 0;
   if (IsFiberScene(r.scene()))  // the generated curves, held while the BVH is built
     fibers = kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber;
-  return pixels * 108 + 2 * kRenderChunkQueries * 138 + r.environment().data().size() + fibers;
+  return pixels * 108 + 2 * kRenderChunkQueries * 138 + kRenderChunkQueries * 60 + r.environment().data().size() +
+         fibers;
 }
 
 std::string ValidateRenderRequest(const v1::RenderRequest& r) {

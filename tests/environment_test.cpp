@@ -125,27 +125,25 @@ void ExpectDensityIsTheDraws(const Environment& env, const Map& m, double thresh
   }
 }
 
-TEST(EnvironmentSampling, DecodedMapDrawsWhatItsDensitySays) {
-  const Map m = DetailedMap(1024, 512);
-  // The bright component: pixels above 64 times the mean luminance (weighted by sin theta).
+// The bright component's threshold: kBrightFactor times the map's mean luminance (weighted by sin theta).
+double BrightThreshold(const Map& m) {
   double total = 0, weights = 0;
   for (int y = 0; y < m.height; ++y) {
     const double s = std::sin((y + 0.5) / m.height * kPi);
     for (int x = 0; x < m.width; ++x) total += Luminance(&m.rgb[3 * (size_t(y) * m.width + x)]) * s;
     weights += s * m.width;
   }
-  ExpectDensityIsTheDraws(Decoded(m), m, Environment::kBrightFactor * total / weights);
+  return Environment::kBrightFactor * total / weights;
+}
+
+TEST(EnvironmentSampling, DecodedMapDrawsWhatItsDensitySays) {
+  const Map m = DetailedMap(1024, 512);
+  ExpectDensityIsTheDraws(Decoded(m), m, BrightThreshold(m));
 }
 
 TEST(EnvironmentSampling, SmallMapDrawsWhatItsDensitySays) {
   const Map m = DetailedMap(40, 20);
-  double total = 0, weights = 0;
-  for (int y = 0; y < m.height; ++y) {
-    const double s = std::sin((y + 0.5) / m.height * kPi);
-    for (int x = 0; x < m.width; ++x) total += Luminance(&m.rgb[3 * (size_t(y) * m.width + x)]) * s;
-    weights += s * m.width;
-  }
-  ExpectDensityIsTheDraws(Decoded(m), m, Environment::kBrightFactor * total / weights);
+  ExpectDensityIsTheDraws(Decoded(m), m, BrightThreshold(m));
 }
 
 TEST(EnvironmentSampling, BuiltinSkyDrawAgreesWithLookup) {

@@ -192,8 +192,8 @@ double Environment::SinTheta(Vec3 direction) { return std::sqrt(std::max(0.0, 1 
 
 double Environment::RowSine(int y, int height) { return std::sin((y + 0.5) / height * kPi); }
 
-double Environment::Weight(const float* p, int y) const {
-  return Luminance({p[0], p[1], p[2]}) * map_->row_sine[size_t(y)];
+double Environment::Weight(const Map& map, const float* p, int y) {
+  return Luminance({p[0], p[1], p[2]}) * map.row_sine[size_t(y)];
 }
 
 std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int height, std::vector<float> rgb) {
@@ -204,10 +204,7 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
   const size_t pixels = size_t(width) * height;
   map->row_sine.resize(size_t(height));
   for (int y = 0; y < height; ++y) map->row_sine[size_t(y)] = RowSine(y, height);
-  const auto weight = [&](size_t p) {
-    const float* rgb = &map->rgb[3 * p];
-    return Luminance({rgb[0], rgb[1], rgb[2]}) * map->row_sine[p / size_t(width)];
-  };
+  const auto weight = [&](size_t p) { return Weight(*map, &map->rgb[3 * p], int(p / size_t(width))); };
   double total = 0;
   for (size_t p = 0; p < pixels; ++p) total += weight(p);
   // The bright component: pixels far above the map's mean radiance, unless there are too many of them to be
@@ -276,7 +273,7 @@ Environment::Sample Environment::Draw(Component component, double u1, double u2)
     if (cdf[width_] <= 0) return sample;
     x = map.column_guides[size_t(y)].Search(cdf, width_, u2 * cdf[width_], &fx);
   }
-  const double weight = Weight(&map.rgb[3 * (size_t(y) * width_ + x)], y);
+  const double weight = Weight(map, &map.rgb[3 * (size_t(y) * width_ + x)], y);
   if (weight <= 0) return sample;
   sample.direction = FromImage(x + fx, y + fy);
   sample.radiance = Pixel(x, y);
@@ -324,7 +321,7 @@ Environment::Found Environment::Lookup(Vec3 direction) const {
   const float* p = &map_->rgb[3 * (size_t(y) * width_ + x)];
   found.radiance = Pixel(x, y);
   found.component = Luminance({p[0], p[1], p[2]}) > map_->bright_luminance ? kBright : kRest;
-  if (Has(found.component)) found.pdf = PixelDensity(Weight(p, y), found.component, SinTheta(direction));
+  if (Has(found.component)) found.pdf = PixelDensity(Weight(*map_, p, y), found.component, SinTheta(direction));
   return found;
 }
 

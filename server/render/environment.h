@@ -96,7 +96,8 @@ class Environment {
   Rgb Pixel(int x, int y) const;
   // A pixel's sampling weight: its luminance times its row's sin(theta) (at the row's centre).
   static double RowSine(int y, int height);
-  double Weight(const float* rgb, int y) const;
+  struct Map;
+  static double Weight(const Map& map, const float* rgb, int y);
 
   // The decoded map and its sampling tables: immutable once built, so copies (each with its own transform)
   // share one, and a cached map costs its bytes once however many renders use it.

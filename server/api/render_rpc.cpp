@@ -479,9 +479,10 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     // satin cylinders). Each sample's queries stay together and in order, and the blocks are fixed by the
     // chunk, so the image does not depend on the threads' timing.
     const uint64_t threads = std::clamp<uint64_t>(chunk.pixels, 1, kTraceThreads);
-    // The other threads' buckets are kept from chunk to chunk: filled afresh each time, they page-faulted
-    // their memory in again, which made the second thread 15-25% slower than the first.
-    trace_parts_.resize(threads - 1);
+    // The other threads' buckets are kept from chunk to chunk, and through a chunk of one pixel or none (a
+    // pass's end): filled afresh each time, they page-faulted their memory in again, which made the second
+    // thread 15-25% slower than the first.
+    trace_parts_.resize(std::max<size_t>(trace_parts_.size(), threads - 1));
     for (std::vector<render::QueryBucket>& part : trace_parts_) {
       part.resize(plan_.evaluators.size());
       for (render::QueryBucket& b : part) b.Clear();

@@ -392,6 +392,64 @@ TEST(FiberSceneTest, ShadingTangentTurnsSmoothlyThroughAJoint) {
   EXPECT_NEAR(Norm(ToVec(hit.shading_tangent) - ToVec(hit.tangent)), 0, 1e-6);
 }
 
+// A core stands for the fibers inside it (Wu and Yuksel Sec. 3.2): its shading direction at a hit is theirs there,
+// not its own axis. Expected: the generated regular fiber of the same ply nearest the hit, its segment there
+// (a round ply, no migration, no flyaways, a short fiber pitch so the turn is large; both twist senses).
+TEST(FiberSceneTest, CoreShadesAlongTheFibersItStandsFor) {
+  for (bool counter : {true, false}) {
+    YarnParams p;
+    p.alpha = 0.1;
+    p.counter_twist = counter;
+    p.ellipse_n = p.ellipse_b = 0.02;
+    p.rho_min = 1;
+    p.hair_density = p.loop_density = 0;
+    p.fibers_per_ply = 400;
+    DetailOptions d;
+    d.points_per_twist = 64;
+    YarnGeometry full;
+    ASSERT_EQ(GenerateStraightYarn(p, d, {}, &full), "");
+    YarnGeometry cores = full;
+    std::erase_if(cores.fibers, [](const FiberCurve& c) { return c.type != FiberType::kCore; });
+    ASSERT_EQ(cores.fibers.size(), size_t(p.plies));
+    const FiberScene scene = MustBuild({&cores});
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> uni(0, 1);
+    int hits = 0;
+    double turned_error = 0, axis_error = 0;
+    for (int i = 0; i < 400; ++i) {
+      const double a = 2 * 3.14159265358979323846 * uni(rng), z = 0.3 + 0.4 * uni(rng);
+      const Vec3 o{std::cos(a), std::sin(a), z};
+      FiberRay ray{ToF(o), ToF(Unit(Vec3{0.01 * uni(rng), 0.01 * uni(rng), z} - o))};
+      FiberHit h;
+      ASSERT_EQ(scene.Intersect({&ray, 1}, {&h, 1}), "");
+      if (!h.hit) continue;
+      ASSERT_EQ(h.type, FiberType::kCore);
+      const Vec3 at = ToVec(h.position);
+      double best = kInf;
+      Vec3 fiber_direction{};
+      for (const FiberCurve& c : full.fibers) {
+        if (c.type == FiberType::kCore || c.ply != h.ply) continue;
+        for (size_t k = 0; k + 1 < c.points.size(); ++k) {
+          const double dist = Norm(at - ClosestOnSegment(at, c.points[k], c.points[k + 1]));
+          if (dist < best) best = dist, fiber_direction = Unit(c.points[k + 1] - c.points[k]);
+        }
+      }
+      ++hits;
+      const auto angle = [&](Vec3 t) { return std::acos(std::min(1.0, std::fabs(Dot(t, fiber_direction)))); };
+      turned_error += angle(ToVec(h.shading_tangent));
+      axis_error += angle(ToVec(h.tangent));
+      // Still along the surface (to the joints' interpolated direction, which leaves the segment's by ~1e-3).
+      EXPECT_NEAR(Dot(ToVec(h.shading_tangent), ToVec(h.normal)), 0, 5e-3);
+    }
+    ASSERT_GT(hits, 200);
+    turned_error /= hits, axis_error /= hits;
+    std::printf("counter_twist %d: mean angle to the nearest fiber %.4f rad (the core's own axis: %.4f)\n", counter,
+                turned_error, axis_error);
+    EXPECT_LT(turned_error, 0.12);  // the nearest fibers lie a little outside the core, turned a little more
+    EXPECT_GT(axis_error, 0.35);  // the turn is large here: the check above would see it missing
+  }
+}
+
 // Straight through the joint's outer side, where only the joint's round cap covers the bend.
 TEST(FiberSceneTest, BentFiberOuterJointIsCovered) {
   const double r = 0.05;

@@ -15,6 +15,8 @@
 #include <fstream>
 #include <functional>
 #include <future>
+#include <numbers>
+#include <random>
 #include <sstream>
 #include <thread>
 #include <type_traits>
@@ -758,22 +760,25 @@ TEST_F(RenderTest, FiberAmbientTermIsBoundedByTheAmbientFactor) {
 // the fiber itself, and the shaded f (per-query axis, through the material plan) equals the fiber model's f of
 // the world-space pair about the world axis.
 // One straight fiber of radius r along z (from -1 to 1), seen close up at 48 x 48, lit by one directional light.
-render::RenderSetup OneFiberSetup(yarn::FiberType type, double r, render::Vec3 light) {
-  yarn::YarnGeometry geometry;
-  yarn::FiberCurve& curve = geometry.fibers.emplace_back();
-  curve.type = type;
-  curve.width = 2 * r;
-  curve.points = {{0, 0, -1}, {0, 0, 1}};
+render::RenderSetup FiberSetup(const yarn::YarnGeometry& geometry, render::Vec3 light, int side = 48) {
   const yarn::YarnGeometry* yarns[] = {&geometry};
   auto fibers = std::make_shared<yarn::FiberScene>();
   EXPECT_EQ(yarn::FiberScene::Build(yarns, {}, fibers.get()), "");
   render::RenderSetup setup;
   setup.scene = render::MakeScene(render::SceneKind::kYarn);
   setup.scene.fibers = fibers;
-  setup.width = setup.height = 48;
-  setup.camera = render::PinholeCamera({{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8}, 48, 48);
+  setup.width = setup.height = side;
+  setup.camera = render::PinholeCamera({{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8}, side, side);
   setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}}};
   return setup;
+}
+render::RenderSetup OneFiberSetup(yarn::FiberType type, double r, render::Vec3 light) {
+  yarn::YarnGeometry geometry;
+  yarn::FiberCurve& curve = geometry.fibers.emplace_back();
+  curve.type = type;
+  curve.width = 2 * r;
+  curve.points = {{0, 0, -1}, {0, 0, 1}};
+  return FiberSetup(geometry, light);
 }
 
 // A render traces its pixel samples in packets (TracePixelSamples: camera rays cast together, Embree packets
@@ -829,6 +834,54 @@ TEST(FiberShading, CoreFiberShadowsItsOwnFarSide) {
     }
   EXPECT_GT(lit, 50);
   EXPECT_GT(dark, 50);
+}
+
+// A core with a free path stands for the fibers inside it: light reaches the fiber a camera ray meets in it as it
+// reaches the first fiber a ray meets among randomly placed parallel fibers. Expected: `fibers` explicit fibers
+// placed uniformly in the core's disc, traced; the mean light on their hits against that on the core's, for a
+// light near the view (where the hot spot matters) and across it.
+TEST(FiberShading, CoreBundleLetsLightThroughLikeTheFibersItStandsFor) {
+  using render::Vec3;
+  constexpr double radius = 0.02, width = 0.002;
+  constexpr int fibers = 240;  // packing 0.6 (cotton1's plies: ~1)
+  yarn::YarnGeometry loose, core;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> uni(-1, 1);
+  while (static_cast<int>(loose.fibers.size()) < fibers) {
+    const double x = uni(rng), y = uni(rng);
+    if (x * x + y * y > 1) continue;
+    const double reach = radius - width / 2;  // whole fibers inside the disc
+    loose.fibers.push_back({yarn::FiberType::kMigration, 0, 0, width, {{reach * x, reach * y, -1}, {reach * x, reach * y, 1}}});
+  }
+  core.fibers.push_back({yarn::FiberType::kCore, 0, -1, 2 * radius, {{0, 0, -1}, {0, 0, 1}}});
+  yarn::PlyDetail& ply = core.plies.emplace_back();
+  ply.core_fibers = fibers;
+  ply.core_radius = radius;
+  ply.core_free_path = std::numbers::pi * radius * radius / (fibers * width);
+  ply.core_fiber_width = width;
+  const auto mean_light = [](const render::RenderSetup& setup) {
+    double sum = 0;
+    int hits = 0;
+    for (int j = 0; j < setup.height; ++j)
+      for (int i = 0; i < setup.width; ++i)
+        for (uint32_t k = 0; k < 4; ++k) {
+          render::ShadingPoint point;
+          const uint64_t pixel = uint64_t(j) * setup.width + i;
+          render::TraceSample(setup, i + 0.5, j + 0.5, render::SamplePoints(1, pixel, k), &point);
+          if (point.object < 0) continue;
+          ++hits;
+          for (const render::LightSample& l : point.lights) sum += l.weight.x;
+        }
+    EXPECT_GT(hits, 1000);
+    return sum / std::max(hits, 1);
+  };
+  const Vec3 camera = render::Normalize({0.2, 0.05, 0.1});
+  for (const Vec3 light : {render::Normalize({0.2, 0.12, 0.08}), render::Normalize({-0.05, 0.2, 0.04})}) {
+    const double expected = mean_light(FiberSetup(loose, light, 96)), bundle = mean_light(FiberSetup(core, light, 96));
+    std::printf("light %.2f from the view: explicit fibers %.4f, core %.4f (%+.1f%%)\n",
+                std::acos(render::Dot(light, camera)), expected, bundle, 100 * (bundle / expected - 1));
+    EXPECT_NEAR(bundle / expected, 1, 0.08);  // measured -0.6% and -4.3%
+  }
 }
 
 TEST(FiberShading, StraightFiberShadesLikeAnAnalyticCylinder) {

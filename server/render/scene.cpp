@@ -212,6 +212,9 @@ void FiberHitToHit(const yarn::FiberHit& h, double distance, Vec3 position, int 
   hit->fiber_radius = 0.5 * h.width;
   hit->fiber_yarn = h.yarn;
   hit->fiber_core = h.type == yarn::FiberType::kCore;
+  hit->fiber_core_axis = ToVec(h.tangent);
+  hit->fiber_core_free_path = h.core_free_path;
+  hit->fiber_core_fiber_width = h.core_fiber_width;
   // The axis made perpendicular to the normal (they are perpendicular on a straight fiber's side).
   Vec3 along = hit->fiber_axis - Dot(hit->fiber_axis, hit->normal) * hit->normal;
   if (Length(along) < 1e-9) along = Cross(hit->normal, Length(Cross(hit->normal, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});

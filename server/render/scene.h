@@ -82,6 +82,11 @@ struct Hit {
   double fiber_radius = 0;
   int fiber_yarn = -1;  // the yarn the fiber belongs to (the fiber scene's yarn index)
   bool fiber_core = false;  // a ply's core fiber (standing for its inner fibers)
+  // Cores: the curve's own direction (fiber_axis is its fibers' at the hit), the mean free path across its
+  // fibers and their width.
+  Vec3 fiber_core_axis;
+  double fiber_core_free_path = 0;
+  double fiber_core_fiber_width = 0;
 };
 
 // The surface point of a (non-fiber) shape at surface coordinates (s, t), as a hit there would report it

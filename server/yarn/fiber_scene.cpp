@@ -371,7 +371,13 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
     table.curves.resize(curves.size());
     for (size_t c = 0; c < curves.size(); ++c) {
       table.curves[c] = {curves[c].type, curves[c].ply, curves[c].fiber, static_cast<float>(curves[c].width)};
+      const std::vector<PlyDetail>& plies = yarns[y]->plies;
+      if (curves[c].type == FiberType::kCore && curves[c].ply >= 0 && size_t(curves[c].ply) < plies.size()) {
+        table.curves[c].core_free_path = static_cast<float>(plies[size_t(curves[c].ply)].core_free_path);
+        table.curves[c].core_fiber_width = static_cast<float>(plies[size_t(curves[c].ply)].core_fiber_width);
+      }
     }
+    table.core_turn_rate = static_cast<float>(yarns[y]->core_turn_rate);
     table.curve_first.assign(curves.size(), 0);
     if (yarn_segments[y] == 0) continue;  // Embree refuses empty buffers; hits never name this yarn
 
@@ -490,16 +496,24 @@ void FiberScene::Finish(const FiberRay& r, float tfar, uint32_t geom, uint32_t p
     n = Normalized(p.x - v0[0] - a * tangent.x, p.y - v0[1] - a * tangent.y, p.z - v0[2] - a * tangent.z);
     if (n == Float3{}) n = Normalized(-d.x, -d.y, -d.z);
   }
-  const bool entering = n.x * d.x + n.y * d.y + n.z * d.z <= 0;
-  if (!entering) n = {-n.x, -n.y, -n.z};
   const uint32_t c = table.segment_curve[seg];
   const CurveInfo& info = table.curves[c];
+  Float3 shading = ShadingTangent(table, seg, v0, tangent, u);
+  if (info.type == FiberType::kCore && table.core_turn_rate != 0) {
+    // The core's fibers at its surface (n outward here) run along t + rate r (t x n).
+    const float k = table.core_turn_rate * 0.5f * info.width;
+    const Float3 side{shading.y * n.z - shading.z * n.y, shading.z * n.x - shading.x * n.z, shading.x * n.y - shading.y * n.x};
+    const Float3 turned = Normalized(shading.x + k * side.x, shading.y + k * side.y, shading.z + k * side.z);
+    if (!(turned == Float3{})) shading = turned;
+  }
+  const bool entering = n.x * d.x + n.y * d.y + n.z * d.z <= 0;
+  if (!entering) n = {-n.x, -n.y, -n.z};
   h.hit = true;
   h.entering = entering;
   h.t = t;
   h.position = p;
   h.tangent = tangent;
-  h.shading_tangent = ShadingTangent(table, seg, v0, tangent, u);
+  h.shading_tangent = shading;
   h.normal = n;
   h.u = std::clamp(u, 0.0f, 1.0f);
   h.type = info.type;
@@ -509,6 +523,8 @@ void FiberScene::Finish(const FiberRay& r, float tfar, uint32_t geom, uint32_t p
   h.curve = static_cast<int>(c);
   h.segment = static_cast<int>(seg - table.curve_first[c]);
   h.width = info.width;
+  h.core_free_path = info.core_free_path;
+  h.core_fiber_width = info.core_fiber_width;
 }
 
 std::string FiberScene::Intersect(std::span<const FiberRay> rays, std::span<FiberHit> hits) const {

@@ -134,7 +134,9 @@ struct FiberHit {
   float t = std::numeric_limits<float>::infinity();
   Float3 position;  // origin + t direction
   Float3 tangent;   // unit, along the fiber's segment, in the curve's point order
-  Float3 shading_tangent;  // unit: the joints' mean directions interpolated along the segment (for shading)
+  // Unit, for shading: the joints' mean directions interpolated along the segment; on a core, turned to the
+  // direction of the fibers it stands for at the hit (YarnGeometry::core_turn_rate).
+  Float3 shading_tangent;
   Float3 normal;    // unit surface normal (Embree's Ng for round curves), facing the ray (dot(normal, dir) <= 0)
   float u = 0;      // position along the segment, [0, 1]
   FiberType type = FiberType::kMigration;
@@ -144,6 +146,9 @@ struct FiberHit {
   int curve = -1;    // index into that geometry's fibers
   int segment = -1;  // segment within the curve (between its merged points segment and segment + 1)
   float width = 0;   // the fiber's diameter
+  // Cores: the mean free path across the fibers it stands for, and their width (PlyDetail).
+  float core_free_path = 0;
+  float core_fiber_width = 0;
 };
 
 class FiberScene {
@@ -183,6 +188,8 @@ class FiberScene {
     int ply = 0;
     int fiber = -1;
     float width = 0;
+    float core_free_path = 0;  // cores: PlyDetail::core_free_path and core_fiber_width
+    float core_fiber_width = 0;
   };
   struct YarnTable {
     const float* vertices = nullptr;  // Embree's buffer (x, y, z, r per vertex), alive while the scene is
@@ -190,6 +197,7 @@ class FiberScene {
     std::vector<uint32_t> segment_curve;  // curve index per segment (primID)
     std::vector<uint32_t> curve_first;    // first segment of each curve (skipped curves: that of the next)
     std::vector<CurveInfo> curves;        // per input curve
+    float core_turn_rate = 0;             // YarnGeometry::core_turn_rate
   };
   void Release();
   static Float3 ShadingTangent(const YarnTable& table, uint32_t seg, const float* v0, Float3 tangent, float u);

@@ -553,6 +553,12 @@ std::string GenerateYarn(const YarnParams& p, const YarnCurve& curve, const Deta
     if (options.core) {
       detail.core_fibers = p.fibers_per_ply - ply_lod.fibers;
       core_radius[size_t(j)] = detail.core_radius = ply_lod.core_radius;
+      // The ply's fibers fill its ellipse; the core, a circle of its long semi-axis, holds them at that density.
+      const double area = kPi * detail.core_radius * detail.core_radius * std::min(p.ellipse_n, p.ellipse_b) /
+                          std::max(p.ellipse_n, p.ellipse_b);
+      if (detail.core_radius > 0 && detail.core_fibers > 0)
+        detail.core_free_path = area / (detail.core_fibers * p.fiber_width);
+      if (detail.core_radius > 0) detail.core_fiber_width = p.fiber_width;
     }
   }
 
@@ -657,6 +663,8 @@ std::string GenerateYarn(const YarnParams& p, const YarnCurve& curve, const Deta
   out->control_points = points;
   out->lambda = lod.lambda;
   out->points_per_twist = lod.points_per_twist;
+  // Psi (twist_sign 2 pi / alpha) and the ply frame's angle (2 pi / alpha_yarn) both turn about the tangent.
+  out->core_turn_rate = kTwoPi * (twist_sign / p.alpha + 1 / p.alpha_yarn);
   return "";
 }
 

@@ -188,6 +188,10 @@ struct PlyDetail {
   int regular_fibers = 0;  // fibers generated whole (as migration runs between their flyaways)
   int core_fibers = 0;     // fibers the core stands for (all the others when there is a core)
   double core_radius = 0;  // 0 when there is no core curve
+  // The mean free path of a line across the core's fibers (parallel, spread evenly over the ply's ellipse
+  // scaled to the core): its area over core_fibers x fiber width. 0 when there is no core curve.
+  double core_free_path = 0;
+  double core_fiber_width = 0;  // the width of the fibers it stands for (0 when there is no core curve)
 
   bool operator==(const PlyDetail&) const = default;
 };
@@ -198,6 +202,11 @@ struct YarnGeometry {
   double lambda = 1;               // Eq. 4 at the options' footprint
   int points_per_twist = 0;        // after the level of detail
   std::vector<PlyDetail> plies;
+  // How fast the fibers a core stands for turn about it, radians per unit length along the curve (signed,
+  // right-handed about the curve's direction): their twist in the ply plus the ply's turn in the yarn. At the
+  // core's surface (radius r, outward normal n) they run along t + rate r (t x n): the "surface direction" of
+  // Sec. 3.2's core texture, which the core's shading needs (its highlight is theirs, not a smooth rod's).
+  double core_turn_rate = 0;
 
   bool operator==(const YarnGeometry&) const = default;
 };

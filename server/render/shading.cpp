@@ -114,12 +114,14 @@ class CoreBundle {
     at_ = hit.position + (depth_ / m) * direction;
   }
   Vec3 at() const { return at_; }
-  bool porous() const { return free_path_ > 0; }
+  // A rod's own shade: the side of it away from w (decided by the normal, not a chord: Embree misses the
+  // near-tangent chords of a ray started on the surface).
+  bool RodShades(Vec3 w) const { return !(free_path_ > 0) && Dot(w, normal_) <= 0; }
   // Transmittance toward w from the fiber met, and in *exit where the ray leaves the core (just outside).
   double Leave(Vec3 w, Vec3* exit) const {
-    if (!(free_path_ > 0)) {  // the rod: lit only where its surface faces w (decided by the normal, not a chord)
+    if (!(free_path_ > 0)) {
       *exit = at_ + (1e-4 * radius_) * normal_;
-      return Dot(w, normal_) > 0 ? 1.0 : 0.0;
+      return RodShades(w) ? 0.0 : 1.0;
     }
     const Vec3 q = Across(at_ - centre_), w_across = Across(w);
     const double m = Length(w_across);
@@ -160,7 +162,8 @@ class CoreBundle {
 };
 
 // Bundle transmittances below this are played by Russian roulette (kept at this value with probability t / it),
-// so the rays toward a core's far side (e^-10 through it) are rarely traced, without bias.
+// so the rays toward a core's far side (e^-10 through it) are rarely traced, without bias (one random number for
+// all of a sample's rays: each estimate stays unbiased).
 constexpr double kRouletteTransmittance = 0.05;
 
 void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const SamplePoints& points, ShadingPoint* point) {
@@ -205,8 +208,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
     if (cos_theta < kMinCosine) return;
     double transmittance = 1;
     if (slices) {  // the slices hold the whole yarn's density, a core's fibers too: from the fiber met
-      Vec3 unused;
-      if (core && !bundle.porous() && !(bundle.Leave(wi_world, &unused) > 0)) return;
+      if (core && bundle.RodShades(wi_world)) return;
       if (approximate->OtherYarnsBlock(hit.fiber_yarn, to_yarn(start.origin), to_yarn(wi_world), max_distance)) return;
       transmittance = approximate->SelfShadow(in_yarn, to_yarn(wi_world), start.radius);
     } else {

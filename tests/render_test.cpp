@@ -806,8 +806,8 @@ TEST(FiberShading, PacketsTraceAsSingleSamples) {
   EXPECT_GT(fibers, 20);
 }
 
-// A core fiber stands for a bundle of fibers, a thick opaque cylinder: lit where its surface faces the light
-// and in its own shadow on the far side (a regular fiber, a line to its far-field model, is lit all round: the
+// A core fiber with no free path (no fibers counted for it, as here) is a thick opaque cylinder: lit where its
+// surface faces the light and in its own shadow on the far side (a regular fiber, a line to its far-field model, is lit all round: the
 // test below).
 TEST(FiberShading, CoreFiberShadowsItsOwnFarSide) {
   using render::Vec3;

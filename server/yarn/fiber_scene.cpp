@@ -369,12 +369,13 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
     if (yarns[y] == nullptr) continue;
     const std::vector<FiberCurve>& curves = yarns[y]->fibers;
     table.curves.resize(curves.size());
+    const std::vector<PlyDetail>& plies = yarns[y]->plies;
     for (size_t c = 0; c < curves.size(); ++c) {
       table.curves[c] = {curves[c].type, curves[c].ply, curves[c].fiber, static_cast<float>(curves[c].width)};
-      const std::vector<PlyDetail>& plies = yarns[y]->plies;
       if (curves[c].type == FiberType::kCore && curves[c].ply >= 0 && size_t(curves[c].ply) < plies.size()) {
-        table.curves[c].core_free_path = static_cast<float>(plies[size_t(curves[c].ply)].core_free_path);
-        table.curves[c].core_fiber_width = static_cast<float>(plies[size_t(curves[c].ply)].core_fiber_width);
+        const PlyDetail& ply = plies[size_t(curves[c].ply)];
+        table.curves[c].core_free_path = static_cast<float>(ply.core_free_path);
+        table.curves[c].core_fiber_width = static_cast<float>(ply.core_fiber_width);
       }
     }
     table.core_turn_rate = static_cast<float>(yarns[y]->core_turn_rate);

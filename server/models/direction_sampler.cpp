@@ -1,6 +1,7 @@
 #include "server/models/direction_sampler.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <memory>
 #include <numbers>
@@ -70,6 +71,7 @@ std::unique_ptr<PreparedMaterial> AtShapeSetting(const PreparedMaterial& materia
 }  // namespace
 
 DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resolution) : res_(resolution) {
+  res_.wi_phi = std::clamp(res_.wi_phi, 1, kMaxPhiCells);
   const std::unique_ptr<PreparedMaterial> shape = AtShapeSetting(own);
   const PreparedMaterial& material = shape ? *shape : own;
   const Model& model = *material.model;
@@ -124,7 +126,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
   cell_pdf_.assign(nodes_.size() * size_t(cells), 0.0f);
   // Nodes are independent: kBuildThreads threads take every kBuildThreads-th node, each with its own wo and f.
   const auto build_nodes = [&](int first) {
-    std::vector<float> wo(3 * n);
+    std::vector<float> wo(3 * n), column_cdf;  // a node's cells' sums per row (unnormalised), while it is built
     std::vector<double> f(3 * n);
     for (int index = first; index < int(nodes_.size()); index += kBuildThreads) {
       const int i = index / res_.wo_phi, j = index % res_.wo_phi;
@@ -135,10 +137,10 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
       EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
       Node& node = nodes_[index];
       node.row_cdf.assign(wi_rows_ + 1, 0.0f);
-      node.column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0f);
+      column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0f);
       double row_sum = 0;
       for (int r = 0; r < wi_rows_; ++r) {
-        float* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+        float* column = &column_cdf[size_t(r) * (res_.wi_phi + 1)];
         double column_sum = 0;
         for (int c = 0; c < res_.wi_phi; ++c) {
           double sum = 0;
@@ -153,12 +155,13 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
         row_sum += column_sum;
         node.row_cdf[r + 1] = float(row_sum);
       }
-      // Each cell's density as DrawNode picks it from the stored sums (the row's probability, then the cell's
-      // within the row, over its solid angle dz dphi): one read per node where MIS asks for densities.
+      // Each cell's density (the row's probability from the stored row sums, then the cell's within the row,
+      // over its solid angle dz dphi): one read per node where MIS asks for densities, and a row of them is
+      // what DrawNode picks the cell from.
       float* cell_pdf = &cell_pdf_[size_t(index) * cells];
       const double total = node.row_cdf.back();
       for (int r = 0; r < wi_rows_; ++r) {
-        const float* column = &node.column_cdf[size_t(r) * (res_.wi_phi + 1)];
+        const float* column = &column_cdf[size_t(r) * (res_.wi_phi + 1)];
         const double row = double(node.row_cdf[r + 1]) - double(node.row_cdf[r]), row_total = column[res_.wi_phi];
         for (int c = 0; c < res_.wi_phi; ++c)
           cell_pdf[r * res_.wi_phi + c] =
@@ -177,7 +180,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
 
 size_t DirectionSampler::bytes() const {
   size_t total = sizeof(*this);
-  for (const Node& node : nodes_) total += (node.row_cdf.size() + node.column_cdf.size()) * sizeof(float);
+  for (const Node& node : nodes_) total += node.row_cdf.size() * sizeof(float);
   return total + cell_pdf_.size() * sizeof(float);
 }
 
@@ -251,8 +254,13 @@ void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, doubl
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
   double fz, fp;
   const int r = SearchCdf(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
-  const float* column = &n.column_cdf[size_t(r) * (res_.wi_phi + 1)];
-  const int c = SearchCdf(column, res_.wi_phi, u2 * column[res_.wi_phi], &fp);
+  // The cell within the row in proportion to its density, from the row of cell_pdf_ (so the density drawn is
+  // cell_pdf_ to float rounding, with no second table of sums).
+  const float* row = &cell_pdf_[(size_t(node) * wi_rows_ + r) * res_.wi_phi];
+  std::array<double, kMaxPhiCells + 1> column;
+  column[0] = 0;
+  for (int c = 0; c < res_.wi_phi; ++c) column[c + 1] = column[c] + std::max(0.0f, row[c]);
+  const int c = SearchCdf(column.data(), res_.wi_phi, u2 * column[res_.wi_phi], &fp);
   *z = z_min_ + (r + fz) * dz;
   *phi = (c + fp) * dphi;
 }

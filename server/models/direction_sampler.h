@@ -40,6 +40,7 @@ class DirectionSampler {
 
   // Threads that build a table (on the caller's thread and kBuildThreads - 1 more).
   static constexpr int kBuildThreads = 2;
+  static constexpr int kMaxPhiCells = 256;
 
   // Resolution, measured on the cylinders at 16 samples per pixel (uniform), PSNR against 512-1024 spp (satin,
   // twill, the satin sphere): 12 x 12 wo nodes with 24 x 48 wi cells 41.5, 39.0, 38.4 dB; 24 x 24 nodes with
@@ -50,10 +51,12 @@ class DirectionSampler {
   // lose 5 dB on the twill. Built through the batcher's OpenCL kernels instead (~5x faster), a table was not the
   // same bytes twice (f from a launch is not bitwise the native build's, and a second PreparedMaterial of the
   // same material built its own), so the same request rendered two images: kept on the native build.
+  // A surface table now holds 1.2 MB (the cells' densities and row sums; drawing a cell from the densities
+  // dropped the per-row sums that doubled it).
   struct Resolution {
     int wo_z = 24, wo_phi = 24;     // wo nodes (cos theta_o, phi_o)
     int fiber_wo_z = 32;           // fibers: wo nodes in cos theta_o over the sphere (f depends on phi_i - phi_o)
-    int wi_z = 16, wi_phi = 32;    // wi cells per hemisphere in cos theta; phi cells
+    int wi_z = 16, wi_phi = 32;    // wi cells per hemisphere in cos theta; phi cells (at most kMaxPhiCells)
     int uv = 3;                    // uv points per axis averaged over the tile (spatially varying models)
   };
 
@@ -104,9 +107,8 @@ class DirectionSampler {
  private:
   struct Node {
     // Sums taken in double, stored as float (half the bytes and cache lines); cell_pdf_ is computed from the
-    // stored values, so it stays what Draw samples.
+    // stored values, so it stays what Draw samples. Within a row Draw picks the cell from cell_pdf_ itself.
     std::vector<float> row_cdf;     // wi_rows + 1, unnormalised
-    std::vector<float> column_cdf;  // wi_rows x (wi_phi + 1), unnormalised
   };
   // The frame wi and wo are tabulated in: the surface's (z = normal) or the fiber's (z = axis).
   Dir ToTable(const Dir& w) const;

@@ -81,29 +81,83 @@ TEST(MicrocylinderPresets, MatchThePapersTables) {
   }
 }
 
-// Tangent pair m of thread j (0 or 1) in a packed material.
-std::pair<double, double> Tangent(const models::PackedMaterial& m, int j, int k) {
-  const size_t thread = 1 + j * (7 + 2 * m.uniform);
-  return {m.data[thread + 7 + 2 * k], m.data[thread + 7 + 2 * k + 1]};
+// Distinct tangent k of thread j (0 or 1) in a packed material: (cos, sin), and the samples it stands for.
+struct PackedTangent {
+  double c, s, count;
+};
+size_t ThreadStart(const models::PackedMaterial& m, int j) {
+  return j == 0 ? 1 : 1 + size_t(mc_source::mc_thread_size(int(m.data[MC_THREAD_HEADER])));
+}
+int DistinctTangents(const models::PackedMaterial& m, int j) { return int(m.data[ThreadStart(m, j) + MC_THREAD_HEADER - 1]); }
+PackedTangent Tangent(const models::PackedMaterial& m, int j, int k) {
+  const double* t = &m.data[ThreadStart(m, j) + MC_THREAD_HEADER + 2 * k];
+  const double count = std::round(std::hypot(t[0], t[1]));
+  return {t[0] / count, t[1] / count, count};
 }
 
 TEST(MicrocylinderCurve, SamplesArcLengthMidpointsAndJumps) {
   ParamValues v = Preset("velvet");
   v["tangent_samples"] = {4};
   const models::PackedMaterial m = Microcylinder().Pack(v);
-  ASSERT_EQ(m.data.size(), size_t(mc_source::mc_material_stride(4)));
+  ASSERT_EQ(m.data.size(), 1 + size_t(mc_source::mc_thread_size(DistinctTangents(m, 0)) +
+                                      mc_source::mc_thread_size(DistinctTangents(m, 1))));
   // Thread 2: -90 -> -55 over [0, 0.5], jump, 55 -> 90 over [0.5, 1]; midpoints 1/8, 3/8, 5/8, 7/8.
   const double expected[4] = {-81.25, -63.75, 63.75, 81.25};
+  ASSERT_EQ(DistinctTangents(m, 1), 4);
   for (int k = 0; k < 4; ++k) {
-    const auto [c, s] = Tangent(m, 1, k);
+    const auto [c, s, count] = Tangent(m, 1, k);
     EXPECT_NEAR(c, std::cos(expected[k] * M_PI / 180), 1e-14) << k;
     EXPECT_NEAR(s, std::sin(expected[k] * M_PI / 180), 1e-14) << k;
+    EXPECT_EQ(count, 1) << k;
   }
-  // A constant -90 degree offset gives an exactly vertical tangent (cos exactly 0).
+  // A constant -90 degree offset gives an exactly vertical tangent (cos exactly 0): one distinct tangent for
+  // all 4 samples.
   v["thread1.tangent_offsets"] = {-90, -90};
-  const auto [c0, s0] = Tangent(Microcylinder().Pack(v), 0, 0);
+  const models::PackedMaterial flat = Microcylinder().Pack(v);
+  ASSERT_EQ(DistinctTangents(flat, 0), 1);
+  const auto [c0, s0, n0] = Tangent(flat, 0, 0);
   EXPECT_EQ(c0, 0.0);
   EXPECT_EQ(s0, -1.0);
+  EXPECT_EQ(n0, 4);
+}
+
+void Push(std::vector<float>& v, double x, double y, double z);
+
+// Equal samples merged (a flat stretch of the curve) give the f of every sample evaluated on its own: the satin's
+// thread 1 (flat at -32, 0 and 32 degrees) and its wholly flat thread 2, against the same curves nudged off flat
+// by 1e-9 degrees (every sample distinct, f changed by ~1e-11 relative).
+TEST(MicrocylinderCurve, EqualSamplesMergedGiveTheSameF) {
+  ParamValues v = Preset("polyester_satin_charmeuse_front");
+  v["tangent_samples"] = {32};
+  const models::PackedMaterial merged = Microcylinder().Pack(v);
+  EXPECT_LT(DistinctTangents(merged, 0), 24);
+  EXPECT_EQ(DistinctTangents(merged, 1), 1);
+  for (int j = 0; j < 2; ++j) {
+    double samples = 0;
+    for (int k = 0; k < DistinctTangents(merged, j); ++k) samples += Tangent(merged, j, k).count;
+    EXPECT_EQ(samples, 32) << "thread " << j + 1;
+  }
+  ParamValues nudged = v;
+  for (const char* t : {"thread1.tangent_offsets", "thread2.tangent_offsets"}) {
+    std::vector<double>& o = nudged[t];
+    for (size_t k = 0; k < o.size(); ++k) o[k] += 1e-9 * double(k);
+  }
+  const models::PackedMaterial distinct = Microcylinder().Pack(nudged);
+  EXPECT_EQ(DistinctTangents(distinct, 0), 32);
+  EXPECT_EQ(DistinctTangents(distinct, 1), 32);
+  std::vector<float> wi, wo;
+  for (int i = 0; i < 200; ++i) {
+    const double a = 0.37 * i, b = 0.71 * i;
+    Push(wi, std::cos(a), std::sin(a), 0.05 + 0.9 * std::fabs(std::sin(1.3 * i)));
+    Push(wo, std::cos(b), std::sin(b), 0.05 + 0.9 * std::fabs(std::cos(0.7 * i)));
+  }
+  std::vector<double> f_merged(wi.size()), f_distinct(wi.size());
+  Microcylinder().ReferenceEval(merged, wi.data(), wo.data(), nullptr, wi.size() / 3, f_merged.data());
+  Microcylinder().ReferenceEval(distinct, wi.data(), wo.data(), nullptr, wi.size() / 3, f_distinct.data());
+  double largest = 0;
+  for (double x : f_distinct) largest = std::max(largest, x);
+  ASSERT_GT(largest, 0);
+  for (size_t q = 0; q < f_merged.size(); ++q) EXPECT_NEAR(f_merged[q], f_distinct[q], 1e-8 * largest + 1e-8 * f_distinct[q]) << q;
 }
 
 std::vector<double> Reference(const ParamValues& v, const std::vector<float>& wi, const std::vector<float>& wo) {
@@ -168,8 +222,8 @@ std::pair<std::vector<float>, std::vector<float>> HardCases(const models::Packed
   // Directions parallel to every sampled tangent (flipped into the upper hemisphere; horizontal ones
   // lifted by 1e-6), against random and opposite views.
   for (int j = 0; j < 2; ++j)
-    for (int k = 0; k < m.uniform; ++k) {
-      const auto [c, s] = Tangent(m, j, k);
+    for (int k = 0; k < DistinctTangents(m, j); ++k) {
+      const auto [c, s, count] = Tangent(m, j, k);
       double t[3] = {j == 0 ? c : 0, j == 1 ? c : 0, s};
       if (t[2] < 0) for (double& x : t) x = -x;
       if (t[2] == 0) t[2] = 1e-6;

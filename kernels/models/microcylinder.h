@@ -4,17 +4,21 @@
 //
 // Packed material (array of real), for T tangent samples per thread:
 //   [0]              eta
-//   [1 + j*S ...]    thread j (j = 0: along x, j = 1: along y), S = MC_THREAD_HEADER + 2T values:
-//                    coverage a, albedo A (r, g, b), kd, gamma_s, gamma_v (radians),
-//                    then T pairs (cos alpha, sin alpha) of the sampled tangent offsets.
+//   [1 ...]          thread 1 (along x), then thread 2 (along y), each MC_THREAD_HEADER + 2n values:
+//                    coverage a, albedo A (r, g, b), kd, gamma_s, gamma_v (radians), n,
+//                    then n pairs count (cos alpha, sin alpha): the distinct sampled tangent offsets in arc-length
+//                    order, each scaled by how many of the T samples it stands for (the counts sum to T).
+// Equal samples (a flat stretch of the tangent curve: the satin's thread 2 entirely, a third of its thread 1)
+// add equal terms to both sums of SPEC.md section 2's X, so each is evaluated once and weighed by its count;
+// the count rides in the pair's length, so a material is never larger than with one pair per sample.
 
-#define MC_THREAD_HEADER 7
+#define MC_THREAD_HEADER 8
 #define MC_MAX_TANGENT_SAMPLES 256
 // 1 / (2 sigma_u^2) with sigma_u = 20 degrees (Sec. 5.2): the masking and reweighting blend width.
 #define MC_U_INV2S2 R(4.1035862571313326)
 
-LL_INLINE int mc_thread_stride(int T) { return MC_THREAD_HEADER + 2 * T; }
-LL_INLINE int mc_material_stride(int T) { return 1 + 2 * mc_thread_stride(T); }
+// A thread's values: its header and its n distinct tangents (n is the header's last value).
+LL_INLINE int mc_thread_size(int n) { return MC_THREAD_HEADER + 2 * n; }
 
 #ifndef __OPENCL_C_VERSION__
 // Tangent offset (degrees) at arc length s on a piecewise-linear tangent curve: offsets[0..n-1] at the control
@@ -31,17 +35,18 @@ LL_INLINE real mc_curve_offset(const real* offsets, const real* lengths, int n, 
 }
 #endif
 
-// Accumulates one thread's T tangent samples for a query.
+// Accumulates one thread's tangent samples for a query (its distinct ones, weighed by their counts).
 // (ia, ib, iz) are wi's components along the thread's own axis, the other cloth axis and the normal
 // (thread along x: (x, y, z); along y: (y, x, z)); likewise (oa, ob, oz) for wo. Adds sum P Q to
 // *surf (achromatic surface part) and *vol (volume part, to be multiplied by A) and sum P to *psum.
 // The loop body is branch-free (selects only, no library calls): no divergent paths per work-item.
-LL_INLINE void mc_accumulate_thread(LL_GLOBAL const scalar* thread, int T, scalar eta,
+LL_INLINE void mc_accumulate_thread(LL_GLOBAL const scalar* thread, scalar eta,
                                     real ia, real ib, real iz, real oa, real ob, real oz,
                                     real* surf, real* vol, real* psum) {
   const scalar kd = thread[4];
   const real inv_gamma_s = R(1.0) / thread[5];
   const real inv_gamma_v = R(1.0) / thread[6];
+  const int distinct = (int)thread[7];
   LL_GLOBAL const scalar* tangents = thread + MC_THREAD_HEADER;
 
   // (w.t, w.nt) is (wa, wz) rotated by the tangent offset, so its length and psi_i - psi_r do not depend
@@ -53,8 +58,11 @@ LL_INLINE void mc_accumulate_thread(LL_GLOBAL const scalar* thread, int T, scala
   const real u_psi = ll_unit_gaussian(MC_U_INV2S2, psi_d);
 
   real s_surf = R(0.0), s_vol = R(0.0), s_p = R(0.0);
-  for (int m = 0; m < T; ++m) {  // T is the same for every query of a launch
-    const scalar ca = tangents[2 * m], sa = tangents[2 * m + 1];
+  for (int m = 0; m < distinct; ++m) {  // the same for every query of a work-item (one material)
+    // Per material, not per lane: the count is the pair's length (a whole number), the tangent its direction.
+    const scalar sc = tangents[2 * m], ss = tangents[2 * m + 1];
+    const scalar count = floor(sqrt(sc * sc + ss * ss) + (scalar)0.5);
+    const scalar ca = sc / count, sa = ss / count;
     // t = (ca, 0, sa), nt = (-sa, 0, ca), b = the other cloth axis, in the thread's (a, b, z) frame.
     const real si = ia * ca + iz * sa, ni = iz * ca - ia * sa, bi = ib;
     const real sr = oa * ca + oz * sa, nr = oz * ca - oa * sa, br = ob;
@@ -95,10 +103,10 @@ LL_INLINE void mc_accumulate_thread(LL_GLOBAL const scalar* thread, int T, scala
 
     // P Q = P f_s M cos(theta_i), with f_s = (f_rs + f_rv A) / cos^2(theta_d). Dead lanes may hold NaN
     // (0/0 above), so they are selected out rather than multiplied by 0.
-    const real w = p * mask * ci / cos2_d;
+    const real w = count * p * mask * ci / cos2_d;
     s_surf += live ? w * f_rs : R(0.0);
     s_vol += live ? w * f_rv : R(0.0);
-    s_p += p;
+    s_p += count * p;
   }
   *surf = s_surf;
   *vol = s_vol;
@@ -113,10 +121,10 @@ LL_INLINE void mc_eval(LL_GLOBAL const scalar* mat, int T, real wix, real wiy, r
   ll_normalize(&wox, &woy, &woz);
   const scalar eta = mat[0];
   LL_GLOBAL const scalar* t1 = mat + 1;
-  LL_GLOBAL const scalar* t2 = t1 + mc_thread_stride(T);
+  LL_GLOBAL const scalar* t2 = t1 + mc_thread_size((int)t1[MC_THREAD_HEADER - 1]);
   real surf1, vol1, p1, surf2, vol2, p2;
-  mc_accumulate_thread(t1, T, eta, wix, wiy, wiz, wox, woy, woz, &surf1, &vol1, &p1);
-  mc_accumulate_thread(t2, T, eta, wiy, wix, wiz, woy, wox, woz, &surf2, &vol2, &p2);
+  mc_accumulate_thread(t1, eta, wix, wiy, wiz, wox, woy, woz, &surf1, &vol1, &p1);
+  mc_accumulate_thread(t2, eta, wiy, wix, wiz, woy, wox, woz, &surf2, &vol2, &p2);
   const scalar a1 = t1[0], a2 = t2[0];
   const real denom = a1 * p1 + a2 * p2;
   const mask lit = wiz > LL_HORIZON_EPS && woz > LL_HORIZON_EPS && denom > R(0.0);

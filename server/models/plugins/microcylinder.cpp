@@ -147,19 +147,34 @@ class MicrocylinderModel : public Model {
       const std::string p = std::string(t) + ".";
       const auto& albedo = v.at(p + "albedo");
       m.data.insert(m.data.end(), {v.at(p + "coverage")[0], albedo[0], albedo[1], albedo[2], v.at(p + "kd")[0],
-                                   v.at(p + "gamma_s")[0] * kDegree, v.at(p + "gamma_v")[0] * kDegree});
+                                   v.at(p + "gamma_s")[0] * kDegree, v.at(p + "gamma_v")[0] * kDegree, 0.0});
+      const size_t distinct = m.data.size() - 1, first = m.data.size();
       const auto& offsets = v.at(p + "tangent_offsets");
       const auto& lengths = v.at(p + "tangent_lengths");
       const double total = std::accumulate(lengths.begin(), lengths.end(), 0.0);
+      int n = 0;
+      double previous = NAN;
+      std::vector<int> counts;
       for (int k = 0; k < T; ++k) {
-        // Arc-length midpoints s_m = (m + 1/2) L / T (SPEC.md section 2).
+        // Arc-length midpoints s_m = (m + 1/2) L / T (SPEC.md section 2); on a flat stretch they are equal.
         const double s = (k + 0.5) * total / T;
+        const double offset = mc_source::mc_curve_offset(offsets.data(), lengths.data(), static_cast<int>(offsets.size()), s);
+        if (offset == previous) {
+          ++counts.back();
+          continue;
+        }
+        previous = offset;
         double c, sn;
-        CosSinDegrees(mc_source::mc_curve_offset(offsets.data(), lengths.data(), static_cast<int>(offsets.size()), s),
-                      &c, &sn);
-        m.data.push_back(c);
-        m.data.push_back(sn);
+        CosSinDegrees(offset, &c, &sn);
+        m.data.insert(m.data.end(), {c, sn});
+        counts.push_back(1);
+        ++n;
       }
+      for (int k = 0; k < n; ++k) {  // each distinct tangent scaled by its count (kernels/models/microcylinder.h)
+        m.data[first + 2 * k] *= counts[k];
+        m.data[first + 2 * k + 1] *= counts[k];
+      }
+      m.data[distinct] = n;
     }
     return m;
   }

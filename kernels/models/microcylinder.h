@@ -114,7 +114,8 @@ LL_INLINE void mc_accumulate_thread(LL_GLOBAL const scalar* thread, scalar eta,
 }
 
 // f(wi, wo) for one query (RGB into f[0..2]). wi, wo are renormalised here: the API accepts directions
-// within its unit tolerance, and the model's projections assume exactly unit vectors.
+// within its unit tolerance, and the model's projections assume exactly unit vectors. T (the launch's uniform)
+// is in the material already: its tangents' counts.
 LL_INLINE void mc_eval(LL_GLOBAL const scalar* mat, int T, real wix, real wiy, real wiz, real wox, real woy,
                        real woz, real* f) {
   ll_normalize(&wix, &wiy, &wiz);

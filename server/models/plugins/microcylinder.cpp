@@ -2,6 +2,7 @@
 // presets of the paper's Tables 2 and 3, validation and packing into the kernel's material layout.
 #include <cmath>
 #include <numeric>
+#include <vector>
 
 #include "server/models/registry.h"
 
@@ -147,34 +148,31 @@ class MicrocylinderModel : public Model {
       const std::string p = std::string(t) + ".";
       const auto& albedo = v.at(p + "albedo");
       m.data.insert(m.data.end(), {v.at(p + "coverage")[0], albedo[0], albedo[1], albedo[2], v.at(p + "kd")[0],
-                                   v.at(p + "gamma_s")[0] * kDegree, v.at(p + "gamma_v")[0] * kDegree, 0.0});
-      const size_t distinct = m.data.size() - 1, first = m.data.size();
+                                   v.at(p + "gamma_s")[0] * kDegree, v.at(p + "gamma_v")[0] * kDegree});
       const auto& offsets = v.at(p + "tangent_offsets");
       const auto& lengths = v.at(p + "tangent_lengths");
       const double total = std::accumulate(lengths.begin(), lengths.end(), 0.0);
-      int n = 0;
-      double previous = NAN;
+      // Arc-length midpoints s_m = (m + 1/2) L / T (SPEC.md section 2); on a flat stretch they are equal, so
+      // each distinct one is kept once with how many samples it stands for (kernels/models/microcylinder.h).
+      std::vector<double> distinct;
       std::vector<int> counts;
       for (int k = 0; k < T; ++k) {
-        // Arc-length midpoints s_m = (m + 1/2) L / T (SPEC.md section 2); on a flat stretch they are equal.
-        const double s = (k + 0.5) * total / T;
-        const double offset = mc_source::mc_curve_offset(offsets.data(), lengths.data(), static_cast<int>(offsets.size()), s);
-        if (offset == previous) {
+        const double offset = mc_source::mc_curve_offset(offsets.data(), lengths.data(), static_cast<int>(offsets.size()),
+                                                         (k + 0.5) * total / T);
+        if (!distinct.empty() && offset == distinct.back()) {
           ++counts.back();
-          continue;
+        } else {
+          distinct.push_back(offset);
+          counts.push_back(1);
         }
-        previous = offset;
+      }
+      m.data.push_back(static_cast<double>(distinct.size()));
+      for (size_t k = 0; k < distinct.size(); ++k) {
         double c, sn;
-        CosSinDegrees(offset, &c, &sn);
-        m.data.insert(m.data.end(), {c, sn});
-        counts.push_back(1);
-        ++n;
+        CosSinDegrees(distinct[k], &c, &sn);
+        m.data.push_back(counts[k] * c);
+        m.data.push_back(counts[k] * sn);
       }
-      for (int k = 0; k < n; ++k) {  // each distinct tangent scaled by its count (kernels/models/microcylinder.h)
-        m.data[first + 2 * k] *= counts[k];
-        m.data[first + 2 * k + 1] *= counts[k];
-      }
-      m.data[distinct] = n;
     }
     return m;
   }

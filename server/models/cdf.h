@@ -44,10 +44,30 @@ class CdfGuide {
 
   template <class T>
   int Search(const T* cdf, int n, double target, double* remainder) const {
-    if (first_.empty() || !(target >= 0)) return SearchCdf(cdf, n, target, remainder);
+    int lo, hi;
+    Range(n, target, &lo, &hi);
+    return SearchRange(cdf, n, lo, hi, target, remainder);
+  }
+
+  // Search in its two dependent reads, for callers that search many CDFs at once and fetch each read ahead
+  // (a packet of draws from a map too large for the cache): the guide entries `target` reads (Bucket, to
+  // prefetch), the range of sums it narrows the search to (Range), and the search of that range.
+  const int* Bucket(double target) const {
+    if (first_.empty() || !(target >= 0)) return nullptr;
+    const int buckets = int(first_.size()) - 1;
+    return &first_[size_t(std::max(int(std::min(target * scale_, double(buckets - 1))) - 1, 0))];
+  }
+  void Range(int n, double target, int* lo, int* hi) const {
+    *lo = 0;
+    *hi = n + 1;
+    if (first_.empty() || !(target >= 0)) return;
     const int buckets = int(first_.size()) - 1;
     const int g = int(std::min(target * scale_, double(buckets - 1)));
-    const int lo = first_[size_t(std::max(g - 1, 0))], hi = first_[size_t(std::min(g + 2, buckets))];
+    *lo = first_[size_t(std::max(g - 1, 0))];
+    *hi = first_[size_t(std::min(g + 2, buckets))];
+  }
+  template <class T>
+  static int SearchRange(const T* cdf, int n, int lo, int hi, double target, double* remainder) {
     const int i = std::clamp(int(std::upper_bound(cdf + lo, cdf + hi, target) - cdf) - 1, 0, n - 1);
     *remainder = CdfRemainder(cdf, i, target);
     return i;

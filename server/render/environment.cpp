@@ -69,9 +69,9 @@ size_t Environment::DecodeBytes(long long width, long long height, int channels)
   const size_t pixels = size_t(width) * size_t(height);
   const size_t bright = size_t(double(pixels) * kMaxBrightFraction) + 1;
   // Per pixel: the map, the column sums, the decoder's buffer and the column guides' (a bucket per 4 pixels);
-  // per row: the row sums, row sines and a column guide; the bright pixels and their sums.
+  // per row: the row sums, totals, sines and a column guide; the bright pixels and their sums.
   return pixels * (3 * sizeof(float) + sizeof(double) + std::min(channels, 3) * sizeof(float) + sizeof(int)) +
-         size_t(height) * (3 * sizeof(double) + sizeof(models::CdfGuide) + 2 * sizeof(int)) +
+         size_t(height) * (4 * sizeof(double) + sizeof(models::CdfGuide) + 2 * sizeof(int)) +
          bright * (sizeof(uint32_t) + sizeof(double));
 }
 
@@ -139,7 +139,7 @@ size_t Environment::bytes() const {
   size_t guides = map_->row_guide.bytes() + map_->bright_guide.bytes();
   for (const models::CdfGuide& g : map_->column_guides) guides += sizeof g + g.bytes();
   return map_->rgb.size() * sizeof(float) + map_->bright_pixels.size() * sizeof(uint32_t) +
-         (map_->row_cdf.size() + map_->column_cdf.size() + map_->bright_cdf.size() + map_->row_sine.size()) *
+         (map_->row_cdf.size() + map_->row_total.size() + map_->column_cdf.size() + map_->bright_cdf.size() + map_->row_sine.size()) *
              sizeof(double) +
          guides;
 }
@@ -217,6 +217,7 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
   if (bright > 0 && double(bright) <= kMaxBrightFraction * double(pixels)) map->bright_luminance = threshold;
   map->bright_cdf.push_back(0);
   map->row_cdf.assign(height + 1, 0.0);
+  map->row_total.assign(height, 0.0);
   map->column_cdf.assign(size_t(height) * (width + 1), 0.0);
   for (int y = 0; y < height; ++y) {
     double* cdf = &map->column_cdf[size_t(y) * (width + 1)];
@@ -230,6 +231,7 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
         map->bright_cdf.push_back(map->bright_cdf.back() + w);
       }
     }
+    map->row_total[y] = cdf[width];
     map->row_cdf[y + 1] = map->row_cdf[y] + cdf[width];
   }
   map->total_weight[kRest] = map->row_cdf[height];
@@ -255,25 +257,58 @@ double Environment::PixelDensity(double weight, Component component, double sin_
 
 
 Environment::Sample Environment::Draw(Component component, double u1, double u2) const {
+  const std::array<double, 2> u{u1, u2};
   Sample sample;
-  if (!Has(component)) return sample;
-  const Map& map = *map_;
-  int x, y;
-  double fx, fy;
-  if (component == kBright) {
-    // The pixel from u1 (its remainder places the point across the pixel), u2 down it.
-    const int i = map.bright_guide.Search(map.bright_cdf.data(), int(map.bright_pixels.size()), u1 * map.total_weight[kBright], &fx);
-    x = int(map.bright_pixels[i] % width_);
-    y = int(map.bright_pixels[i] / width_);
-    fy = u2;
-  } else {
-    // The row from u1, the column within it from u2; their remainders place the point inside the pixel.
-    y = map.row_guide.Search(map.row_cdf.data(), height_, u1 * map.total_weight[kRest], &fy);
-    const double* cdf = &map.column_cdf[size_t(y) * (width_ + 1)];
-    if (cdf[width_] <= 0) return sample;
-    x = map.column_guides[size_t(y)].Search(cdf, width_, u2 * cdf[width_], &fx);
+  DrawPacket(component, {&u, 1}, {&sample, 1});
+  return sample;
+}
+
+void Environment::DrawPacket(Component component, std::span<const std::array<double, 2>> u, std::span<Sample> out) const {
+  if (!Has(component)) {
+    std::fill(out.begin(), out.end(), Sample{});
+    return;
   }
-  const double weight = Weight(map, &map.rgb[3 * (size_t(y) * width_ + x)], y);
+  const Map& map = *map_;
+  if (component == kBright) {  // a few pixels' sums, in the cache: one draw at a time
+    for (size_t k = 0; k < u.size(); ++k) {
+      // The pixel from u1 (its remainder places the point across the pixel), u2 down it.
+      double fx;
+      const int i = map.bright_guide.Search(map.bright_cdf.data(), int(map.bright_pixels.size()),
+                                            u[k][0] * map.total_weight[kBright], &fx);
+      out[k] = DrawnSample(component, int(map.bright_pixels[i] % width_), int(map.bright_pixels[i] / width_), fx, u[k][1]);
+    }
+    return;
+  }
+  // The row from u1, the column within it from u2; their remainders place the point inside the pixel. In
+  // steps over the packet, each prefetching what the next reads: the row's guide entry, its sums, the pixel.
+  constexpr size_t kStep = 16;
+  for (size_t first = 0; first < u.size(); first += kStep) {
+    const size_t n = std::min(kStep, u.size() - first);
+    std::array<int, kStep> x, y, lo, hi;
+    std::array<double, kStep> fx, fy, target;
+    for (size_t k = 0; k < n; ++k) {
+      y[k] = map.row_guide.Search(map.row_cdf.data(), height_, u[first + k][0] * map.total_weight[kRest], &fy[k]);
+      target[k] = u[first + k][1] * map.row_total[size_t(y[k])];
+      if (const int* bucket = map.column_guides[size_t(y[k])].Bucket(target[k])) __builtin_prefetch(bucket);
+    }
+    for (size_t k = 0; k < n; ++k) {
+      map.column_guides[size_t(y[k])].Range(width_, target[k], &lo[k], &hi[k]);
+      __builtin_prefetch(&map.column_cdf[size_t(y[k]) * (width_ + 1) + size_t(lo[k])]);
+    }
+    for (size_t k = 0; k < n; ++k) {
+      if (!(map.row_total[size_t(y[k])] > 0)) continue;
+      x[k] = models::CdfGuide::SearchRange(&map.column_cdf[size_t(y[k]) * (width_ + 1)], width_, lo[k], hi[k],
+                                           target[k], &fx[k]);
+      __builtin_prefetch(&map.rgb[3 * (size_t(y[k]) * width_ + size_t(x[k]))]);
+    }
+    for (size_t k = 0; k < n; ++k)
+      out[first + k] = map.row_total[size_t(y[k])] > 0 ? DrawnSample(component, x[k], y[k], fx[k], fy[k]) : Sample{};
+  }
+}
+
+Environment::Sample Environment::DrawnSample(Component component, int x, int y, double fx, double fy) const {
+  Sample sample;
+  const double weight = Weight(*map_, &map_->rgb[3 * (size_t(y) * width_ + x)], y);
   if (weight <= 0) return sample;
   sample.direction = FromImage(x + fx, y + fy);
   sample.radiance = Pixel(x, y);
@@ -312,16 +347,24 @@ std::vector<Environment::Cell> Environment::Cells(int width, int height, size_t 
   return out;
 }
 
-Environment::Found Environment::Lookup(Vec3 direction) const {
-  Found found;
-  if (!map_) return found;
+Environment::Found Environment::Lookup(Vec3 direction) const { return Lookup(Locate(direction), direction); }
+
+Environment::PixelRef Environment::Locate(Vec3 direction) const {
+  if (!map_) return {};
   double px, py;
   ToImage(direction, &px, &py);
-  const int x = static_cast<int>(px), y = static_cast<int>(py);
-  const float* p = &map_->rgb[3 * (size_t(y) * width_ + x)];
-  found.radiance = Pixel(x, y);
+  const PixelRef pixel{static_cast<int>(px), static_cast<int>(py)};
+  __builtin_prefetch(&map_->rgb[3 * (size_t(pixel.y) * width_ + pixel.x)]);
+  return pixel;
+}
+
+Environment::Found Environment::Lookup(PixelRef pixel, Vec3 direction) const {
+  Found found;
+  if (!map_) return found;
+  const float* p = &map_->rgb[3 * (size_t(pixel.y) * width_ + pixel.x)];
+  found.radiance = Pixel(pixel.x, pixel.y);
   found.component = Luminance({p[0], p[1], p[2]}) > map_->bright_luminance ? kBright : kRest;
-  if (Has(found.component)) found.pdf = PixelDensity(Weight(*map_, p, y), found.component, SinTheta(direction));
+  if (Has(found.component)) found.pdf = PixelDensity(Weight(*map_, p, pixel.y), found.component, SinTheta(direction));
   return found;
 }
 

@@ -5,10 +5,12 @@
 // constant per pixel, so lookups and the sampling density agree exactly.
 #pragma once
 
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -63,6 +65,10 @@ class Environment {
   // Draws a direction of `component` with probability proportional to luminance (u1, u2 uniform in [0, 1): one
   // stratified pair; their remainders place the point inside the pixel).
   Sample Draw(Component component, double u1, double u2) const;
+  // Draws for a packet of samples, out[k] = Draw(component, u[k][0], u[k][1]) bit for bit: each step's reads of
+  // the tables are started for every sample before any is used, so the cache misses of a packet overlap (a
+  // 512 x 256 map's tables outgrow the caches; one draw waits for three misses in a row).
+  void DrawPacket(Component component, std::span<const std::array<double, 2>> u, std::span<Sample> out) const;
   // Whether the map has the component (a map without bright regions has only the rest).
   bool Has(Component component) const;
 
@@ -72,6 +78,13 @@ class Environment {
     double pdf = 0;  // the density Draw(component, ...) has toward the direction
   };
   Found Lookup(Vec3 direction) const;
+  // Lookup in two steps, for a caller with other work to do while the pixel is read: Locate finds the
+  // direction's pixel and starts reading it, Lookup(pixel, direction) finishes as Lookup(direction) does.
+  struct PixelRef {
+    int x = 0, y = 0;
+  };
+  PixelRef Locate(Vec3 direction) const;
+  Found Lookup(PixelRef pixel, Vec3 direction) const;
 
   // The map as directions for quadrature (e.g. the BTF's folded environment lighting): its pixels box-filtered
   // into a width x height latitude-longitude grid of cells (fewer where the map has fewer pixels), each at its
@@ -109,6 +122,7 @@ class Environment {
     // The rest: rows, then columns within a row (bright pixels weigh 0 here).
     std::vector<double> row_cdf;     // height + 1 values
     std::vector<double> column_cdf;  // height x (width + 1)
+    std::vector<double> row_total;   // per row, its column sums' last (a draw's target without reading the row)
     // The bright component: its pixels (y * width + x) and their CDF.
     std::vector<uint32_t> bright_pixels;
     std::vector<double> bright_cdf;  // bright_pixels.size() + 1
@@ -119,6 +133,8 @@ class Environment {
   };
   // The density per steradian of a pixel of sampling weight `weight`, at a direction with this sin(theta).
   double PixelDensity(double weight, Component component, double sin_theta) const;
+  // A draw's last step: the point (x + fx, y + fy) of a drawn pixel as a sample of `component`.
+  Sample DrawnSample(Component component, int x, int y, double fx, double fy) const;
   static std::shared_ptr<const Map> BuildMap(int width, int height, std::vector<float> rgb);
 
   std::shared_ptr<const Map> map_;

@@ -37,13 +37,23 @@ double PowerHeuristic(double a, double b) {
   return b > 0 ? 1 / (1 + (b / a) * (b / a)) : 1;  // as a ratio: no overflow for the sun's large densities
 }
 
+uint32_t EnvironmentPair(Environment::Component component) {
+  return component == Environment::kBright ? kBrightPair : kRestPair;
+}
+
+Environment::Sample DrawEnvironment(const RenderSetup& setup, const SamplePoints& points, Environment::Component component) {
+  const std::array<double, 2> u = points.Get2D(EnvironmentPair(component));
+  return setup.environment->Draw(component, u[0], u[1]);
+}
+
 // Calls add(direction toward the light, distance to it, incident radiance over pdf times the MIS weight, index of
 // the light in setup.lights or -1) for every light, and (with_environment) one direction from each component of the environment (its bright regions,
 // the rest) as seen from `position`. material_pdf(direction) is the density the material sampling strategy has
-// toward a direction (0 where there is none), against which the environment's samples are weighed.
+// toward a direction (0 where there is none), against which the environment's samples are weighed. `drawn`: the
+// environment's directions drawn ahead (null: drawn here from `points`).
 template <class MaterialPdf, class Add>
 void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& points, MaterialPdf material_pdf, Add add,
-                  bool with_environment = true) {
+                  bool with_environment, const EnvironmentDraws* drawn) {
   for (size_t index = 0; index < setup.lights.size(); ++index) {
     const Light& light = setup.lights[index];
     if (light.type == Light::Type::kDirectional) {
@@ -59,8 +69,7 @@ void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& p
   if (!setup.environment || !with_environment) return;
   for (const Environment::Component component : {Environment::kBright, Environment::kRest}) {
     if (!setup.environment->Has(component)) continue;
-    const std::array<double, 2> u = points.Get2D(component == Environment::kBright ? kBrightPair : kRestPair);
-    const Environment::Sample sample = setup.environment->Draw(component, u[0], u[1]);
+    const Environment::Sample sample = drawn ? drawn->component[component] : DrawEnvironment(setup, points, component);
     if (sample.pdf <= 0) continue;
     const double weight = PowerHeuristic(sample.pdf, material_pdf(sample.direction)) / sample.pdf;
     if (weight > 0) add(sample.direction, INFINITY, weight * sample.radiance, -1);
@@ -166,7 +175,8 @@ class CoreBundle {
 // all of a sample's rays: each estimate stays unbiased).
 constexpr double kRouletteTransmittance = 0.05;
 
-void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const SamplePoints& points, ShadingPoint* point) {
+void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const SamplePoints& points,
+                const EnvironmentDraws* drawn, ShadingPoint* point) {
   const Frame frame{hit.tangent_s, hit.tangent_t, hit.normal};
   point->wo = frame.ToLocal(-direction);
   point->wo.z = std::max(point->wo.z, 0.0);  // the normal faces the ray
@@ -217,7 +227,7 @@ void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const 
       transmittance = from.transmittance;
     }
     point->lights.push_back({wi, (cos_theta * transmittance) * incident, light});
-  });
+  }, true, drawn);
   point->ambient = {};
   if (setup.ambient > 0) {
     // Ambient visibility: traced, one uniformly distributed direction on the sphere per sample through the
@@ -261,7 +271,7 @@ void TraceRay(const RenderSetup& setup, Vec3 origin, Vec3 direction, double pixe
 }
 
 void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, const SamplePoints& points, const Hit* found,
-              ShadingPoint* point) {
+              ShadingPoint* point, const EnvironmentDraws* drawn) {
   point->object = -1;
   point->environment_folded = false;
   point->background = {};
@@ -276,7 +286,7 @@ void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, cons
   point->object = hit.object;
   point->fiber = hit.fiber;
   point->footprint = hit.distance * pixel_angle;
-  if (hit.fiber) return ShadeFiber(setup, hit, direction, points, point);
+  if (hit.fiber) return ShadeFiber(setup, hit, direction, points, drawn, point);
   const Frame frame = ShadingFrame(setup, hit.object, hit, &point->u, &point->v);
 
   // The cloth is two-sided: seen from behind, both directions are mirrored through the surface (as
@@ -322,18 +332,26 @@ void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, cons
     const Vec3 wi = to_local(wi_world);
     return material.Pdf({wi.x, wi.y, wi.z});
   };
-  ForEachLight(setup, hit.position, points, material_pdf, add, !folded);
+  // The material's direction is drawn first and its pixel of the map read while the lights are sampled (its
+  // query still comes after theirs).
+  models::DirectionSampler::Sample sample;
+  Vec3 wi_world;
+  Environment::PixelRef seen;
   if (sampler) {
     const std::array<double, 2> u = points.Get2D(kMaterialPair);
-    const models::DirectionSampler::Sample sample = material.Draw(points.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
+    sample = material.Draw(points.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
     if (sample.pdf > 0) {
       const Vec3 local{sample.wi[0], sample.wi[1], mirror * sample.wi[2]};
-      const Vec3 wi_world = local.x * frame.x + local.y * frame.y + local.z * frame.n;
-      const Environment::Found light = setup.environment->Lookup(wi_world);
-      const double weight = PowerHeuristic(sample.pdf, light.pdf) / sample.pdf;
-      if (weight > 0 && (light.radiance.x > 0 || light.radiance.y > 0 || light.radiance.z > 0))
-        add(wi_world, INFINITY, weight * light.radiance, -1);
+      wi_world = local.x * frame.x + local.y * frame.y + local.z * frame.n;
+      seen = setup.environment->Locate(wi_world);
     }
+  }
+  ForEachLight(setup, hit.position, points, material_pdf, add, !folded, drawn);
+  if (sample.pdf > 0) {
+    const Environment::Found light = setup.environment->Lookup(seen, wi_world);
+    const double weight = PowerHeuristic(sample.pdf, light.pdf) / sample.pdf;
+    if (weight > 0 && (light.radiance.x > 0 || light.radiance.y > 0 || light.radiance.z > 0))
+      add(wi_world, INFINITY, weight * light.radiance, -1);
   }
 }
 
@@ -346,6 +364,9 @@ void TracePixelSamples(const RenderSetup& setup, std::span<const PixelSample> sa
   std::array<Vec3, Scene::kMaxPacket> directions;
   std::array<Hit, Scene::kMaxPacket> hits;
   std::array<uint8_t, Scene::kMaxPacket> found;
+  std::array<std::array<double, 2>, Scene::kMaxPacket> environment_u[2];
+  std::array<Environment::Sample, Scene::kMaxPacket> environment_drawn[2];
+  std::array<uint8_t, Scene::kMaxPacket> lit_index;
   for (size_t done = 0; done < samples.size(); done += Scene::kMaxPacket) {
     const size_t n = std::min(samples.size() - done, Scene::kMaxPacket);
     for (size_t k = 0; k < n; ++k) {
@@ -356,10 +377,30 @@ void TracePixelSamples(const RenderSetup& setup, std::span<const PixelSample> sa
     }
     // Cast together: neighbouring pixels' camera rays are as coherent as rays get (Embree packets, for fibers).
     setup.scene.IntersectFrom(setup.camera.position(), {directions.data(), n}, {hits.data(), n}, {found.data(), n});
+    // The environment's directions of the hits that sample it, drawn together (their cache misses overlap).
+    size_t lit = 0;
     for (size_t k = 0; k < n; ++k) {
+      const bool folded = setup.folded_environment && setup.folded_environment->Covers(hits[k].object);
+      if (!found[k] || !setup.environment || folded) continue;
       const PixelSample& p = samples[done + k];
+      const SamplePoints points(setup.seed, p.pixel, p.sample);
+      for (const Environment::Component c : {Environment::kBright, Environment::kRest})
+        environment_u[c][lit] = points.Get2D(EnvironmentPair(c));
+      lit_index[lit++] = uint8_t(k);
+    }
+    for (const Environment::Component c : {Environment::kBright, Environment::kRest})
+      if (lit > 0) setup.environment->DrawPacket(c, {environment_u[c].data(), lit}, {environment_drawn[c].data(), lit});
+    for (size_t k = 0, next_lit = 0; k < n; ++k) {
+      const PixelSample& p = samples[done + k];
+      EnvironmentDraws drawn;
+      const bool has_drawn = next_lit < lit && lit_index[next_lit] == k;
+      if (has_drawn) {
+        for (const Environment::Component c : {Environment::kBright, Environment::kRest})
+          drawn.component[c] = environment_drawn[c][next_lit];
+        ++next_lit;
+      }
       ShadeHit(setup, directions[k], setup.camera.pixel_angle(), SamplePoints(setup.seed, p.pixel, p.sample),
-               found[k] ? &hits[k] : nullptr, &points[done + k]);
+               found[k] ? &hits[k] : nullptr, &points[done + k], has_drawn ? &drawn : nullptr);
     }
   }
 }

@@ -116,9 +116,15 @@ struct PixelSample {
   uint32_t sample = 0;
 };
 void TracePixelSamples(const RenderSetup& setup, std::span<const PixelSample> samples, ShadingPoint* points);
-// TraceRay's shading of what the ray found: `hit` (null: a miss) on the ray along unit `direction`.
+// A sample's directions from the environment's two components (Environment::Component order), drawn ahead of
+// its shading: TracePixelSamples draws a packet's together (Environment::DrawPacket).
+struct EnvironmentDraws {
+  Environment::Sample component[2];
+};
+// TraceRay's shading of what the ray found: `hit` (null: a miss) on the ray along unit `direction`. `drawn`: the
+// sample's environment directions, drawn from `points` already (null: drawn here).
 void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, const SamplePoints& points, const Hit* hit,
-              ShadingPoint* point);
+              ShadingPoint* point, const EnvironmentDraws* drawn = nullptr);
 
 // One kernel path: a prepared material (with a curtain's layer), evaluated with texture coordinates (its BTF)
 // or without, with light through the cloth (pairs on opposite sides, and what is seen through it) or without.

@@ -17,11 +17,10 @@ namespace loomlight::render {
 namespace sobol {
 
 inline uint32_t ReverseBits(uint32_t x) {
+  x = __builtin_bswap32(x);  // the bytes reversed in one instruction, then the bits within each byte
   x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
   x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
-  x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
-  x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);
-  return (x >> 16) | (x << 16);
+  return ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
 }
 
 // Laine and Karras' hash: a permutation in which every bit depends only on the bits below it, so applied to

@@ -6,6 +6,7 @@
 #include <numbers>
 #include <utility>
 
+#include "server/models/float_angles.h"
 #include "server/yarn/fiber_scene.h"
 
 namespace loomlight::render {
@@ -40,7 +41,7 @@ void SurfaceAt(const Shape& shape, Vec3 position, Hit* hit) {
       if (Length(around) < 1e-9) around = {1, 0, 0};
       hit->tangent_s = Normalize(around);
       hit->tangent_t = Cross(n, hit->tangent_s);
-      hit->s = shape.radius * std::atan2(n.x, n.z);
+      hit->s = shape.radius * models::float_angles::Atan2(float(n.x), float(n.z));  // in float: ~1e-7 of the radius
       hit->t = shape.radius * std::asin(std::clamp(n.y, -1.0, 1.0));
       return;
     }
@@ -49,7 +50,7 @@ void SurfaceAt(const Shape& shape, Vec3 position, Hit* hit) {
       hit->normal = Normalize({radial.x, 0, radial.z});
       hit->tangent_s = {hit->normal.z, 0, -hit->normal.x};  // (+y) x n: around the axis
       hit->tangent_t = {0, 1, 0};
-      hit->s = shape.radius * std::atan2(hit->normal.x, hit->normal.z);
+      hit->s = shape.radius * models::float_angles::Atan2(float(hit->normal.x), float(hit->normal.z));
       hit->t = radial.y;
       return;
     }

@@ -34,10 +34,11 @@ double Work(const PixelNoise& noise, const std::vector<uint32_t>& counts) {
   return work;
 }
 
-TEST(AllocateSamples, FirstPassSamplesArePowersOfTwoAboutAQuarter) {
+TEST(AllocateSamples, FirstPassSamplesArePowersOfTwoAtMostHalf) {
   EXPECT_EQ(render::FirstPassSamples(4), 2u);
-  EXPECT_EQ(render::FirstPassSamples(8), 2u);
-  EXPECT_EQ(render::FirstPassSamples(16), 4u);
+  EXPECT_EQ(render::FirstPassSamples(8), 4u);
+  EXPECT_EQ(render::FirstPassSamples(10), 4u);
+  EXPECT_EQ(render::FirstPassSamples(16), 8u);
   EXPECT_EQ(render::FirstPassSamples(64), 16u);
   EXPECT_EQ(render::FirstPassSamples(1024), 16u);
 }
@@ -151,7 +152,7 @@ double Rmse(const std::vector<float>& image, const std::vector<float>& reference
 TEST_F(AdaptiveRender, ReportsItsSampleRangeAndIsDeterministic) {
   const v1::RenderUpdate adaptive = Render(Request(48, 16, v1::SAMPLING_AUTO, 3));
   EXPECT_TRUE(adaptive.adaptive_sampling());
-  EXPECT_EQ(adaptive.min_samples_per_pixel(), 4u);  // the first pass: the sky behind the cylinders stays there
+  EXPECT_EQ(adaptive.min_samples_per_pixel(), render::FirstPassSamples(16));  // the sky behind the cylinders keeps its first pass
   EXPECT_GT(adaptive.max_samples_per_pixel(), 16u);
   EXPECT_LE(adaptive.max_samples_per_pixel(), 8u * 16);
   EXPECT_EQ(adaptive.samples_done(), adaptive.samples_total());

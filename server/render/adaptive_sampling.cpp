@@ -32,7 +32,7 @@ std::vector<double> BoxMean3x3(int width, int height, const std::vector<double>&
 
 uint32_t FirstPassSamples(uint32_t samples_per_pixel) {
   uint32_t first = 2;
-  while (first * 2 <= samples_per_pixel / 4 && first < 16) first *= 2;
+  while (first * 2 <= samples_per_pixel / 2 && first < 16) first *= 2;
   return first;
 }
 

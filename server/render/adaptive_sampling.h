@@ -27,7 +27,10 @@ constexpr uint32_t kMinAdaptiveSamples = 4;
 constexpr uint32_t kAutoAdaptiveSamples = 8;
 
 // Samples per pixel of the first pass when `samples_per_pixel` (at least kMinAdaptiveSamples) are spent
-// adaptively: a power of two (its points are a (0,k,2)-net), about a quarter of the budget, 2 to 16.
+// adaptively: a power of two (its points are a (0,k,2)-net), at most half the budget, 2 to 16. Most of what
+// adaptive sampling buys is the budget the background does not need; within the cloth a variance estimate from
+// 2 samples moved samples about at random: at 10 samples per pixel a first pass of 4 instead of 2 left 9% less
+// variance on the satin cylinders, 13% on the twill, 6% on the sphere, at the same work (8 instead of 4 at 16: 3%).
 uint32_t FirstPassSamples(uint32_t samples_per_pixel);
 
 // What the first pass measured per pixel: the variance of one sample (summed over R, G and B) and the work of

@@ -157,11 +157,18 @@ int BinOf(const Dir& w) {
   return z * kBinsPhi + std::clamp(int(phi / (2 * kPi) * kBinsPhi), 0, kBinsPhi - 1);
 }
 
+// At each wo, with the cosine floor the Sample RPC draws with and the smaller one the renderer weighs by MIS.
 TEST_P(Sampling, HistogramMatchesDensity) {
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> u(0, 1);
   constexpr int kSamples = 200000, kSub = 64;  // fine: table cells do not align with the bins
-  for (const Dir& wo : Outgoing()) {
+  std::vector<std::pair<Dir, double>> cases;
+  for (const Dir& wo : Outgoing())
+    for (const double fraction : {DirectionSampler::kCosineFraction, DirectionSampler::kMisCosineFraction})
+      cases.push_back({wo, fraction});
+  for (const auto& [wo, fraction] : cases) {
+    SCOPED_TRACE("cosine fraction " + std::to_string(fraction));
+    const DirectionSampler::Conditional density = sampler_->At(wo, fraction);
     // Expected counts: the density integrated over each bin on a kSub x kSub midpoint grid.
     std::vector<double> expected(kBinsZ * kBinsPhi, 0.0);
     const double dz = 2.0 / kBinsZ / kSub, dphi = 2 * kPi / kBinsPhi / kSub;
@@ -171,16 +178,16 @@ TEST_P(Sampling, HistogramMatchesDensity) {
         for (int i = 0; i < kSub; ++i) {
           const double z = -1 + ((b / kBinsPhi) * kSub + j + 0.5) * dz;
           const double phi = ((b % kBinsPhi) * kSub + i + 0.5) * dphi;
-          const double p = sampler_->Pdf(wo, FromZPhi(z, phi)) * dz * dphi;
+          const double p = density.Pdf(FromZPhi(z, phi)) * dz * dphi;
           expected[b] += p;
           total += p;
         }
     EXPECT_NEAR(total, 1.0, 2e-3) << "the density's integral, wo.z " << wo[2];
     std::vector<double> observed(expected.size(), 0.0);
     for (int s = 0; s < kSamples; ++s) {
-      const DirectionSampler::Sample sample = sampler_->Draw(wo, u(rng), u(rng), u(rng));
+      const DirectionSampler::Sample sample = density.Draw(u(rng), u(rng), u(rng));
       ASSERT_GT(sample.pdf, 0);
-      ASSERT_NEAR(sample.pdf, sampler_->Pdf(wo, sample.wi), 1e-9 * sample.pdf) << "Draw and Pdf disagree";
+      ASSERT_NEAR(sample.pdf, density.Pdf(sample.wi), 1e-9 * sample.pdf) << "Draw and Pdf disagree";
       ASSERT_NEAR(std::sqrt(sample.wi[0] * sample.wi[0] + sample.wi[1] * sample.wi[1] + sample.wi[2] * sample.wi[2]), 1, 1e-9);
       observed[BinOf(sample.wi)] += 1;
     }

@@ -265,9 +265,10 @@ void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, doubl
   *phi = (c + fp) * dphi;
 }
 
-DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in) const {
+DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in, double cosine_fraction) const {
   Conditional c;
   c.sampler_ = this;
+  c.cosine_fraction_ = std::clamp(cosine_fraction, 1e-3, 1.0);  // some floor stays: every direction has a density
   Dir wo = ToTable(wo_in);
   c.mirror_ = !wo_sphere_ && wo[2] < 0 ? -1 : 1;  // two-sided cloth: sample for the mirrored wo
   wo[2] *= c.mirror_;
@@ -297,11 +298,11 @@ DirectionSampler::Dir DirectionSampler::Conditional::FromWoFrame(const Dir& w) c
 DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u1, double u2) const {
   const DirectionSampler& s = *sampler_;
   Dir wi;
-  if (u0 < kCosineFraction) {
+  if (u0 < cosine_fraction_) {
     wi = s.DrawCosine(u1, u2);
   } else {
     // The node by its bilinear weight (u0's remainder); an empty node falls back to the cosine density.
-    const double target = (u0 - kCosineFraction) / (1 - kCosineFraction);
+    const double target = cosine_fraction_ < 1 ? (u0 - cosine_fraction_) / (1 - cosine_fraction_) : 0.0;
     double sum = 0;
     int k = 3;
     for (int i = 0; i < 4; ++i) {
@@ -352,7 +353,7 @@ double DirectionSampler::Conditional::TablePdf(const Dir& wi_table) const {
     }
     table += weight_[i] * (p < 0 ? cosine : p);
   }
-  return kCosineFraction * cosine + (1 - kCosineFraction) * table;
+  return cosine_fraction_ * cosine + (1 - cosine_fraction_) * table;
 }
 
 }  // namespace loomlight::models

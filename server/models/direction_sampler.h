@@ -11,7 +11,7 @@
 // about the normal by phi_o - phi_node too, everywhere or only near the horizon, was tried: it helps one grazing
 // azimuth of the satin and hurts others, as a microcylinder's highlight is a cone about the thread, not a lobe
 // that turns with wo.)
-// A fraction kCosineFraction of a cosine density is mixed in, so every
+// A fraction kCosineFraction (kMisCosineFraction under MIS) of a cosine density is mixed in, so every
 // direction where f may be non-zero has a non-zero density even where the table's cell centres missed it.
 // Piecewise constant within a cell, so pdf() is the density Draw() samples (to float rounding), whatever the table's error;
 // the table only decides how much variance is left. Surface models: wo and wi about the normal (z), wi over the
@@ -34,6 +34,10 @@ class DirectionSampler {
  public:
   using Dir = std::array<double, 3>;
   static constexpr double kCosineFraction = 0.1;
+  // The floor where the draws are weighed against the environment's by MIS (the renderer): a direction the table
+  // misses is found by the map's draws anyway, so less of the cosine density is spent on it (0.03 against 0.1 left
+  // 3% less variance on the satin cylinders, 7% on the satin sphere, 2% on the twill, at 10 samples per pixel).
+  static constexpr double kMisCosineFraction = 0.03;
 
   static bool Fiber(const Model& model);
   static bool Sphere(const Model& model, bool layered);  // wi over the whole sphere
@@ -84,6 +88,7 @@ class DirectionSampler {
     struct Move {
       double z_node = 0.5, z_wo = 0.5;
     };
+    double cosine_fraction_ = kCosineFraction;
     bool moved_ = false;
     Move move_[4];
     // Fibers: the table frame rotated about its axis so that wo's azimuth is 0 (identity for surfaces).
@@ -95,7 +100,7 @@ class DirectionSampler {
     int index_[4] = {0, 0, 0, 0};
     double weight_[4] = {1, 0, 0, 0};
   };
-  Conditional At(const Dir& wo) const;
+  Conditional At(const Dir& wo, double cosine_fraction = kCosineFraction) const;
   Sample Draw(const Dir& wo, double u0, double u1, double u2) const { return At(wo).Draw(u0, u1, u2); }
   double Pdf(const Dir& wo, const Dir& wi) const { return At(wo).Pdf(wi); }
 

@@ -334,7 +334,7 @@ void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, cons
       setup.environment && !folded && hit.object < static_cast<int>(setup.object_samplers.size()) ? setup.object_samplers[hit.object]
                                                                                                    : nullptr;
   models::DirectionSampler::Conditional material;
-  if (sampler) material = sampler->At({wo.x, wo.y, wo.z});
+  if (sampler) material = sampler->At({wo.x, wo.y, wo.z}, models::DirectionSampler::kMisCosineFraction);
   const auto material_pdf = [&](Vec3 wi_world) {
     if (!sampler) return 0.0;
     const Vec3 wi = to_local(wi_world);

@@ -40,6 +40,11 @@ double BalanceHeuristic(double a, double b) {
   return b > 0 ? 1 / (1 + b / a) : 1;  // as a ratio: no overflow for the sun's large densities
 }
 
+// Whether hits on `object` take their environment light from the fold (no environment or material samples).
+bool EnvironmentFolded(const RenderSetup& setup, int object) {
+  return setup.folded_environment && setup.folded_environment->Covers(object);
+}
+
 uint32_t EnvironmentPair(Environment::Component component) {
   return component == Environment::kBright ? kBrightPair : kRestPair;
 }
@@ -307,7 +312,7 @@ void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, cons
   wo.z *= mirror;
   point->wo = wo;
   // A folded object's environment light comes from the fold (added by the renderer), not from samples.
-  const bool folded = setup.folded_environment && setup.folded_environment->Covers(hit.object);
+  const bool folded = EnvironmentFolded(setup, hit.object);
   point->environment_folded = folded;
   point->back = mirror < 0;
   point->s = hit.s;
@@ -391,8 +396,7 @@ void TracePixelSamples(const RenderSetup& setup, std::span<const PixelSample> sa
     // The environment's directions of the hits that sample it, drawn together (their cache misses overlap).
     size_t lit = 0;
     for (size_t k = 0; k < n; ++k) {
-      const bool folded = setup.folded_environment && setup.folded_environment->Covers(hits[k].object);
-      if (!found[k] || !setup.environment || folded) continue;
+      if (!found[k] || !setup.environment || EnvironmentFolded(setup, hits[k].object)) continue;
       const PixelSample& p = samples[done + k];
       const SamplePoints points(setup.seed, p.pixel, p.sample);
       for (const Environment::Component c : {Environment::kBright, Environment::kRest})

@@ -80,6 +80,14 @@ class SamplePoints {
     return {x * 0x1p-32, y * 0x1p-32};
   }
 
+  // Point j of `count` (a power of two) that this sample draws in one pair: the sample's index becomes
+  // count * sample + j, so a pixel's n samples x count points of a pair stay one (0, k, 2)-net.
+  SamplePoints Subsample(uint32_t j, uint32_t count) const {
+    SamplePoints points = *this;
+    points.sample_ = sample_ * count + j;
+    return points;
+  }
+
  private:
   uint64_t key_;
   uint32_t sample_;

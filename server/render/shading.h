@@ -98,7 +98,7 @@ struct ShadingPoint {
 Frame ShadingFrame(const RenderSetup& setup, int object, const Hit& hit, float* u = nullptr, float* v = nullptr);
 
 // Casts the ray through image position (px, py) and samples the lights: point and directional lights, one
-// direction from each of the environment's components and one from the hit's material (setup.object_samplers),
+// direction from each of the environment's components and four from the hit's material (setup.object_samplers),
 // weighed by multiple importance sampling; `points` supplies the sample's random numbers (its pairs 1 and up).
 void TraceSample(const RenderSetup& setup, double px, double py, const SamplePoints& points, ShadingPoint* point);
 // The same for any ray (unit direction): TraceSample's camera ray, or a BTF capture's parallel rays
@@ -166,8 +166,8 @@ std::unique_ptr<models::EvaluationPlan> PlanOf(const Evaluator& evaluator, const
 // f (3 per query) of one evaluator's bucket on the host (the native build; the fidelity pilot).
 void EvaluateOnHost(const Evaluator& evaluator, const QueryBucket& bucket, std::vector<double>* f);
 
-// The most queries one pixel sample can produce: one per light, two for the environment, one for the
-// material sample, one for a fiber's ambient term.
+// The most queries one pixel sample can produce: one per light, two for the environment, the material's draws
+// (four per hit), one for a fiber's ambient term.
 size_t MaxQueriesPerSample(const RenderSetup& setup);
 
 }  // namespace loomlight::render

@@ -8,11 +8,14 @@
 
 namespace loomlight::models {
 
+// The largest double below 1 (std::nextafter(1.0, 0.0), which GCC leaves as a call).
+constexpr double kBelowOne = 1.0 - 0x1p-53;
+
 // The remainder of `target` within cell i, in [0, 1) (0.5 for an empty cell).
 template <class T>
 double CdfRemainder(const T* cdf, int i, double target) {
   const double width = double(cdf[i + 1]) - double(cdf[i]);
-  return width > 0 ? std::clamp((target - double(cdf[i])) / width, 0.0, std::nextafter(1.0, 0.0)) : 0.5;
+  return width > 0 ? std::clamp((target - double(cdf[i])) / width, 0.0, kBelowOne) : 0.5;
 }
 
 // The cell i of n with cdf[i] <= target < cdf[i + 1] (cdf holds n + 1 sums from 0), and the target's remainder
@@ -20,6 +23,17 @@ double CdfRemainder(const T* cdf, int i, double target) {
 template <class T>  // double, or float for large tables
 int SearchCdf(const T* cdf, int n, double target, double* remainder) {
   const int i = std::clamp(int(std::upper_bound(cdf, cdf + n + 1, target) - cdf) - 1, 0, n - 1);
+  *remainder = CdfRemainder(cdf, i, target);
+  return i;
+}
+
+// SearchCdf's answer for a short CDF (tens of sums): the sums at or below the target counted in one pass
+// without branches (vectorized), where a binary search's branches mispredict on random targets.
+template <class T>
+int SearchShortCdf(const T* cdf, int n, double target, double* remainder) {
+  int count = 0;
+  for (int k = 0; k <= n; ++k) count += double(cdf[k]) <= target;
+  const int i = std::clamp(count - 1, 0, n - 1);
   *remainder = CdfRemainder(cdf, i, target);
   return i;
 }

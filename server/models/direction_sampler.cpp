@@ -19,9 +19,13 @@ using Dir = DirectionSampler::Dir;
 
 double Dot(const Dir& a, const Dir& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
+// The azimuth's cosine and sine in float (double sincos was 2% of a render's time; the table's cells need ~1e-7
+// rad), the pair scaled back to unit length in double so wi stays a unit vector to double rounding.
 Dir FromZPhi(double z, double phi) {
-  const double r = std::sqrt(std::max(0.0, 1 - z * z));
-  return {r * std::cos(phi), r * std::sin(phi), z};
+  float s, c;
+  sincosf(float(phi), &s, &c);
+  const double r = std::sqrt(std::max(0.0, 1 - z * z) / (double(c) * c + double(s) * s));
+  return {r * c, r * s, z};
 }
 
 // phi in [0, 2 pi). In float: it only finds a table cell or node (to ~1e-7 rad), and library atan2 was the
@@ -170,6 +174,9 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
                                                  (dz * dphi))
                                          : 0.0f;
       }
+      node.cell_row_total.assign(wi_rows_, 0.0);
+      for (int r = 0; r < wi_rows_; ++r)
+        for (int c = 0; c < res_.wi_phi; ++c) node.cell_row_total[r] += std::max(0.0f, cell_pdf[r * res_.wi_phi + c]);
     }
   };
   std::vector<std::thread> helpers;
@@ -180,7 +187,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
 
 size_t DirectionSampler::bytes() const {
   size_t total = sizeof(*this);
-  for (const Node& node : nodes_) total += node.row_cdf.size() * sizeof(float);
+  for (const Node& node : nodes_) total += node.row_cdf.size() * sizeof(float) + node.cell_row_total.size() * sizeof(double);
   return total + cell_pdf_.size() * sizeof(float);
 }
 
@@ -223,22 +230,24 @@ void DirectionSampler::Nodes(const Dir& wo, int index[4], double weight[4]) cons
 
 // Surfaces: cos theta / pi over the hemisphere (|cos| / 2 pi over the sphere); fibers: uniform on the sphere
 // (the density of sin(angle to the axis) has no closed-form inverse).
-double DirectionSampler::CosinePdf(const Dir& w) const {
+double DirectionSampler::CosinePdf(double z) const {
   if (fiber_) return 1 / (4 * kPi);
-  if (!sphere_ && w[2] < 0) return 0;
-  return std::fabs(w[2]) / (sphere_ ? 2 * kPi : kPi);
+  if (!sphere_ && z < 0) return 0;
+  return std::fabs(z) / (sphere_ ? 2 * kPi : kPi);
 }
 
-Dir DirectionSampler::DrawCosine(double u1, double u2) const {
-  if (fiber_) return FromZPhi(1 - 2 * u1, 2 * kPi * u2);
+void DirectionSampler::DrawCosine(double u1, double u2, double* z, double* phi) const {
+  *phi = 2 * kPi * u2;
+  if (fiber_) {
+    *z = 1 - 2 * u1;
+    return;
+  }
   double sign = 1;
   if (sphere_) {  // the side from u1's top bit, keeping the remainder uniform
     sign = u1 < 0.5 ? 1 : -1;
     u1 = u1 < 0.5 ? 2 * u1 : 2 * u1 - 1;
   }
-  Dir w = FromZPhi(std::sqrt(u1), 2 * kPi * u2);  // z^2 uniform: density z / pi
-  w[2] *= sign;
-  return w;
+  *z = sign * std::sqrt(u1);  // z^2 uniform: density z / pi
 }
 
 double DirectionSampler::NodePdf(int node, double z, double phi) const {
@@ -253,14 +262,21 @@ void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, doubl
   const Node& n = nodes_[node];
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
   double fz, fp;
-  const int r = SearchCdf(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
+  const int r = SearchShortCdf(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
   // The cell within the row in proportion to its density, from the row of cell_pdf_ (so the density drawn is
-  // cell_pdf_ to float rounding, with no second table of sums).
+  // cell_pdf_ to float rounding, with no second table of sums): the cells' sums walked, in the order
+  // cell_row_total added them, to the first that passes the target (SearchCdf's cell for those sums).
   const float* row = &cell_pdf_[(size_t(node) * wi_rows_ + r) * res_.wi_phi];
-  std::array<double, kMaxPhiCells + 1> column;
-  column[0] = 0;
-  for (int c = 0; c < res_.wi_phi; ++c) column[c + 1] = column[c] + std::max(0.0f, row[c]);
-  const int c = SearchCdf(column.data(), res_.wi_phi, u2 * column[res_.wi_phi], &fp);
+  const double target = u2 * n.cell_row_total[r];
+  double below = 0;
+  int c = 0;
+  for (; c < res_.wi_phi - 1; ++c) {
+    const double next = below + std::max(0.0f, row[c]);
+    if (target < next) break;
+    below = next;
+  }
+  const double width = std::max(0.0f, row[c]);
+  fp = width > 0 ? std::clamp((target - below) / width, 0.0, kBelowOne) : 0.5;
   *z = z_min_ + (r + fz) * dz;
   *phi = (c + fp) * dphi;
 }
@@ -297,9 +313,9 @@ DirectionSampler::Dir DirectionSampler::Conditional::FromWoFrame(const Dir& w) c
 
 DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u1, double u2) const {
   const DirectionSampler& s = *sampler_;
-  Dir wi;
+  double z, phi;  // wi in wo's frame
   if (u0 < cosine_fraction_) {
-    wi = s.DrawCosine(u1, u2);
+    s.DrawCosine(u1, u2, &z, &phi);
   } else {
     // The node by its bilinear weight (u0's remainder); an empty node falls back to the cosine density.
     const double target = cosine_fraction_ < 1 ? (u0 - cosine_fraction_) / (1 - cosine_fraction_) : 0.0;
@@ -313,17 +329,16 @@ DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u
       }
     }
     if (s.nodes_[index_[k]].row_cdf.back() > 0) {
-      double z, phi, slope;
+      double slope;
       s.DrawNode(index_[k], u1, u2, &z, &phi);
       if (moved_) z = MoveZ(z, move_[k].z_node, move_[k].z_wo, &slope);
-      wi = FromZPhi(z, phi);
     } else {
-      wi = s.DrawCosine(u1, u2);
+      s.DrawCosine(u1, u2, &z, &phi);
     }
   }
-  wi = FromWoFrame(wi);
+  Dir wi = FromWoFrame(FromZPhi(z, phi));
   Sample sample;
-  sample.pdf = TablePdf(wi);
+  sample.pdf = TablePdf(wi);  // from wi itself, as Pdf finds it (the drawn phi can lie across a cell edge from it)
   wi[2] *= mirror_;
   sample.wi = s.FromTable(wi);
   return sample;
@@ -336,20 +351,23 @@ double DirectionSampler::Conditional::Pdf(const Dir& wi_in) const {
 }
 
 double DirectionSampler::Conditional::TablePdf(const Dir& wi_table) const {
-  const DirectionSampler& s = *sampler_;
   const Dir wi = ToWoFrame(wi_table);
-  const double cosine = s.CosinePdf(wi);
-  const double phi = PhiOf(wi);
+  return DensityAt(wi[2], PhiOf(wi));
+}
+
+double DirectionSampler::Conditional::DensityAt(double z, double phi) const {
+  const DirectionSampler& s = *sampler_;
+  const double cosine = s.CosinePdf(z);
   double table = 0;
   for (int i = 0; i < 4; ++i) {
     if (weight_[i] <= 0) continue;
     double p;
     if (moved_) {  // the node's density where the move came from, divided by the move's slope
       double slope;
-      const double z = MoveZ(wi[2], move_[i].z_wo, move_[i].z_node, &slope);  // the inverse map; slope = 1 / its
-      p = s.NodePdf(index_[i], z, phi) * slope;
+      const double z_node = MoveZ(z, move_[i].z_wo, move_[i].z_node, &slope);  // the inverse map; slope = 1 / its
+      p = s.NodePdf(index_[i], z_node, phi) * slope;
     } else {
-      p = s.NodePdf(index_[i], wi[2], phi);
+      p = s.NodePdf(index_[i], z, phi);
     }
     table += weight_[i] * (p < 0 ? cosine : p);
   }

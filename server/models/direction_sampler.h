@@ -84,6 +84,8 @@ class DirectionSampler {
    private:
     friend class DirectionSampler;
     double TablePdf(const Dir& wi_table) const;  // wi in the table frame, mirrored with wo
+    // The same for wi given in wo's frame by its cos theta and phi in [0, 2 pi).
+    double DensityAt(double z, double phi) const;
     // Surfaces: node k's density moved to wo's elevation (cos theta mapped from z_node to z_wo).
     struct Move {
       double z_node = 0.5, z_wo = 0.5;
@@ -114,18 +116,21 @@ class DirectionSampler {
     // Sums taken in double, stored as float (half the bytes and cache lines); cell_pdf_ is computed from the
     // stored values, so it stays what Draw samples. Within a row Draw picks the cell from cell_pdf_ itself.
     std::vector<float> row_cdf;     // wi_rows + 1, unnormalised
+    // Per row, the sum of its cells' densities (clamped at 0) added in order, in double: DrawNode walks the
+    // row's cells to a fraction of it.
+    std::vector<double> cell_row_total;
   };
   // The frame wi and wo are tabulated in: the surface's (z = normal) or the fiber's (z = axis).
   Dir ToTable(const Dir& w) const;
   Dir FromTable(const Dir& w) const;
   // The four wo nodes around wo (table frame, sign already mirrored) and their bilinear weights.
   void Nodes(const Dir& wo, int index[4], double weight[4]) const;
-  double CosinePdf(const Dir& wi_table) const;
+  double CosinePdf(double z) const;  // z: wi's cos theta (the table frame)
   double NodePdf(int node, double z, double phi) const;  // phi in [0, 2 pi)
   // The density in the table frame (wo mirrored to its side), given wo's nodes.
   double Pdf(const Dir& wo_table, const Dir& wi_table, const int index[4], const double weight[4]) const;  // < 0: the node is empty (use the cosine density)
   void DrawNode(int node, double u1, double u2, double* z, double* phi) const;
-  Dir DrawCosine(double u1, double u2) const;
+  void DrawCosine(double u1, double u2, double* z, double* phi) const;
 
   Resolution res_;
   bool fiber_ = false, sphere_ = false, wo_sphere_ = false;

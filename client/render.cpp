@@ -209,7 +209,7 @@ OptionList render_options() {
       {"btf-environment", "auto|sampled|folded", "btf materials: the environment map sampled, or folded into the BTF (auto: folded where its estimated error is within --error-target)"},
       {"size", "WxH", "image size in pixels (default 256x256)"},
       {"spp", "N", "samples per pixel (default 16); adaptive sampling: their work, spent where pixels are noisy"},
-      {"sampling", "auto|uniform|adaptive", "spread the samples evenly or by noise (auto: adaptive from 8 spp)"},
+      {"sampling", "auto|uniform|adaptive", "spread the samples evenly or by noise (auto: adaptive from 4 spp)"},
       {"seed", "N", "random seed (default 0): the same request and seed give the same image"},
       {"texture-scale", "X", "pattern repeats per scene unit (default: the scene's)"},
       {"texture-rotation", "DEG", "rotates the threads in the surface"},

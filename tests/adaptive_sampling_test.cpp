@@ -163,7 +163,8 @@ TEST_F(AdaptiveRender, ReportsItsSampleRangeAndIsDeterministic) {
   EXPECT_EQ(uniform.min_samples_per_pixel(), 16u);
   EXPECT_EQ(uniform.max_samples_per_pixel(), 16u);
   EXPECT_EQ(uniform.samples_total(), 48u * 48 * 16);
-  EXPECT_FALSE(Render(Request(48, 4, v1::SAMPLING_AUTO, 3)).adaptive_sampling());  // AUTO: uniform below 8
+  EXPECT_FALSE(Render(Request(48, 3, v1::SAMPLING_AUTO, 3)).adaptive_sampling());  // AUTO: uniform below 4
+  EXPECT_TRUE(Render(Request(48, 4, v1::SAMPLING_AUTO, 3)).adaptive_sampling());
 }
 
 // Against a converged uniform reference, adaptive renders of two seeds: their mean image is as close as a

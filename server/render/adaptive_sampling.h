@@ -21,10 +21,11 @@ constexpr double kSampleCostWithoutQueries = 0.1;
 constexpr double kFoldedSampleCost = 2.0;
 
 // The fewest samples per pixel that can be spent adaptively (a first pass of 2, then as many again on average),
-// and the fewest at which a render samples adaptively unless asked not to (below it the first pass would take
-// most of the budget).
+// and the fewest at which a render samples adaptively unless asked not to. At 4 (with four material draws per
+// hit, 40 dB comes at 4-5 samples per pixel) adaptive left 20% less variance than uniform on the satin
+// cylinders for 6% more CPU, 25% on the twill for the same, 14% on the satin sphere for 3% more.
 constexpr uint32_t kMinAdaptiveSamples = 4;
-constexpr uint32_t kAutoAdaptiveSamples = 8;
+constexpr uint32_t kAutoAdaptiveSamples = 4;
 
 // Samples per pixel of the first pass when `samples_per_pixel` (at least kMinAdaptiveSamples) are spent
 // adaptively: a power of two (its points are a (0,k,2)-net), at most half the budget, 2 to 16. Most of what

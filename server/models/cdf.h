@@ -28,7 +28,7 @@ int SearchCdf(const T* cdf, int n, double target, double* remainder) {
 }
 
 // SearchCdf's answer for a short CDF (tens of sums): the sums at or below the target counted in one pass
-// without branches (vectorized), where a binary search's branches mispredict on random targets.
+// without branches, where a binary search's branches mispredict on random targets.
 template <class T>
 int SearchShortCdf(const T* cdf, int n, double target, double* remainder) {
   int count = 0;

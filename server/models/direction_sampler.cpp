@@ -351,12 +351,9 @@ double DirectionSampler::Conditional::Pdf(const Dir& wi_in) const {
 }
 
 double DirectionSampler::Conditional::TablePdf(const Dir& wi_table) const {
-  const Dir wi = ToWoFrame(wi_table);
-  return DensityAt(wi[2], PhiOf(wi));
-}
-
-double DirectionSampler::Conditional::DensityAt(double z, double phi) const {
   const DirectionSampler& s = *sampler_;
+  const Dir wi = ToWoFrame(wi_table);
+  const double z = wi[2], phi = PhiOf(wi);
   const double cosine = s.CosinePdf(z);
   double table = 0;
   for (int i = 0; i < 4; ++i) {

@@ -84,8 +84,6 @@ class DirectionSampler {
    private:
     friend class DirectionSampler;
     double TablePdf(const Dir& wi_table) const;  // wi in the table frame, mirrored with wo
-    // The same for wi given in wo's frame by its cos theta and phi in [0, 2 pi).
-    double DensityAt(double z, double phi) const;
     // Surfaces: node k's density moved to wo's elevation (cos theta mapped from z_node to z_wo).
     struct Move {
       double z_node = 0.5, z_wo = 0.5;

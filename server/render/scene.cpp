@@ -64,44 +64,42 @@ void SurfaceAt(const Shape& shape, Vec3 position, Hit* hit) {
   }
 }
 
-bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hit* hit) {
+// The distance along d to the shape's first point in (lo, hi), without its surface (all an occlusion test needs).
+bool ShapeDistance(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, double* t) {
   switch (shape.kind) {
     case Shape::Kind::kSphere: {
       const Vec3 oc = o - shape.centre;
-      double t;
-      if (!NearestRoot(Dot(d, d), Dot(oc, d), Dot(oc, oc) - shape.radius * shape.radius, lo, hi,
-                       [](double) { return true; }, &t))
-        return false;
-      hit->distance = t;
-      SurfaceAt(shape, o + t * d, hit);
-      return true;
+      return NearestRoot(Dot(d, d), Dot(oc, d), Dot(oc, oc) - shape.radius * shape.radius, lo, hi,
+                         [](double) { return true; }, t);
     }
     case Shape::Kind::kCylinder: {
       const Vec3 oc = o - shape.centre;
-      double t;
       const auto within = [&](double r) { return std::fabs(oc.y + r * d.y) <= shape.half_height; };
-      if (!NearestRoot(d.x * d.x + d.z * d.z, oc.x * d.x + oc.z * d.z, oc.x * oc.x + oc.z * oc.z - shape.radius * shape.radius,
-                       lo, hi, within, &t))
-        return false;
-      hit->distance = t;
-      SurfaceAt(shape, o + t * d, hit);
-      return true;
+      return NearestRoot(d.x * d.x + d.z * d.z, oc.x * d.x + oc.z * d.z, oc.x * oc.x + oc.z * oc.z - shape.radius * shape.radius,
+                         lo, hi, within, t);
     }
     case Shape::Kind::kQuad: {
       const Vec3 n = Cross(shape.axis_s, shape.axis_t);
       const double denom = Dot(d, n);
       if (std::fabs(denom) < 1e-12) return false;
-      const double t = Dot(shape.centre - o, n) / denom;
-      if (!(t > lo && t < hi)) return false;
-      const Vec3 p = o + t * d;
+      const double along = Dot(shape.centre - o, n) / denom;
+      if (!(along > lo && along < hi)) return false;
+      const Vec3 p = o + along * d;
       const double s = Dot(p - shape.centre, shape.axis_s), v = Dot(p - shape.centre, shape.axis_t);
       if (std::fabs(s) > shape.half_width || std::fabs(v) > shape.half_height) return false;
-      hit->distance = t;
-      SurfaceAt(shape, p, hit);
+      *t = along;
       return true;
     }
   }
   return false;
+}
+
+bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hit* hit) {
+  double t;
+  if (!ShapeDistance(shape, o, d, lo, hi, &t)) return false;
+  hit->distance = t;
+  SurfaceAt(shape, o + t * d, hit);
+  return true;
 }
 
 Shape Cylinder(double x) {
@@ -295,9 +293,9 @@ void Scene::IntersectFrom(Vec3 origin, std::span<const Vec3> directions, std::sp
 }
 
 bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance, double min_distance) const {
-  Hit ignored;
+  double distance;
   for (const SceneObject& object : objects)
-    if (!object.fibers && IntersectShape(object.shape, origin, direction, min_distance, max_distance, &ignored))
+    if (!object.fibers && ShapeDistance(object.shape, origin, direction, min_distance, max_distance, &distance))
       return true;
   if (!fibers) return false;
   const auto trace = [&](Vec3 o, double lo, double hi) {

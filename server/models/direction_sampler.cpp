@@ -35,16 +35,11 @@ double PhiOf(const Dir& w) {
   return phi < 0 ? phi + 2 * kPi : phi;
 }
 
-// The monotone map of cos theta in [-1, 1], odd, linear on [0, from] and on [from, 1], taking from to `to`; its
-// slope at z in *slope. A density moved by it is divided by the slope.
-double MoveZ(double z, double from, double to, double* slope) {
-  const double a = std::fabs(z);
-  *slope = a <= from ? to / from : (1 - to) / (1 - from);
-  return std::copysign(a <= from ? a * *slope : to + (a - from) * *slope, z);
-}
-
 // How far moved densities reach toward the pole and the horizon: a wo beyond it moves them as far as this.
 constexpr double kMoveZMargin = 1e-3;
+
+// A drawn azimuth this close to a cell's edge (in cells) has its density found from its direction's atan2.
+constexpr double kCellEdgeMargin = 1e-4;
 
 }  // namespace
 
@@ -126,21 +121,22 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
         }
       }
     }
-  nodes_.resize(size_t(res_.wo_z) * res_.wo_phi);
-  cell_pdf_.assign(nodes_.size() * size_t(cells), 0.0f);
+  node_count_ = res_.wo_z * res_.wo_phi;
+  cell_pdf_.assign(size_t(node_count_) * cells, 0.0f);
+  row_cdf_.assign(size_t(node_count_) * (wi_rows_ + 1), 0.0f);
+  row_total_.assign(size_t(node_count_) * wi_rows_, 0.0);
   // Nodes are independent: kBuildThreads threads take every kBuildThreads-th node, each with its own wo and f.
   const auto build_nodes = [&](int first) {
     std::vector<float> wo(3 * n), column_cdf;  // a node's cells' sums per row (unnormalised), while it is built
     std::vector<double> f(3 * n);
-    for (int index = first; index < int(nodes_.size()); index += kBuildThreads) {
+    for (int index = first; index < node_count_; index += kBuildThreads) {
       const int i = index / res_.wo_phi, j = index % res_.wo_phi;
       const double phi_o = fiber_ ? 0.0 : (j + 0.5) * 2 * kPi / res_.wo_phi;
       const Dir o = FromTable(FromZPhi(wo_z_min + (i + 0.5) * wo_dz, phi_o));
       for (size_t q = 0; q < n; ++q)
         for (int k = 0; k < 3; ++k) wo[3 * q + k] = float(o[k]);
       EvaluateNative(EvaluationPlan(material, wi.data(), wo.data(), with_uv ? uv.data() : nullptr, n), f.data());
-      Node& node = nodes_[index];
-      node.row_cdf.assign(wi_rows_ + 1, 0.0f);
+      float* row_cdf = &row_cdf_[size_t(index) * (wi_rows_ + 1)];
       column_cdf.assign(size_t(wi_rows_) * (res_.wi_phi + 1), 0.0f);
       double row_sum = 0;
       for (int r = 0; r < wi_rows_; ++r) {
@@ -157,16 +153,16 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
           column[c + 1] = float(column_sum);  // rounding is monotone: the sums stay non-decreasing
         }
         row_sum += column_sum;
-        node.row_cdf[r + 1] = float(row_sum);
+        row_cdf[r + 1] = float(row_sum);
       }
       // Each cell's density (the row's probability from the stored row sums, then the cell's within the row,
       // over its solid angle dz dphi): one read per node where MIS asks for densities, and a row of them is
       // what DrawNode picks the cell from.
       float* cell_pdf = &cell_pdf_[size_t(index) * cells];
-      const double total = node.row_cdf.back();
+      const double total = row_cdf[wi_rows_];
       for (int r = 0; r < wi_rows_; ++r) {
         const float* column = &column_cdf[size_t(r) * (res_.wi_phi + 1)];
-        const double row = double(node.row_cdf[r + 1]) - double(node.row_cdf[r]), row_total = column[res_.wi_phi];
+        const double row = double(row_cdf[r + 1]) - double(row_cdf[r]), row_total = column[res_.wi_phi];
         for (int c = 0; c < res_.wi_phi; ++c)
           cell_pdf[r * res_.wi_phi + c] =
               !(total > 0)                 ? -1.0f  // an empty node: TablePdf uses the cosine density instead
@@ -174,9 +170,9 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
                                                  (dz * dphi))
                                          : 0.0f;
       }
-      node.cell_row_total.assign(wi_rows_, 0.0);
+      double* row_total = &row_total_[size_t(index) * wi_rows_];
       for (int r = 0; r < wi_rows_; ++r)
-        for (int c = 0; c < res_.wi_phi; ++c) node.cell_row_total[r] += std::max(0.0f, cell_pdf[r * res_.wi_phi + c]);
+        for (int c = 0; c < res_.wi_phi; ++c) row_total[r] += std::max(0.0f, cell_pdf[r * res_.wi_phi + c]);
     }
   };
   std::vector<std::thread> helpers;
@@ -187,8 +183,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
 
 size_t DirectionSampler::bytes() const {
   size_t total = sizeof(*this);
-  for (const Node& node : nodes_) total += node.row_cdf.size() * sizeof(float) + node.cell_row_total.size() * sizeof(double);
-  return total + cell_pdf_.size() * sizeof(float);
+  return total + (cell_pdf_.size() + row_cdf_.size()) * sizeof(float) + row_total_.size() * sizeof(double);
 }
 
 Dir DirectionSampler::ToTable(const Dir& w) const {
@@ -250,24 +245,28 @@ void DirectionSampler::DrawCosine(double u1, double u2, double* z, double* phi) 
   *z = sign * std::sqrt(u1);  // z^2 uniform: density z / pi
 }
 
-double DirectionSampler::NodePdf(int node, double z, double phi) const {
-  if (z < z_min_) return nodes_[node].row_cdf.back() > 0 ? 0 : -1;
-  const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
-  const int r = std::clamp(int((z - z_min_) / dz), 0, wi_rows_ - 1);
-  const int c = std::clamp(int(phi / dphi), 0, res_.wi_phi - 1);
-  return cell_pdf_[(size_t(node) * wi_rows_ + r) * res_.wi_phi + c];
+int DirectionSampler::PhiCell(double phi) const {
+  return std::clamp(int(phi * (res_.wi_phi / (2 * kPi))), 0, res_.wi_phi - 1);
 }
 
-void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, double* phi) const {
-  const Node& n = nodes_[node];
+double DirectionSampler::NodePdf(int node, double z, int phi_cell) const {
+  if (z < z_min_) return NodeEmpty(node) ? -1 : 0;
+  const int r = std::clamp(int((z - z_min_) * (wi_rows_ / (1 - z_min_))), 0, wi_rows_ - 1);
+  return cell_pdf_[(size_t(node) * wi_rows_ + r) * res_.wi_phi + phi_cell];
+}
+
+int DirectionSampler::DrawRow(int node, double u1, double* fz) const {
+  const float* row_cdf = RowCdf(node);
+  return SearchShortCdf(row_cdf, wi_rows_, u1 * row_cdf[wi_rows_], fz);
+}
+
+void DirectionSampler::DrawCell(int node, int r, double fz, double u2, double* z, double* phi) const {
   const double dz = (1 - z_min_) / wi_rows_, dphi = 2 * kPi / res_.wi_phi;
-  double fz, fp;
-  const int r = SearchShortCdf(n.row_cdf.data(), wi_rows_, u1 * n.row_cdf.back(), &fz);
   // The cell within the row in proportion to its density, from the row of cell_pdf_ (so the density drawn is
   // cell_pdf_ to float rounding, with no second table of sums): the cells' sums walked, in the order
-  // cell_row_total added them, to the first that passes the target (SearchCdf's cell for those sums).
-  const float* row = &cell_pdf_[(size_t(node) * wi_rows_ + r) * res_.wi_phi];
-  const double target = u2 * n.cell_row_total[r];
+  // row_total_ added them, to the first that passes the target (SearchCdf's cell for those sums).
+  const float* row = CellRow(node, r);
+  const double target = u2 * row_total_[size_t(node) * wi_rows_ + r];
   double below = 0;
   int c = 0;
   for (; c < res_.wi_phi - 1; ++c) {
@@ -276,9 +275,18 @@ void DirectionSampler::DrawNode(int node, double u1, double u2, double* z, doubl
     below = next;
   }
   const double width = std::max(0.0f, row[c]);
-  fp = width > 0 ? std::clamp((target - below) / width, 0.0, kBelowOne) : 0.5;
+  const double fp = width > 0 ? std::clamp((target - below) / width, 0.0, kBelowOne) : 0.5;
   *z = z_min_ + (r + fz) * dz;
   *phi = (c + fp) * dphi;
+}
+
+DirectionSampler::Conditional::ZMap::ZMap(double from_z, double to_z)
+    : from(from_z), to(to_z), slope_below(to_z / from_z), slope_above((1 - to_z) / (1 - from_z)) {}
+
+double DirectionSampler::Conditional::ZMap::operator()(double z, double* slope) const {
+  const double a = std::fabs(z);
+  *slope = a <= from ? slope_below : slope_above;
+  return std::copysign(a <= from ? a * *slope : to + (a - from) * *slope, z);
 }
 
 DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in, double cosine_fraction) const {
@@ -289,10 +297,22 @@ DirectionSampler::Conditional DirectionSampler::At(const Dir& wo_in, double cosi
   c.mirror_ = !wo_sphere_ && wo[2] < 0 ? -1 : 1;  // two-sided cloth: sample for the mirrored wo
   wo[2] *= c.mirror_;
   Nodes(wo, c.index_, c.weight_);
+  // The draws' first reads, the nodes' row sums (two cache lines each), started while the caller goes on.
+  for (int k = 0; k < 4; ++k) {
+    const float* row_cdf = RowCdf(c.index_[k]);
+    const double* row_total = &row_total_[size_t(c.index_[k]) * wi_rows_];
+    __builtin_prefetch(row_cdf);
+    __builtin_prefetch(row_cdf + wi_rows_);
+    __builtin_prefetch(row_total);
+    __builtin_prefetch(row_total + wi_rows_ - 1);
+  }
   if (!fiber_) {
     c.moved_ = true;
     const double z_wo = std::clamp(wo[2], kMoveZMargin, 1 - kMoveZMargin);
-    for (int k = 0; k < 4; ++k) c.move_[k] = {(c.index_[k] / res_.wo_phi + 0.5) / res_.wo_z, z_wo};
+    for (int k = 0; k < 4; ++k) {
+      const double z_node = (c.index_[k] / res_.wo_phi + 0.5) / res_.wo_z;
+      c.move_[k] = {Conditional::ZMap(z_node, z_wo), Conditional::ZMap(z_wo, z_node)};
+    }
   } else {
     const double r = std::hypot(wo[0], wo[1]);
     if (r > 0) {
@@ -311,34 +331,55 @@ DirectionSampler::Dir DirectionSampler::Conditional::FromWoFrame(const Dir& w) c
   return {cos_o_ * w[0] - sin_o_ * w[1], sin_o_ * w[0] + cos_o_ * w[1], w[2]};
 }
 
+int DirectionSampler::Conditional::Choose(double u0) const {
+  if (u0 < cosine_fraction_) return -1;
+  // The node by its bilinear weight (u0's remainder).
+  const double target = cosine_fraction_ < 1 ? (u0 - cosine_fraction_) / (1 - cosine_fraction_) : 0.0;
+  double sum = 0;
+  for (int k = 0; k < 4; ++k) {
+    sum += weight_[k];
+    if (target < sum) return k;
+  }
+  return 3;
+}
+
 DirectionSampler::Sample DirectionSampler::Conditional::Draw(double u0, double u1, double u2) const {
+  return Finish(Start(u0, u1, u2));
+}
+
+DirectionSampler::Conditional::Started DirectionSampler::Conditional::Start(double u0, double u1, double u2) const {
+  const DirectionSampler& s = *sampler_;
+  Started started;
+  started.component = Choose(u0);
+  if (started.component >= 0 && s.NodeEmpty(index_[started.component])) started.component = -1;  // cosine instead
+  started.u1 = u1;
+  started.u2 = u2;
+  if (started.component >= 0) {
+    const int node = index_[started.component];
+    started.row = s.DrawRow(node, u1, &started.fz);
+    const float* row = s.CellRow(node, started.row);
+    __builtin_prefetch(row);
+    __builtin_prefetch(row + s.res_.wi_phi - 1);
+  }
+  return started;
+}
+
+DirectionSampler::Sample DirectionSampler::Conditional::Finish(const Started& started) const {
   const DirectionSampler& s = *sampler_;
   double z, phi;  // wi in wo's frame
-  if (u0 < cosine_fraction_) {
-    s.DrawCosine(u1, u2, &z, &phi);
+  if (started.component >= 0) {
+    double slope;
+    s.DrawCell(index_[started.component], started.row, started.fz, started.u2, &z, &phi);
+    if (moved_) z = move_[started.component].to_wo(z, &slope);
   } else {
-    // The node by its bilinear weight (u0's remainder); an empty node falls back to the cosine density.
-    const double target = cosine_fraction_ < 1 ? (u0 - cosine_fraction_) / (1 - cosine_fraction_) : 0.0;
-    double sum = 0;
-    int k = 3;
-    for (int i = 0; i < 4; ++i) {
-      sum += weight_[i];
-      if (target < sum) {
-        k = i;
-        break;
-      }
-    }
-    if (s.nodes_[index_[k]].row_cdf.back() > 0) {
-      double slope;
-      s.DrawNode(index_[k], u1, u2, &z, &phi);
-      if (moved_) z = MoveZ(z, move_[k].z_node, move_[k].z_wo, &slope);
-    } else {
-      s.DrawCosine(u1, u2, &z, &phi);
-    }
+    s.DrawCosine(started.u1, started.u2, &z, &phi);  // the cosine component, or an empty node's stand-in
   }
   Dir wi = FromWoFrame(FromZPhi(z, phi));
   Sample sample;
-  sample.pdf = TablePdf(wi);  // from wi itself, as Pdf finds it (the drawn phi can lie across a cell edge from it)
+  // The density from wi itself, as Pdf finds it: the drawn phi is wi's azimuth to float rounding (~1e-6 rad),
+  // which can only put it in another cell when it lies that close to a cell's edge (then its atan2 is taken).
+  const double cells = phi * (s.res_.wi_phi / (2 * kPi)), from_edge = cells - std::floor(cells);
+  sample.pdf = from_edge > kCellEdgeMargin && from_edge < 1 - kCellEdgeMargin ? TablePdf(z, phi) : TablePdf(wi);
   wi[2] *= mirror_;
   sample.wi = s.FromTable(wi);
   return sample;
@@ -351,20 +392,26 @@ double DirectionSampler::Conditional::Pdf(const Dir& wi_in) const {
 }
 
 double DirectionSampler::Conditional::TablePdf(const Dir& wi_table) const {
-  const DirectionSampler& s = *sampler_;
+  if (wi_table[2] < sampler_->z_min_) return 0;  // below a reflecting surface (no azimuth needed)
   const Dir wi = ToWoFrame(wi_table);
-  const double z = wi[2], phi = PhiOf(wi);
+  return TablePdf(wi[2], PhiOf(wi));
+}
+
+double DirectionSampler::Conditional::TablePdf(double z, double phi) const {
+  const DirectionSampler& s = *sampler_;
+  if (z < s.z_min_) return 0;  // a surface's wi below it: neither component has density there
   const double cosine = s.CosinePdf(z);
+  const int phi_cell = s.PhiCell(phi);
   double table = 0;
   for (int i = 0; i < 4; ++i) {
     if (weight_[i] <= 0) continue;
     double p;
     if (moved_) {  // the node's density where the move came from, divided by the move's slope
       double slope;
-      const double z_node = MoveZ(z, move_[i].z_wo, move_[i].z_node, &slope);  // the inverse map; slope = 1 / its
-      p = s.NodePdf(index_[i], z_node, phi) * slope;
+      const double z_node = move_[i].to_node(z, &slope);  // the inverse map; slope = 1 / its
+      p = s.NodePdf(index_[i], z_node, phi_cell) * slope;
     } else {
-      p = s.NodePdf(index_[i], z, phi);
+      p = s.NodePdf(index_[i], z, phi_cell);
     }
     table += weight_[i] * (p < 0 ? cosine : p);
   }

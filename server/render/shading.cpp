@@ -368,11 +368,15 @@ void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, cons
     Environment::PixelRef seen;
   };
   std::array<MaterialDraw, kMaterialSamples> draws{};
+  std::array<models::DirectionSampler::Conditional::Started, kMaterialSamples> started;
   for (uint32_t j = 0; sampler && j < kMaterialSamples; ++j) {
     const SamplePoints own = points.Subsample(j, kMaterialSamples);
     const std::array<double, 2> u = own.Get2D(kMaterialPair);
+    started[j] = material.Start(own.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
+  }
+  for (uint32_t j = 0; sampler && j < kMaterialSamples; ++j) {
     MaterialDraw& d = draws[j];
-    d.sample = material.Draw(own.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
+    d.sample = material.Finish(started[j]);
     if (d.sample.pdf > 0) {
       const Vec3 local{d.sample.wi[0], d.sample.wi[1], mirror * d.sample.wi[2]};
       d.wi_world = local.x * frame.x + local.y * frame.y + local.z * frame.n;

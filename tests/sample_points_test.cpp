@@ -42,6 +42,17 @@ TEST(SamplePoints, PairsAndPixelsAreScrambledApart) {
   EXPECT_NE(SamplePoints(5, 6, 7).Get2D(3), SamplePoints(6, 6, 7).Get2D(3));
 }
 
+TEST(SamplePoints, OneDimensionIsTheFirstOfThePair) {
+  // Get1D is Get2D's first coordinate, so a strategy that needs one number keeps the pair's stratification.
+  for (uint64_t pixel = 0; pixel < 64; ++pixel)
+    for (uint32_t s = 0; s < 8; ++s)
+      for (uint32_t pair = 0; pair < 6; ++pair) {
+        const SamplePoints points(11, pixel, s);
+        ASSERT_EQ(points.Get1D(pair), points.Get2D(pair)[0]);
+        ASSERT_EQ(points.Subsample(s % 4, 4).Get1D(pair), points.Subsample(s % 4, 4).Get2D(pair)[0]);
+      }
+}
+
 TEST(SamplePoints, UniformOverManyPixels) {
   // Mean and variance of each coordinate over 4096 pixels x 3 samples (a non-power-of-two count too) are those
   // of U(0, 1): 1/2 and 1/12, within a few standard errors; the coordinates are uncorrelated.

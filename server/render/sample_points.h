@@ -80,6 +80,13 @@ class SamplePoints {
     return {x * 0x1p-32, y * 0x1p-32};
   }
 
+  // Get2D(pair)[0] alone (the same number), for a strategy that needs one: half the scrambling.
+  double Get1D(uint32_t pair) const {
+    const uint64_t h = Mix64(key_ + 0x9e3779b97f4a7c15ull * (pair + 1));
+    const uint32_t index = sobol::OwenScramble(sample_, static_cast<uint32_t>(h));
+    return sobol::OwenScramble(sobol::ReverseBits(index), static_cast<uint32_t>(h >> 32)) * 0x1p-32;
+  }
+
   // Point j of `count` (a power of two) that this sample draws in one pair: the sample's index becomes
   // count * sample + j, so a pixel's n samples x count points of a pair stay one (0, k, 2)-net.
   SamplePoints Subsample(uint32_t j, uint32_t count) const {

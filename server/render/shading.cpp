@@ -372,7 +372,7 @@ void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, cons
   for (uint32_t j = 0; sampler && j < kMaterialSamples; ++j) {
     const SamplePoints own = points.Subsample(j, kMaterialSamples);
     const std::array<double, 2> u = own.Get2D(kMaterialPair);
-    started[j] = material.Start(own.Get2D(kMaterialChoicePair)[0], u[0], u[1]);
+    started[j] = material.Start(own.Get1D(kMaterialChoicePair), u[0], u[1]);
   }
   for (uint32_t j = 0; sampler && j < kMaterialSamples; ++j) {
     MaterialDraw& d = draws[j];

@@ -2,7 +2,8 @@
 // its density is the density of its samples. For the built-in sky and a decoded map with a hot spot, detail and
 // black pixels: a drawn direction looks up to the same component, radiance and density; the mean of g / pdf over
 // a component's draws is the integral of g over the directions it can draw (sphere minus the bright pixels for
-// the rest, the bright pixels for the bright one), computed independently from the pixels' exact solid angles.
+// the rest, the bright pixels for the bright one), computed independently from the pixels' exact solid angles;
+// the rest's draws, compensated, go less to dim light but never leave it.
 #include <gtest/gtest.h>
 
 #include <OpenImageIO/imageio.h>
@@ -160,6 +161,30 @@ TEST(EnvironmentSampling, BuiltinSkyDrawAgreesWithLookup) {
       EXPECT_NEAR(mean, 4 * kPi, 4 * error + 0.01);
     }
   }
+}
+
+TEST(EnvironmentSampling, RestDrawsFavourWhatStandsOutButCoverTheDim) {
+  // Upper hemisphere at luminance 1, lower at 0.1: drawn in proportion to luminance (times sin theta), 1/11 of
+  // the draws would go down. Compensated, fewer do (the material's draws cover dim light), but never fewer than
+  // kRestDefensiveFraction of that share, so every lit direction keeps a density.
+  Map m{256, 128, std::vector<float>(size_t(3) * 256 * 128)};
+  for (int y = 0; y < m.height; ++y)
+    for (int x = 0; x < m.width; ++x)
+      for (int c = 0; c < 3; ++c) m.rgb[3 * (size_t(y) * m.width + x) + c] = y < m.height / 2 ? 1.0f : 0.1f;
+  const Environment env = Decoded(m);
+  ASSERT_FALSE(env.Has(Environment::kBright));
+  std::mt19937_64 random(5);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  constexpr int kDraws = 200000;
+  int down = 0;
+  for (int i = 0; i < kDraws; ++i) {
+    const Environment::Sample s = env.Draw(Environment::kRest, u(random), u(random));
+    ASSERT_GT(s.pdf, 0);
+    down += s.direction.y < 0;
+  }
+  const double plain_share = 0.1 / 1.1, share = double(down) / kDraws;
+  EXPECT_LT(share, 0.8 * plain_share);
+  EXPECT_GT(share, Environment::kRestDefensiveFraction * plain_share);
 }
 
 }  // namespace

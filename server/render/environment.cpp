@@ -193,7 +193,9 @@ double Environment::SinTheta(Vec3 direction) { return std::sqrt(std::max(0.0, 1 
 double Environment::RowSine(int y, int height) { return std::sin((y + 0.5) / height * kPi); }
 
 double Environment::Weight(const Map& map, const float* p, int y) {
-  return Luminance({p[0], p[1], p[2]}) * map.row_sine[size_t(y)];
+  const double l = Luminance({p[0], p[1], p[2]});
+  const double sampled = l > map.bright_luminance ? l : std::max(kRestDefensiveFraction * l, l - map.rest_floor);
+  return sampled * map.row_sine[size_t(y)];
 }
 
 std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int height, std::vector<float> rgb) {
@@ -205,7 +207,7 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
   map->row_sine.resize(size_t(height));
   for (int y = 0; y < height; ++y) map->row_sine[size_t(y)] = RowSine(y, height);
   const auto weight = [&](size_t p) { return Weight(*map, &map->rgb[3 * p], int(p / size_t(width))); };
-  double total = 0;
+  double total = 0;  // of plain luminance: the rest's compensation (rest_floor) is set from it below
   for (size_t p = 0; p < pixels; ++p) total += weight(p);
   // The bright component: pixels far above the map's mean radiance, unless there are too many of them to be
   // small lights.
@@ -215,6 +217,14 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
   size_t bright = 0;
   for (size_t p = 0; p < pixels; ++p) bright += luminance[p] > threshold;
   if (bright > 0 && double(bright) <= kMaxBrightFraction * double(pixels)) map->bright_luminance = threshold;
+  // The rest's mean luminance over the sphere (bright pixels count as 0), for its compensated weights.
+  double rest = 0, sines = 0;
+  for (size_t p = 0; p < pixels; ++p) {
+    const double sine = map->row_sine[p / size_t(width)];
+    sines += sine;
+    if (luminance[p] <= map->bright_luminance) rest += luminance[p] * sine;
+  }
+  map->rest_floor = sines > 0 ? kRestCompensation * rest / sines : 0.0;
   map->bright_cdf.push_back(0);
   map->row_cdf.assign(height + 1, 0.0);
   map->row_total.assign(height, 0.0);

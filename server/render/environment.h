@@ -55,6 +55,14 @@ class Environment {
   // by multiple importance sampling, for which Lookup gives a direction's component and density.
   static constexpr double kBrightFactor = 64;
   static constexpr double kMaxBrightFraction = 1.0 / 64;
+  // The rest is drawn in proportion to its luminance less kRestCompensation times its mean over the sphere, but
+  // never below kRestDefensiveFraction of its luminance (MIS compensation, Karlik et al. 2019, kept defensive):
+  // the material's draws already cover the dim and middling sky, so the map's own draws go where its light
+  // stands out. At 4 spp (6 seeds) against plain luminance: 8% less variance on the satin cylinders, 10% on the
+  // satin sphere, 5% on the twill, at the same CPU time. Without the floor the twill's variance tripled: its
+  // table, a mean over the pattern's tile, misses texels' lobes, and the map's draws must still find those.
+  static constexpr double kRestCompensation = 1.5;
+  static constexpr double kRestDefensiveFraction = 0.1;
   enum Component { kBright = 0, kRest = 1 };
 
   struct Sample {
@@ -119,6 +127,7 @@ class Environment {
     std::vector<float> rgb;
     std::vector<double> row_sine;  // RowSine per row
     double bright_luminance = INFINITY;  // pixels above it are the bright component
+    double rest_floor = 0;  // kRestCompensation x the rest's mean luminance: taken off its sampling weight
     // The rest: rows, then columns within a row (bright pixels weigh 0 here).
     std::vector<double> row_cdf;     // height + 1 values
     std::vector<double> column_cdf;  // height x (width + 1)
@@ -126,7 +135,7 @@ class Environment {
     // The bright component: its pixels (y * width + x) and their CDF.
     std::vector<uint32_t> bright_pixels;
     std::vector<double> bright_cdf;  // bright_pixels.size() + 1
-    double total_weight[2] = {0, 0};  // kBright, kRest: luminance x sin(theta) summed
+    double total_weight[2] = {0, 0};  // kBright, kRest: sampling weights (Weight) summed
     // Guide tables for the three searches (the same cells, found in a few reads).
     models::CdfGuide row_guide, bright_guide;
     std::vector<models::CdfGuide> column_guides;  // per row

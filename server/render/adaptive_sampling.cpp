@@ -8,18 +8,19 @@
 namespace loomlight::render {
 namespace {
 
-// The mean of `v` over each pixel's 3 x 3 neighbourhood (the part inside the image), as two 1D passes.
-std::vector<double> BoxMean3x3(int width, int height, const std::vector<double>& v) {
+// The mean of `v` over each pixel's (2 r + 1) x (2 r + 1) neighbourhood (the part inside the image), as two 1D
+// passes.
+std::vector<double> BoxMean(int width, int height, int r, const std::vector<double>& v) {
   std::vector<double> rows(v.size()), out(v.size());
   for (int y = 0; y < height; ++y)
     for (int x = 0; x < width; ++x) {
-      const int x0 = std::max(x - 1, 0), x1 = std::min(x + 1, width - 1);
+      const int x0 = std::max(x - r, 0), x1 = std::min(x + r, width - 1);
       double sum = 0;
       for (int i = x0; i <= x1; ++i) sum += v[size_t(y) * width + i];
       rows[size_t(y) * width + x] = sum / (x1 - x0 + 1);
     }
   for (int y = 0; y < height; ++y) {
-    const int y0 = std::max(y - 1, 0), y1 = std::min(y + 1, height - 1);
+    const int y0 = std::max(y - r, 0), y1 = std::min(y + r, height - 1);
     for (int x = 0; x < width; ++x) {
       double sum = 0;
       for (int j = y0; j <= y1; ++j) sum += rows[size_t(j) * width + x];
@@ -30,6 +31,8 @@ std::vector<double> BoxMean3x3(int width, int height, const std::vector<double>&
 }
 
 }  // namespace
+
+int NoiseNeighbourhoodRadius(uint32_t first) { return first <= 2 ? 2 : 1; }
 
 uint32_t FirstPassSamples(uint32_t samples_per_pixel) {
   uint32_t first = 2;
@@ -42,7 +45,7 @@ std::vector<uint32_t> AllocateSamples(int width, int height, const PixelNoise& n
   const size_t n = size_t(width) * height;
   std::vector<uint32_t> counts(n, first);
   if (n == 0 || most <= first) return counts;
-  const std::vector<double> variance = BoxMean3x3(width, height, noise.variance);
+  const std::vector<double> variance = BoxMean(width, height, NoiseNeighbourhoodRadius(first), noise.variance);
   // score_p = sqrt(v_p / c_p): the optimum gives pixel p lambda * score_p samples.
   std::vector<double> score(n);
   double budget = 0, most_work = 0;

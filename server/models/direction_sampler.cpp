@@ -157,7 +157,7 @@ DirectionSampler::DirectionSampler(const PreparedMaterial& own, Resolution resol
       }
       // Each cell's density (the row's probability from the stored row sums, then the cell's within the row,
       // over its solid angle dz dphi): one read per node where MIS asks for densities, and a row of them is
-      // what DrawNode picks the cell from.
+      // what DrawCell picks the cell from.
       float* cell_pdf = &cell_pdf_[size_t(index) * cells];
       const double total = row_cdf[wi_rows_];
       for (int r = 0; r < wi_rows_; ++r) {
@@ -399,7 +399,6 @@ double DirectionSampler::Conditional::TablePdf(const Dir& wi_table) const {
 
 double DirectionSampler::Conditional::TablePdf(double z, double phi) const {
   const DirectionSampler& s = *sampler_;
-  if (z < s.z_min_) return 0;  // a surface's wi below it: neither component has density there
   const double cosine = s.CosinePdf(z);
   const int phi_cell = s.PhiCell(phi);
   double table = 0;

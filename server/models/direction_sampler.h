@@ -158,7 +158,7 @@ class DirectionSampler {
   int node_count_ = 0;
   // Per node, its rows' sums (wi_rows + 1 each, unnormalised; summed in double, stored as float: half the bytes
   // and cache lines; cell_pdf_ is computed from the stored values, so it stays what Draw samples), and per row
-  // the sum of its cells' densities (clamped at 0) added in order, in double: DrawNode walks the row's cells to
+  // the sum of its cells' densities (clamped at 0) added in order, in double: DrawCell walks the row's cells to
   // a fraction of it. One array each, so a node's sums are one address away, not behind a pointer.
   std::vector<float> row_cdf_;
   std::vector<double> row_total_;

@@ -57,9 +57,8 @@ std::vector<uint32_t> AllocateSamples(int width, int height, const PixelNoise& n
     budget += cost * samples_per_pixel;
     most_work += cost * (score[p] > 0 ? most : first);
   }
-  const auto count = [&](double lambda, size_t p) {
-    return score[p] > 0 ? std::clamp(lambda * score[p], double(first), double(most)) : double(first);
-  };
+  const auto noisy_count = [&](double lambda, double s) { return std::clamp(lambda * s, double(first), double(most)); };
+  const auto count = [&](double lambda, size_t p) { return score[p] > 0 ? noisy_count(lambda, score[p]) : double(first); };
   // The work as a function of lambda, over the noisy pixels alone (the rest keep their first pass: a constant),
   // as (score, cost) pairs side by side: the bisection below reads them ~50 times, and the render waits for it.
   double quiet_work = 0;
@@ -70,7 +69,7 @@ std::vector<uint32_t> AllocateSamples(int width, int height, const PixelNoise& n
   }
   const auto work = [&](double lambda) {
     double sum = quiet_work;
-    for (const auto& [s, cost] : noisy) sum += cost * std::clamp(lambda * s, double(first), double(most));
+    for (const auto& [s, cost] : noisy) sum += cost * noisy_count(lambda, s);
     return sum;
   };
   double lambda = 0;

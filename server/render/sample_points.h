@@ -70,21 +70,19 @@ class SamplePoints {
 
   // The sample's point in dimension pair `pair`, both coordinates in [0, 1).
   std::array<double, 2> Get2D(uint32_t pair) const {
-    const uint64_t h = Mix64(key_ + 0x9e3779b97f4a7c15ull * (pair + 1));
-    // The shuffled index: samples 0..2^k-1 of the pixel become one aligned block of 2^k Sobol indices.
-    const uint32_t index = sobol::OwenScramble(sample_, static_cast<uint32_t>(h));
-    const std::array<uint32_t, 2> p = sobol::Sobol2D(index);
+    const uint64_t h = PairHash(pair);
+    const std::array<uint32_t, 2> p = sobol::Sobol2D(ShuffledIndex(h));
     const uint32_t x = sobol::OwenScramble(p[0], static_cast<uint32_t>(h >> 32));
     const uint32_t y = sobol::OwenScramble(p[1], static_cast<uint32_t>(Mix64(h)));
     // 32 bits each, so always < 1.
     return {x * 0x1p-32, y * 0x1p-32};
   }
 
-  // Get2D(pair)[0] alone (the same number), for a strategy that needs one: half the scrambling.
+  // Get2D(pair)[0] alone (the same number), for a strategy that needs one: half the scrambling. Sobol's first
+  // dimension is the index's bit reversal.
   double Get1D(uint32_t pair) const {
-    const uint64_t h = Mix64(key_ + 0x9e3779b97f4a7c15ull * (pair + 1));
-    const uint32_t index = sobol::OwenScramble(sample_, static_cast<uint32_t>(h));
-    return sobol::OwenScramble(sobol::ReverseBits(index), static_cast<uint32_t>(h >> 32)) * 0x1p-32;
+    const uint64_t h = PairHash(pair);
+    return sobol::OwenScramble(sobol::ReverseBits(ShuffledIndex(h)), static_cast<uint32_t>(h >> 32)) * 0x1p-32;
   }
 
   // Point j of `count` (a power of two) that this sample draws in one pair: the sample's index becomes
@@ -96,6 +94,11 @@ class SamplePoints {
   }
 
  private:
+  // The pair's scrambling seeds (low half: the index's shuffle, high half: x's scramble).
+  uint64_t PairHash(uint32_t pair) const { return Mix64(key_ + 0x9e3779b97f4a7c15ull * (pair + 1)); }
+  // The shuffled index: samples 0..2^k-1 of the pixel become one aligned block of 2^k Sobol indices.
+  uint32_t ShuffledIndex(uint64_t h) const { return sobol::OwenScramble(sample_, static_cast<uint32_t>(h)); }
+
   uint64_t key_;
   uint32_t sample_;
 };

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <memory>
 #include <thread>
@@ -473,11 +474,13 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     chunk.slot_folded.assign(adaptive_ && pass_ == 0 ? slots : 0, 0);
     chunk.queries = 0;
     // Chunks are traced on kTraceThreads threads (casting rays and sampling lights and materials is the host's
-    // share of a render), thread t taking every threads-th block of kTraceBlockPixels pixels into its own
-    // buckets, appended in thread order. Interleaved blocks share the work evenly: as contiguous halves, a chunk
-    // whose upper rows were sky and lower rows cloth kept one thread waiting for the other (18 vs 58 ms on the
-    // satin cylinders). Each sample's queries stay together and in order, and the blocks are fixed by the
-    // chunk, so the image does not depend on the threads' timing.
+    // share of a render), each taking the next block of kTraceBlockPixels pixels into its own buckets, appended
+    // in thread order. Blocks are handed out as threads come for them, not fixed per thread: beside the device's
+    // threads the two trace threads do not get equal CPU, and with every other block fixed to each, one thread
+    // waited 10-27 ms per chunk for the other (a fifth of the satin cylinders' render with a core idle). Which
+    // thread traces a block changes only where its queries sit in the batch; each sample's queries stay
+    // together and in order, every query is evaluated alone, and a sample's value goes to its own slot, so the
+    // image does not depend on the threads' timing.
     const uint64_t threads = std::clamp<uint64_t>(chunk.pixels, 1, kTraceThreads);
     // The other threads' buckets are kept from chunk to chunk, and through a chunk of one pixel or none (a
     // pass's end): filled afresh each time, they page-faulted their memory in again, which made the second
@@ -487,20 +490,21 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       part.resize(plan_.evaluators.size());
       for (render::QueryBucket& b : part) b.Clear();
     }
+    std::atomic<uint64_t> next_block{0};
     std::vector<std::thread> workers;
     for (uint64_t t = 1; t < threads; ++t)
-      workers.emplace_back([this, &chunk, t, threads] { TraceBlocks(chunk, t, threads, &trace_parts_[t - 1]); });
-    TraceBlocks(chunk, 0, threads, &chunk.buckets);
+      workers.emplace_back([this, &chunk, &next_block, t] { TraceBlocks(chunk, &next_block, &trace_parts_[t - 1]); });
+    TraceBlocks(chunk, &next_block, &chunk.buckets);
     for (std::thread& w : workers) w.join();
     for (const std::vector<render::QueryBucket>& part : trace_parts_)
       for (size_t e = 0; e < part.size(); ++e) chunk.buckets[e].Append(part[e]);
     for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
   }
 
-  // Traces the chunk's pixel blocks first, first + stride, ... (blocks of kTraceBlockPixels): their queries into
-  // `buckets`, what needs none into chunk.value. Hits on objects with a folded environment get its radiance
-  // too, evaluated on the host for all the blocks at once.
-  void TraceBlocks(Chunk& chunk, uint64_t first, uint64_t stride, std::vector<render::QueryBucket>* buckets) const {
+  // Traces the chunk's pixel blocks (of kTraceBlockPixels) this thread takes from *next_block: their queries
+  // into `buckets`, what needs none into chunk.value. Hits on objects with a folded environment get its radiance
+  // too, evaluated on the host for all the thread's blocks at once.
+  void TraceBlocks(Chunk& chunk, std::atomic<uint64_t>* next_block, std::vector<render::QueryBucket>* buckets) const {
     std::array<render::ShadingPoint, render::Scene::kMaxPacket> points;
     std::array<render::PixelSample, render::Scene::kMaxPacket> batch;
     std::array<uint32_t, render::Scene::kMaxPacket> batch_slot;
@@ -526,7 +530,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       }
       queued = 0;
     };
-    for (uint64_t block = first; block * kTraceBlockPixels < chunk.pixels; block += stride) {
+    for (uint64_t block = next_block->fetch_add(1, std::memory_order_relaxed); block * kTraceBlockPixels < chunk.pixels;
+         block = next_block->fetch_add(1, std::memory_order_relaxed)) {
       const uint64_t end = std::min<uint64_t>((block + 1) * kTraceBlockPixels, chunk.pixels);
       for (uint64_t p = block * kTraceBlockPixels; p < end; ++p) {
         const uint64_t pixel = chunk.first_pixel + p;
@@ -538,8 +543,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
           if (++queued == batch.size()) flush();
         }
       }
+      flush();  // a packet holds one block's samples, whichever thread traces it
     }
-    flush();
     if (folded.empty()) return;
     std::vector<Rgb> radiance;
     setup_.folded_environment->Radiance(folded, &radiance);

@@ -59,17 +59,30 @@ std::vector<uint32_t> AllocateSamples(int width, int height, const PixelNoise& n
   }
   const auto noisy_count = [&](double lambda, double s) { return std::clamp(lambda * s, double(first), double(most)); };
   const auto count = [&](double lambda, size_t p) { return score[p] > 0 ? noisy_count(lambda, score[p]) : double(first); };
-  // The work as a function of lambda, over the noisy pixels alone (the rest keep their first pass: a constant),
-  // as (score, cost) pairs side by side: the bisection below reads them ~50 times, and the render waits for it.
+  // The work as a function of lambda, over the noisy pixels alone (the rest keep their first pass: a constant):
+  // the bisection below reads them ~50 times, and the render waits for it with a core idle.
   double quiet_work = 0;
-  std::vector<std::array<double, 2>> noisy;
+  std::vector<double> noisy_score, noisy_cost;
   for (size_t p = 0; p < n; ++p) {
-    if (score[p] > 0) noisy.push_back({score[p], noise.cost[p]});
-    else quiet_work += noise.cost[p] * first;
+    if (score[p] > 0) {
+      noisy_score.push_back(score[p]);
+      noisy_cost.push_back(noise.cost[p]);
+    } else {
+      quiet_work += noise.cost[p] * first;
+    }
   }
   const auto work = [&](double lambda) {
+    // Eight running sums, not one: a single sum waits for each addition before the next (the compiler keeps
+    // floating-point order), which made this loop latency-bound; the order is still fixed, so still
+    // deterministic.
+    constexpr size_t kLanes = 8;
+    std::array<double, kLanes> sums{};
+    const size_t m = noisy_score.size(), whole = m / kLanes * kLanes;
+    for (size_t i = 0; i < whole; i += kLanes)
+      for (size_t k = 0; k < kLanes; ++k) sums[k] += noisy_cost[i + k] * noisy_count(lambda, noisy_score[i + k]);
+    for (size_t i = whole; i < m; ++i) sums[i - whole] += noisy_cost[i] * noisy_count(lambda, noisy_score[i]);
     double sum = quiet_work;
-    for (const auto& [s, cost] : noisy) sum += cost * noisy_count(lambda, s);
+    for (double s : sums) sum += s;
     return sum;
   };
   double lambda = 0;

@@ -28,8 +28,9 @@ struct Map {
   std::vector<float> rgb;
 };
 
-// A map with a smooth gradient, per-pixel detail, a black band and a small hot spot (the bright component).
-Map DetailedMap(int width, int height) {
+// A map with a smooth gradient, per-pixel detail, a black band and a small hot spot (the bright component):
+// a square of (2 sun_radius + 1)^2 pixels.
+Map DetailedMap(int width, int height, int sun_radius = 1) {
   Map m{width, height, std::vector<float>(size_t(3) * width * height)};
   std::mt19937 random(7);
   std::uniform_real_distribution<float> detail(0.5f, 1.5f);
@@ -40,7 +41,7 @@ Map DetailedMap(int width, int height) {
       p[0] = base;
       p[1] = 0.8f * base;
       p[2] = 0.6f * base;
-      if (std::abs(x - width / 3) <= 1 && std::abs(y - height / 4) <= 1) p[0] = p[1] = p[2] = 5000.0f;
+      if (std::abs(x - width / 3) <= sun_radius && std::abs(y - height / 4) <= sun_radius) p[0] = p[1] = p[2] = 5000.0f;
     }
   return m;
 }
@@ -144,6 +145,14 @@ TEST(EnvironmentSampling, DecodedMapDrawsWhatItsDensitySays) {
 
 TEST(EnvironmentSampling, SmallMapDrawsWhatItsDensitySays) {
   const Map m = DetailedMap(40, 20);
+  ExpectDensityIsTheDraws(Decoded(m), m, BrightThreshold(m));
+}
+
+// Below Environment::kCentreTableMinWidth x kCentreTableMinHeight a drawn point's direction comes from its angles'
+// sines and cosines, not the pixel centres' tables and a series: both ways must draw what the density says.
+TEST(EnvironmentSampling, MapTooCoarseForCentreTablesDrawsWhatItsDensitySays) {
+  // A one-pixel sun: a 3 x 3 one would be more than kMaxBrightFraction of so few pixels.
+  const Map m = DetailedMap(Environment::kCentreTableMinWidth - 8, Environment::kCentreTableMinHeight - 4, 0);
   ExpectDensityIsTheDraws(Decoded(m), m, BrightThreshold(m));
 }
 

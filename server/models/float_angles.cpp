@@ -11,7 +11,8 @@ typedef float real;
 float Atan2(float y, float x) { return ll_atan2_poly(y, x); }
 
 float Acos(float c) {
-  c = std::fmin(std::fmax(c, -1.0f), 1.0f);
+  // As fmin(fmax(c, -1), 1), NaN to -1 included, but compares: GCC leaves fminf and fmaxf as library calls.
+  c = c > -1.0f ? (c < 1.0f ? c : 1.0f) : -1.0f;
   return ll_atan2_poly(std::sqrt((1.0f - c) * (1.0f + c)), c);  // (1 - c)(1 + c): no cancellation near |c| = 1
 }
 

@@ -46,8 +46,7 @@ Rgb SkyRadiance(Vec3 d) {
 Environment Environment::Builtin() {
   static const Environment prototype = [] {
     Environment env;
-    env.width_ = 512;
-    env.height_ = 256;
+    env.SetSize(512, 256);
     std::vector<float> rgb(size_t{3} * env.width_ * env.height_);
     constexpr int kSuper = 4;  // 4 x 4 samples per pixel: the small sun gets smooth pixel values
     for (int y = 0; y < env.height_; ++y)
@@ -69,10 +68,11 @@ size_t Environment::DecodeBytes(long long width, long long height, int channels)
   const size_t pixels = size_t(width) * size_t(height);
   const size_t bright = size_t(double(pixels) * kMaxBrightFraction) + 1;
   // Per pixel: the map, the column sums, the decoder's buffer and the column guides' (a bucket per 4 pixels);
-  // per row: the row sums, totals, sines and a column guide; the bright pixels and their sums.
+  // per row: the row sums, totals, sines, cosines and a column guide; per column a sine and a cosine; the bright
+  // pixels and their sums.
   return pixels * (3 * sizeof(float) + sizeof(double) + std::min(channels, 3) * sizeof(float) + sizeof(int)) +
-         size_t(height) * (4 * sizeof(double) + sizeof(models::CdfGuide) + 2 * sizeof(int)) +
-         bright * (sizeof(uint32_t) + sizeof(double));
+         size_t(height) * (5 * sizeof(double) + sizeof(models::CdfGuide) + 2 * sizeof(int)) +
+         size_t(width) * 2 * sizeof(double) + bright * (sizeof(uint32_t) + sizeof(double));
 }
 
 std::string Environment::Decode(std::string_view bytes, const std::function<bool()>& stop,
@@ -127,8 +127,7 @@ std::string Environment::Decode(std::string_view bytes, const std::function<bool
       rgb[3 * p + c] = std::isfinite(v) && v > 0 ? v : 0.0f;
     }
   Environment env;
-  env.width_ = spec.width;
-  env.height_ = spec.height;
+  env.SetSize(spec.width, spec.height);
   env.map_ = BuildMap(env.width_, env.height_, std::move(rgb));
   *out = std::move(env);
   return "";
@@ -139,7 +138,8 @@ size_t Environment::bytes() const {
   size_t guides = map_->row_guide.bytes() + map_->bright_guide.bytes();
   for (const models::CdfGuide& g : map_->column_guides) guides += sizeof g + g.bytes();
   return map_->rgb.size() * sizeof(float) + map_->bright_pixels.size() * sizeof(uint32_t) +
-         (map_->row_cdf.size() + map_->row_total.size() + map_->column_cdf.size() + map_->bright_cdf.size() + map_->row_sine.size()) *
+         (map_->row_cdf.size() + map_->row_total.size() + map_->column_cdf.size() + map_->bright_cdf.size() + map_->row_sine.size() +
+          map_->row_cosine.size() + map_->column_sine.size() + map_->column_cosine.size()) *
              sizeof(double) +
          guides;
 }
@@ -149,6 +149,13 @@ std::string Environment::Identity() const {
   std::snprintf(text, sizeof text, "%p %a %a %a", static_cast<const void*>(map_.get()), intensity_, cos_rotation_,
                 sin_rotation_);
   return text;
+}
+
+void Environment::SetSize(int width, int height) {
+  width_ = width;
+  height_ = height;
+  below_width_ = std::nextafter(double(width), 0.0);  // once here: GCC leaves nextafter as a library call
+  below_height_ = std::nextafter(double(height), 0.0);
 }
 
 void Environment::SetTransform(double intensity, double rotation_deg) {
@@ -163,8 +170,9 @@ void Environment::ToImage(Vec3 d, double* x, double* y) const {
   // The angles in float (~1e-7 rad, a millionth of a pixel here), without library calls.
   const double u = 0.5 + models::float_angles::Atan2(float(m.x), float(-m.z)) / (2 * kPi);
   const double v = models::float_angles::Acos(float(m.y)) / kPi;
-  *x = std::clamp(u * width_, 0.0, std::nextafter(double(width_), 0.0));
-  *y = std::clamp(v * height_, 0.0, std::nextafter(double(height_), 0.0));
+  // Below width and height: a pixel index, never one past the end (u = 1 or v = 1 to rounding).
+  *x = std::clamp(u * width_, 0.0, below_width_);
+  *y = std::clamp(v * height_, 0.0, below_height_);
 }
 
 Vec3 Environment::FromImage(double x, double y) const {
@@ -173,6 +181,33 @@ Vec3 Environment::FromImage(double x, double y) const {
   const double st = std::sin(theta), ct = std::cos(theta), sp = std::sin(phi), cp = std::cos(phi);
   const Vec3 m{st * sp, ct, -st * cp};
   // Map to world: rotate by +rotation about +y.
+  return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
+}
+
+namespace {
+
+// sin and cos of a small angle d (|d| <= pi / 32 where used) by their Taylor series to d^7 and d^8: the first
+// term left out is below 3e-15 of the result there.
+void SmallAngleSinCos(double d, double* sine, double* cosine) {
+  const double d2 = d * d;
+  *sine = d * (1 - d2 / 6 * (1 - d2 / 20 * (1 - d2 / 42)));
+  *cosine = 1 - d2 / 2 * (1 - d2 / 12 * (1 - d2 / 30 * (1 - d2 / 56)));
+}
+
+}  // namespace
+
+Vec3 Environment::FromPixelPoint(int x, int y, double fx, double fy) const {
+  // The angles as the pixel centre's (tabled sines and cosines) plus a small offset: angle-sum identities and a
+  // short series instead of two library sincos calls per drawn direction (2% of a render's CPU).
+  const Map& map = *map_;
+  double sd, cd, se, ce;
+  SmallAngleSinCos((fy - 0.5) / height_ * kPi, &sd, &cd);
+  SmallAngleSinCos((fx - 0.5) / width_ * 2 * kPi, &se, &ce);
+  const double st0 = map.row_sine[size_t(y)], ct0 = map.row_cosine[size_t(y)];
+  const double sp0 = map.column_sine[size_t(x)], cp0 = map.column_cosine[size_t(x)];
+  const double st = st0 * cd + ct0 * sd, ct = ct0 * cd - st0 * sd;
+  const double sp = sp0 * ce + cp0 * se, cp = cp0 * ce - sp0 * se;
+  const Vec3 m{st * sp, ct, -st * cp};
   return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
 }
 
@@ -206,6 +241,17 @@ std::shared_ptr<const Environment::Map> Environment::BuildMap(int width, int hei
   const size_t pixels = size_t(width) * height;
   map->row_sine.resize(size_t(height));
   for (int y = 0; y < height; ++y) map->row_sine[size_t(y)] = RowSine(y, height);
+  if (width >= kCentreTableMinWidth && height >= kCentreTableMinHeight) {
+    map->row_cosine.resize(size_t(height));
+    for (int y = 0; y < height; ++y) map->row_cosine[size_t(y)] = std::cos((y + 0.5) / height * kPi);
+    map->column_sine.resize(size_t(width));
+    map->column_cosine.resize(size_t(width));
+    for (int x = 0; x < width; ++x) {
+      const double phi = ((x + 0.5) / width - 0.5) * 2 * kPi;
+      map->column_sine[size_t(x)] = std::sin(phi);
+      map->column_cosine[size_t(x)] = std::cos(phi);
+    }
+  }
   const auto weight = [&](size_t p) { return Weight(*map, &map->rgb[3 * p], int(p / size_t(width))); };
   double total = 0;  // of plain luminance: the rest's compensation (rest_floor) is set from it below
   for (size_t p = 0; p < pixels; ++p) total += weight(p);
@@ -320,7 +366,7 @@ Environment::Sample Environment::DrawnSample(Component component, int x, int y, 
   Sample sample;
   const double weight = Weight(*map_, &map_->rgb[3 * (size_t(y) * width_ + x)], y);
   if (weight <= 0) return sample;
-  sample.direction = FromImage(x + fx, y + fy);
+  sample.direction = map_->row_cosine.empty() ? FromImage(x + fx, y + fy) : FromPixelPoint(x, y, fx, fy);
   sample.radiance = Pixel(x, y);
   sample.pdf = PixelDensity(weight, component, SinTheta(sample.direction));
   return sample;

@@ -26,6 +26,9 @@ class Environment {
   // is decoded (a small file can declare a huge image). Non-finite or negative values read as 0.
   static constexpr size_t kMaxEncodedBytes = size_t{32} << 20;
   static constexpr long long kMaxPixels = 1LL << 22;  // e.g. 2048 x 2048 or 4096 x 1024: ~80 MB decoded
+  // Maps of at least these sizes (a pixel at most pi / 16 across) find drawn directions from tabled pixel-centre
+  // angles and a series; smaller ones from the angles' own sines and cosines.
+  static constexpr int kCentreTableMinWidth = 32, kCentreTableMinHeight = 16;
 
   // A blue sky with a warm sun (2.5 degrees across, elevation 35 degrees, behind the default cameras on the
   // left) over a dim ground: lights every scene with a soft key light and a sky fill, no file needed.
@@ -110,9 +113,13 @@ class Environment {
   bool black() const { return !map_ || map_->total_weight[kBright] + map_->total_weight[kRest] <= 0; }
 
  private:
+  void SetSize(int width, int height);
   // Pixel coordinates (continuous) of a world direction, and back.
   void ToImage(Vec3 direction, double* x, double* y) const;
   Vec3 FromImage(double x, double y) const;
+  // FromImage(x + fx, y + fy) from the pixel centre's tabled angles (maps at least kCentreTableMinWidth x
+  // kCentreTableMinHeight: a pixel spans at most pi / 16 each way).
+  Vec3 FromPixelPoint(int x, int y, double fx, double fy) const;
   static double SinTheta(Vec3 direction);
   Rgb Pixel(int x, int y) const;
   // A pixel's sampling weight: its luminance times its row's sin(theta) (at the row's centre).
@@ -126,6 +133,9 @@ class Environment {
     int width = 0, height = 0;
     std::vector<float> rgb;
     std::vector<double> row_sine;  // RowSine per row
+    // cos(theta) per row centre, sin and cos(phi) per column centre (FromPixelPoint), on maps whose pixels are
+    // small enough for its series (else empty).
+    std::vector<double> row_cosine, column_sine, column_cosine;
     double bright_luminance = INFINITY;  // pixels above it are the bright component
     double rest_floor = 0;  // kRestCompensation x the rest's mean luminance: taken off its sampling weight
     // The rest: rows, then columns within a row (bright pixels weigh 0 here).
@@ -148,6 +158,7 @@ class Environment {
 
   std::shared_ptr<const Map> map_;
   int width_ = 0, height_ = 0;  // of map_ (ToImage and FromImage need them before the map exists)
+  double below_width_ = 0, below_height_ = 0;  // the largest doubles below them (ToImage's clamp)
   double intensity_ = 1, cos_rotation_ = 1, sin_rotation_ = 0;
 };
 

@@ -821,12 +821,14 @@ size_t RenderBytes(const v1::RenderRequest& r) {
   // squares, queries and the allocation's arrays (56); two chunk buffers of queries (wi, wo, uv, axis, weight
   // and tag: 60; the kernel's result and its copy: 48) and of pixel samples (a slot each, at most one per query
   // of the chunk's bound: radiance, queries and first slot, 30); the second trace thread's queries before they
-  // join a chunk's (60); the request's map bytes. A fiber scene's yarn
+  // join a chunk's (60); the plan of the chunk on the device (fibers' turned wi and wo; a curtain's parts with
+  // their uv and index, and three transmittances or scales while it is built: at most 64); the request's map
+  // bytes. A fiber scene's yarn
   // and BVH are admitted when generated (RenderCall::BuildFibers).
   size_t fibers = 0;
   if (IsFiberScene(r.scene()))  // the generated curves, held while the BVH is built
     fibers = kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber;
-  return pixels * 108 + 2 * kRenderChunkQueries * 138 + kRenderChunkQueries * 60 + r.environment().data().size() +
+  return pixels * 108 + 2 * kRenderChunkQueries * 138 + kRenderChunkQueries * (60 + 64) + r.environment().data().size() +
          fibers;
 }
 

@@ -187,7 +187,7 @@ Vec3 Environment::FromImage(double x, double y) const {
 namespace {
 
 // sin and cos of a small angle d (|d| <= pi / 32 where used) by their Taylor series to d^7 and d^8: the first
-// term left out is below 3e-15 of the result there.
+// term left out is below 3e-15 there (FromImage's float angles are good to ~1e-7).
 void SmallAngleSinCos(double d, double* sine, double* cosine) {
   const double d2 = d * d;
   *sine = d * (1 - d2 / 6 * (1 - d2 / 20 * (1 - d2 / 42)));

@@ -175,13 +175,17 @@ void Environment::ToImage(Vec3 d, double* x, double* y) const {
   *y = std::clamp(v * height_, 0.0, below_height_);
 }
 
+Vec3 Environment::WorldDirection(double sin_theta, double cos_theta, double sin_phi, double cos_phi) const {
+  const Vec3 m{sin_theta * sin_phi, cos_theta, -sin_theta * cos_phi};
+  // Map to world: rotate by +rotation about +y.
+  return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
+}
+
 Vec3 Environment::FromImage(double x, double y) const {
   // The angles' sines and cosines in float (directions to ~1e-7, as rays and kernels take them), for speed.
   const float phi = float((x / width_ - 0.5) * 2 * kPi), theta = float(y / height_ * kPi);
   const double st = std::sin(theta), ct = std::cos(theta), sp = std::sin(phi), cp = std::cos(phi);
-  const Vec3 m{st * sp, ct, -st * cp};
-  // Map to world: rotate by +rotation about +y.
-  return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
+  return WorldDirection(st, ct, sp, cp);
 }
 
 namespace {
@@ -207,8 +211,7 @@ Vec3 Environment::FromPixelPoint(int x, int y, double fx, double fy) const {
   const double sp0 = map.column_sine[size_t(x)], cp0 = map.column_cosine[size_t(x)];
   const double st = st0 * cd + ct0 * sd, ct = ct0 * cd - st0 * sd;
   const double sp = sp0 * ce + cp0 * se, cp = cp0 * ce - sp0 * se;
-  const Vec3 m{st * sp, ct, -st * cp};
-  return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
+  return WorldDirection(st, ct, sp, cp);
 }
 
 Rgb Environment::Pixel(int x, int y) const {

@@ -117,6 +117,8 @@ class Environment {
   // Pixel coordinates (continuous) of a world direction, and back.
   void ToImage(Vec3 direction, double* x, double* y) const;
   Vec3 FromImage(double x, double y) const;
+  // The world direction of map angles theta (from +y) and phi, given their sines and cosines.
+  Vec3 WorldDirection(double sin_theta, double cos_theta, double sin_phi, double cos_phi) const;
   // FromImage(x + fx, y + fy) from the pixel centre's tabled angles (maps at least kCentreTableMinWidth x
   // kCentreTableMinHeight: a pixel spans at most pi / 16 each way).
   Vec3 FromPixelPoint(int x, int y, double fx, double fy) const;

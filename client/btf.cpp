@@ -14,12 +14,12 @@
 #include "client/btf_grid.h"
 #include "client/canvas.h"
 #include "client/commands.h"
+#include "client/image_module.h"
 #include "client/material.h"
 #include "client/progress.h"
 #include "client/rpc.h"
 
 // After protobuf's headers: OpenImageIO's defines bswap_16 alone, which makes protobuf skip its own bswap_32/64.
-#include <OpenImageIO/imageio.h>
 
 namespace loomlight::client {
 namespace {
@@ -344,10 +344,10 @@ std::string image_file(const fs::path& dir, std::size_t view, std::size_t light)
 
 // The header announces one size for every image: the first one's (the server checks the others).
 void set_image_size(const std::string& path, v1::UploadBtfHeader& header) {
-  const auto input = OIIO::ImageInput::open(path);
-  if (!input) throw UsageError("cannot read the image " + path + ": " + OIIO::geterror());
-  header.set_width(static_cast<uint32_t>(input->spec().width));
-  header.set_height(static_cast<uint32_t>(input->spec().height));
+  int width = 0, height = 0;
+  if (std::string error = image_module().image_size(path, &width, &height); !error.empty()) throw UsageError(error);
+  header.set_width(static_cast<uint32_t>(width));
+  header.set_height(static_cast<uint32_t>(height));
 }
 
 int run_upload(const ParsedOptions& options) {

@@ -3,65 +3,36 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <optional>
 #include <stdexcept>
 
-#include <OpenImageIO/imagebuf.h>
-#include <OpenImageIO/imagebufalgo.h>
+#include "client/image_module.h"
 
 namespace loomlight::client {
 namespace {
 
-namespace algo = OIIO::ImageBufAlgo;
-
 constexpr double kDash = 10, kGap = 7;
-
-// OpenImageIO's default font is often not installed; a few common system fonts are tried after it.
-const std::optional<std::string>& text_font() {
-  static const std::optional<std::string> font = [] () -> std::optional<std::string> {
-    for (const char* name : {"", "DejaVuSans", "LiberationSans-Regular", "FreeSans"}) {
-      if (algo::text_size("0", kLabelFont, name).defined()) return name;
-      OIIO::geterror();  // discard the failure so it is not reported later
-    }
-    return std::nullopt;
-  }();
-  return font;
-}
 
 int px(double v) { return static_cast<int>(std::lround(v)); }
 Point lerp(Point a, Point b, double t) { return {a.x + (b.x - a.x) * t, a.y + (b.y - a.y) * t}; }
 
-algo::TextAlignX to_oiio_x(Align a) {
-  return a == Align::kStart ? algo::TextAlignX::Left : a == Align::kEnd ? algo::TextAlignX::Right : algo::TextAlignX::Center;
-}
-algo::TextAlignY to_oiio_y(Align a) {
-  return a == Align::kStart ? algo::TextAlignY::Top : a == Align::kEnd ? algo::TextAlignY::Bottom : algo::TextAlignY::Center;
-}
-
 }  // namespace
-
-struct Canvas::Pixels {
-  OIIO::ImageBuf image;
-};
 
 Canvas::Canvas(int width, int height)
     : width_(width * kSupersample),
       height_(height * kSupersample),
       unit_(width_ / kUnitsPerWidth),
-      pixels_(std::make_unique<Pixels>()) {
-  pixels_->image = OIIO::ImageBuf(OIIO::ImageSpec(width_, height_, 3, OIIO::TypeDesc::FLOAT));
-  algo::fill(pixels_->image, kWhite);
-}
+      pixels_(image_module().new_canvas(width_, height_)) {}
 
 Canvas::~Canvas() = default;
+
+bool Canvas::has_font() const { return pixels_->has_font(); }
 
 void Canvas::line(Point a, Point b, const Color& color, double width_units) {
   const double pen = std::max(0.5, 0.5 * width_units * unit_);
   const int reach = static_cast<int>(std::floor(pen));
   for (int dy = -reach; dy <= reach; ++dy)
     for (int dx = -reach; dx <= reach; ++dx)
-      if (dx * dx + dy * dy <= pen * pen)
-        algo::render_line(pixels_->image, px(a.x) + dx, px(a.y) + dy, px(b.x) + dx, px(b.y) + dy, color);
+      if (dx * dx + dy * dy <= pen * pen) pixels_->line(px(a.x) + dx, px(a.y) + dy, px(b.x) + dx, px(b.y) + dy, color);
 }
 
 void Canvas::dashed_line(Point a, Point b, const Color& color, double width_units) {
@@ -74,12 +45,8 @@ void Canvas::dashed_line(Point a, Point b, const Color& color, double width_unit
 }
 
 void Canvas::text(Point p, const std::string& text, int font_units, const Color& color, Align align_x, Align align_y) {
-  const auto& font = text_font();
-  if (!font || text.empty()) return;
-  const int size = static_cast<int>(std::lround(font_units * unit_));
-  if (!algo::render_text(pixels_->image, px(p.x), px(p.y), text, size, *font, color, to_oiio_x(align_x),
-                         to_oiio_y(align_y)))
-    pixels_->image.geterror();
+  if (text.empty()) return;
+  pixels_->text(px(p.x), px(p.y), text, static_cast<int>(std::lround(font_units * unit_)), color, align_x, align_y);
 }
 
 void Canvas::image(Point top_left, Point bottom_right, int w, int h, const std::vector<float>& rgb) {
@@ -90,16 +57,14 @@ void Canvas::image(Point top_left, Point bottom_right, int w, int h, const std::
     const int row = std::min(h - 1, (y - px(top_left.y)) * h / std::max(1, px(bottom_right.y) - px(top_left.y)));
     for (int x = x0; x < x1; ++x) {
       const int col = std::min(w - 1, (x - px(top_left.x)) * w / std::max(1, px(bottom_right.x) - px(top_left.x)));
-      pixels_->image.setpixel(x, y, &rgb[3 * (size_t(row) * w + col)], 3);
+      pixels_->set_pixel(x, y, &rgb[3 * (size_t(row) * w + col)]);
     }
   }
 }
 
 void Canvas::write(const std::string& path) const {
-  const OIIO::ROI out(0, width_ / kSupersample, 0, height_ / kSupersample, 0, 1, 0, 3);
-  const OIIO::ImageBuf small = algo::resize(pixels_->image, "", 0.0f, out);
-  if (small.has_error() || !small.write(path, OIIO::TypeDesc::UINT8))
-    throw std::runtime_error("cannot write " + path + ": " + small.geterror());
+  if (std::string error = pixels_->write(path, width_ / kSupersample, height_ / kSupersample); !error.empty())
+    throw std::runtime_error(error);
 }
 
 void draw_title(Canvas& canvas, const std::string& title, const std::vector<std::string>& notes, double top_units) {
@@ -110,7 +75,7 @@ void draw_title(Canvas& canvas, const std::string& title, const std::vector<std:
 }
 
 void draw_legend(Canvas& canvas, const std::vector<LegendEntry>& legend, double top_units) {
-  if (!text_font()) return;  // swatches without their text would say nothing
+  if (!canvas.has_font()) return;  // swatches without their text would say nothing
   const double u = canvas.unit(), x = canvas.width() - 180 * u;
   for (std::size_t i = 0; i < legend.size(); ++i) {
     const double y = (top_units + 20 + 20 * i) * u;

@@ -1,5 +1,6 @@
 // A drawing surface for the client's plots (polar lobes, line charts, image views): lines, dashed lines,
-// text, pixel images, a title block, a legend and line-chart axes, written as PNG through OpenImageIO.
+// text, pixel images, a title block, a legend and line-chart axes, written as PNG through OpenImageIO (in the
+// image module, client/image_module.h, loaded by the first canvas).
 // Lengths are in "units" of 1/800 of the image width, so a plot looks the same at any size.
 #pragma once
 
@@ -36,14 +37,17 @@ inline constexpr Color kChannelColors[3] = {{0.85f, 0.10f, 0.10f}, {0.10f, 0.60f
 
 enum class Align { kStart, kCenter, kEnd };
 
+class CanvasPixels;  // client/image_module.h
+
 class Canvas {
  public:
-  // An image of width x height output pixels, white.
+  // An image of width x height output pixels, white. Throws std::runtime_error if the image module is missing.
   Canvas(int width, int height);
   ~Canvas();
   int width() const { return width_; }    // supersampled pixels
   int height() const { return height_; }
   double unit() const { return unit_; }   // supersampled pixels per unit
+  bool has_font() const;                  // text is drawn (a font is installed)
 
   // render_line draws one pixel wide; a wider line is the union of offset copies within the pen radius.
   void line(Point a, Point b, const Color& color, double width_units);
@@ -59,10 +63,9 @@ class Canvas {
   void write(const std::string& path) const;
 
  private:
-  struct Pixels;
   int width_, height_;
   double unit_;
-  std::unique_ptr<Pixels> pixels_;
+  std::unique_ptr<CanvasPixels> pixels_;
 };
 
 // Title and notes in the top-left corner of a panel whose top edge is `top_units` below the canvas's top.

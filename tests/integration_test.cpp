@@ -182,6 +182,40 @@ TEST_F(Integration, ClientPlotWritesAPolarLobePng) {
   ExpectCurvesDrawn(image);
 }
 
+// A shell command's exit status and output (stdout and stderr).
+int RunShell(const std::string& command, std::string* output) {
+  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
+  output->clear();
+  char buffer[4096];
+  while (pipe && std::fgets(buffer, sizeof buffer, pipe)) *output += buffer;
+  const int status = pipe ? pclose(pipe) : -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+// OpenImageIO (some 300 shared libraries, ~0.5 s of loading) is not loaded when the CLI starts: only its image
+// module links it (client/image_module.h). LD_TRACE_LOADED_OBJECTS makes the dynamic loader list what it loads.
+TEST(Client, StartsWithoutLoadingOpenImageIO) {
+  std::string out;
+  ASSERT_EQ(RunShell(std::string("LD_TRACE_LOADED_OBJECTS=1 ") + LOOMLIGHT_CLIENT_BINARY, &out), 0) << out;
+  EXPECT_NE(out.find("libgrpc++"), std::string::npos) << out;  // the listing is the client's
+  EXPECT_EQ(out.find("OpenImageIO"), std::string::npos) << out;
+}
+
+// A client copied without its image module still runs commands that need no image, and a plot fails with an
+// error naming the module it looked for.
+TEST_F(Integration, ClientWithoutItsImageModuleSaysWhichFileAPlotNeeds) {
+  const std::string dir = ::testing::TempDir() + "/client_alone";
+  std::string out;
+  ASSERT_EQ(RunShell("rm -rf " + dir + " && mkdir -p " + dir + " && cp " + LOOMLIGHT_CLIENT_BINARY + " " + dir, &out), 0)
+      << out;
+  const std::string client = dir + "/loomlight --server " + server_->address() + " ";
+  EXPECT_EQ(RunShell(client + "health", &out), 0) << out;
+  EXPECT_EQ(RunShell(client + "plot --preset velvet --size 200 --out " + dir + "/lobe.png", &out), 1) << out;
+  EXPECT_NE(out.find("client_alone/libloomlight_images.so"), std::string::npos) << out;
+  EXPECT_NE(out.find("cannot be loaded"), std::string::npos) << out;
+  EXPECT_FALSE(std::ifstream(dir + "/lobe.png").good());
+}
+
 // The "LOBE,THETA_I,ANGLE,VALUE" lines of `plot` (full circle, fiber), by lobe name.
 struct Peak {
   double theta_i, angle, value;

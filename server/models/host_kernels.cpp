@@ -1,25 +1,18 @@
 #include "server/models/host_kernels.h"
 
 #include <algorithm>
-#include <atomic>
 #include <thread>
+
+#include "server/runtime/parallel_for.h"
 
 namespace loomlight::models::host {
 namespace {
-// Hands out chunks of queries on demand, so a thread slowed by another process does not hold back the rest
-// (fixed equal shares would halve the baseline whenever one core is busy elsewhere).
+// Chunks of queries taken as threads come free (runtime::ParallelFor), on every hardware thread.
 template <class Body>
-void ParallelFor(size_t n, Body body) {
+void ParallelChunks(size_t n, Body body) {
   constexpr size_t kChunk = 1024;
-  std::atomic<size_t> next{0};
-  auto work = [&] {
-    for (size_t begin; (begin = next.fetch_add(kChunk)) < n;) body(begin, std::min(n, begin + kChunk));
-  };
-  std::vector<std::thread> threads;
-  const size_t wanted = std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), (n + kChunk - 1) / kChunk);
-  for (size_t t = 1; t < wanted; ++t) threads.emplace_back(work);
-  work();
-  for (auto& t : threads) t.join();
+  runtime::ParallelFor((n + kChunk - 1) / kChunk, int(std::max(1u, std::thread::hardware_concurrency())), {},
+                       [&](size_t c) { body(c * kChunk, std::min(n, (c + 1) * kChunk)); });
 }
 }  // namespace
 
@@ -36,7 +29,7 @@ void RunReference(const HostKernel& kernel, const double* material, int uniform,
 
 void RunNative(const HostKernel& kernel, const float* material, int uniform, const float* wi, const float* wo,
                const float* uv, size_t n, float* f) {
-  ParallelFor(n, [&](size_t begin, size_t end) { kernel.native(material, uniform, wi, wo, uv, begin, end, f); });
+  ParallelChunks(n, [&](size_t begin, size_t end) { kernel.native(material, uniform, wi, wo, uv, begin, end, f); });
 }
 
 }  // namespace loomlight::models::host

@@ -6,9 +6,9 @@
 #include <cstdio>
 #include <numeric>
 #include <random>
-#include <thread>
 
 #include "server/models/quote.h"
+#include "server/runtime/parallel_for.h"
 
 namespace loomlight::yarn {
 namespace {
@@ -327,23 +327,6 @@ std::vector<Piece> Pieces(const YarnParams& p, const FiberPlan& plan, double len
   return pieces;
 }
 
-// Runs fn(i) for i in [0, n) on up to `threads` threads, i interleaved across them. Each i must write only
-// its own results, so the outcome does not depend on the thread count.
-template <typename Fn>
-void ParallelFor(size_t n, int threads, Fn fn) {
-  const size_t workers = std::min<size_t>(size_t(std::max(threads, 1)), std::max<size_t>(n, 1));
-  if (workers <= 1) {
-    for (size_t i = 0; i < n; ++i) fn(i);
-    return;
-  }
-  std::vector<std::thread> pool;
-  for (size_t w = 0; w < workers; ++w)
-    pool.emplace_back([&, w] {
-      for (size_t i = w; i < n; i += workers) fn(i);
-    });
-  for (std::thread& t : pool) t.join();
-}
-
 // One task of the geometry phase: a ply's core, or one fiber's pieces, written to their own slots.
 struct Task {
   int ply = 0;
@@ -512,7 +495,7 @@ std::string GenerateYarn(const YarnParams& p, const YarnCurve& curve, const Deta
 
   // Every fiber's place in its ply's cross-section (Sec. 2.2, D(R) by rejection from the disk).
   std::vector<FiberPlan> plans(static_cast<size_t>(fibers));
-  ParallelFor(plans.size(), options.threads, [&](size_t f) {
+  runtime::ParallelFor(plans.size(), options.threads, {}, [&](size_t f) {
     FiberPlan& plan = plans[f];
     plan.ply = int(f / size_t(p.fibers_per_ply));
     plan.index = int(f % size_t(p.fibers_per_ply));
@@ -650,7 +633,7 @@ std::string GenerateYarn(const YarnParams& p, const YarnCurve& curve, const Deta
     }
   };
   std::atomic<bool> stopped{false};
-  ParallelFor(tasks.size(), options.threads, [&](size_t t) {
+  runtime::ParallelFor(tasks.size(), options.threads, {}, [&](size_t t) {
     if (stopped.load(std::memory_order_relaxed)) return;
     if (options.stop && options.stop()) {
       stopped = true;

@@ -3,9 +3,9 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <thread>
+
+#include "server/runtime/parallel_for.h"
 
 namespace loomlight::models::btf {
 namespace {
@@ -24,27 +24,6 @@ struct Header {
   explicit Header(const float* mat)
       : kept(int(mat[0])), directions(int(mat[4])), weights(size_t(bt_float::bt_weights_offset(mat))) {}
 };
-
-// Runs work(i) for i in [0, count) on `threads` threads; false when `cancelled` stopped it.
-bool ParallelFor(size_t count, int threads, const std::function<bool()>& cancelled,
-                 const std::function<void(size_t)>& work) {
-  std::atomic<size_t> next{0};
-  std::atomic<bool> stop{false};
-  auto run = [&] {
-    for (size_t i; !stop && (i = next++) < count;) {
-      if (cancelled && cancelled()) {
-        stop = true;
-        return;
-      }
-      work(i);
-    }
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < std::max(1, threads); ++t) pool.emplace_back(run);
-  run();
-  for (std::thread& t : pool) t.join();
-  return !stop;
-}
 
 double Dot(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
@@ -75,7 +54,7 @@ std::shared_ptr<const EnvironmentFold> EnvironmentFold::Make(std::shared_ptr<con
   // g_i per frame (rows 3 f + channel): the environment weighed by each light direction's interpolation weight
   // and the cosine, summed over the directions above the frame's horizon that it sees.
   Eigen::MatrixXd g = Eigen::MatrixXd::Zero(Eigen::Index(3 * count), n);
-  const bool done = ParallelFor(count, threads, cancelled, [&](size_t f) {
+  const bool done = runtime::ParallelFor(count, threads, cancelled, [&](size_t f) {
     const FoldFrame& frame = frames[f];
     for (const EnvironmentDirection& e : environment) {
       const double* d = e.direction;
@@ -100,7 +79,7 @@ std::shared_ptr<const EnvironmentFold> EnvironmentFold::Make(std::shared_ptr<con
   fold->coefficients_.assign(count * size_t(n) * 3 * size_t(stride), 0.0f);
   const Eigen::VectorXd sums = g.rowwise().sum();
   using RowMajor = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-  const bool folded = ParallelFor(size_t(n), threads, cancelled, [&](size_t j) {
+  const bool folded = runtime::ParallelFor(size_t(n), threads, cancelled, [&](size_t j) {
     Eigen::MatrixXd gamma;
     if (c > 0) {
       const Eigen::Map<const RowMajor, 0, Eigen::OuterStride<>> p(mat + h.weights + j * size_t(n) * h.kept, n, c,

@@ -309,7 +309,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     s.object_transmits.assign(s.scene.objects.size(), render::Transmits(info));
     variants_ = std::make_unique<render::CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
     error_target_ = r.error_target() > 0 ? r.error_target() : render::kDefaultErrorTarget;
-    if (std::string e = render::ChooseFidelity(s, info, *variants_, error_target_, r.force_full_fidelity(), &plan_);
+    if (std::string e = render::ChooseFidelity(s, info, *variants_, error_target_, r.force_full_fidelity(), &plan_,
+                                                int(kTraceThreads));
         !e.empty()) {
       status_ = {grpc::StatusCode::INTERNAL, e};
       return;

@@ -99,9 +99,10 @@ struct FidelityPlan {
   yarn::OcclusionMethod fiber_occlusion = yarn::OcclusionMethod::kTraced;
 };
 
-// Fills *plan for every object of setup.scene. Returns "" or why a variant could not be made (internal).
+// Fills *plan for every object of setup.scene, its pilots on up to `threads` threads. Returns "" or why a
+// variant could not be made (internal).
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& material, MaterialVariants& variants,
-                           double error_target, bool force_full, FidelityPlan* plan);
+                           double error_target, bool force_full, FidelityPlan* plan, int threads = 1);
 
 // btf_environment, where it may fold (FOLDED, or AUTO): the environment folded into every object's `btf`
 // material (`cache`'s fold for this setup when it has one, else built and kept there; may be null), its error

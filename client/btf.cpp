@@ -19,8 +19,6 @@
 #include "client/progress.h"
 #include "client/rpc.h"
 
-// After protobuf's headers: OpenImageIO's defines bswap_16 alone, which makes protobuf skip its own bswap_32/64.
-
 namespace loomlight::client {
 namespace {
 

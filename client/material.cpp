@@ -48,6 +48,11 @@ v1::Param parse_param(const std::string& text, const std::string& option) {
   return param;
 }
 
+void yarn_from_options(const ParsedOptions& options, v1::Yarn* yarn) {
+  if (auto preset = options.last("yarn")) yarn->set_preset(*preset);
+  for (const auto& entry : options.matching({"yarn-param"})) *yarn->add_params() = parse_param(entry.value, "--yarn-param");
+}
+
 void write_local_file(const std::string& path, const std::string& bytes) {
   std::ofstream file(path, std::ios::binary);
   file.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));

@@ -21,6 +21,10 @@ loomlight::v1::EvaluateRequest material_request(const ParsedOptions& options);
 // "NAME=V1[,V2...]" as a Param; a UsageError naming `option` when malformed.
 loomlight::v1::Param parse_param(const std::string& text, const std::string& option);
 
+// --yarn PRESET and --yarn-param NAME=V (repeatable) into *yarn: the procedural yarn of `yarn` and of
+// Render's fiber scenes.
+void yarn_from_options(const ParsedOptions& options, loomlight::v1::Yarn* yarn);
+
 // The bytes of a file on the client's machine (sent to the server as data); a UsageError naming `option`
 // when it cannot be read.
 std::string read_local_file(const std::string& path, const std::string& option);

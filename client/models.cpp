@@ -69,12 +69,15 @@ std::string range_text(const v1::ParamSchema& p) {
   return out.str();
 }
 
-void print_parameters(std::ostream& out, const v1::ModelInfo& model) {
+using ParamSchemas = google::protobuf::RepeatedPtrField<v1::ParamSchema>;
+using Presets = google::protobuf::RepeatedPtrField<v1::Preset>;
+
+void print_parameters(std::ostream& out, const ParamSchemas& params) {
   std::vector<Row> rows = {{"NAME", "TYPE", "UNIT", "RANGE", "COUNT", "DEFAULT", "DESCRIPTION"}};
-  for (const v1::ParamSchema& p : model.params())
+  for (const v1::ParamSchema& p : params)
     rows.push_back({p.name(), type_name(p.type()), p.unit().empty() ? "-" : p.unit(), range_text(p), count_text(p),
                     format_values(p.default_values(), kMaxListedValues), p.description()});
-  if (model.params().empty()) {
+  if (params.empty()) {
     out << "  parameters: none\n";
     return;
   }
@@ -83,12 +86,12 @@ void print_parameters(std::ostream& out, const v1::ModelInfo& model) {
 }
 
 // With `values`, every parameter of each preset follows its line.
-void print_presets(std::ostream& out, const v1::ModelInfo& model, bool values) {
-  if (model.presets().empty()) return;
+void print_presets(std::ostream& out, const Presets& presets, bool values) {
+  if (presets.empty()) return;
   std::size_t width = 0;
-  for (const v1::Preset& preset : model.presets()) width = std::max(width, preset.name().size());
+  for (const v1::Preset& preset : presets) width = std::max(width, preset.name().size());
   out << "  presets:\n";
-  for (const v1::Preset& preset : model.presets()) {
+  for (const v1::Preset& preset : presets) {
     out << "    " << std::left << std::setw(static_cast<int>(width) + 2) << preset.name() << preset.description()
         << '\n';
     if (!values) continue;
@@ -102,12 +105,12 @@ void print_model(std::ostream& out, const v1::ModelInfo& model, bool preset_valu
   out << "\nmodel " << model.name() << ": " << model.description() << '\n';
   out << "  " << (model.transmission() ? "reflection and transmission" : "reflection only") << ", "
       << (model.spatially_varying() ? "spatially varying (takes uv)" : "uniform") << '\n';
-  print_parameters(out, model);
+  print_parameters(out, model.params());
   if (model.has_accuracy_knob() && !model.accuracy_knob().param().empty())
     out << "  accuracy knob: " << model.accuracy_knob().param() << " = "
         << format_values(model.accuracy_knob().settings(), kAllValues) << " (cheapest to exact; "
         << model.accuracy_knob().error_estimate() << ")\n";
-  print_presets(out, model, preset_values);
+  print_presets(out, model.presets(), preset_values);
 }
 
 int run_models(const ParsedOptions& options) {
@@ -119,6 +122,14 @@ int run_models(const ParsedOptions& options) {
   for (const std::string& name : response.environment_maps()) std::cout << " " << name;
   std::cout << (response.environment_maps().empty() ? " none (the server has no --environment-dir)\n" : "\n");
   for (const v1::ModelInfo& model : response.models()) print_model(std::cout, model, options.has("verbose"));
+  const v1::YarnModelInfo& yarn = response.yarn();
+  if (!yarn.params().empty()) {
+    std::cout << "\nyarn (fiber scenes: render --yarn, --yarn-param; the yarn command): " << yarn.description()
+              << "\n  at most " << yarn.max_fibers() << " fibers and " << yarn.max_control_points()
+              << " control points per yarn call\n";
+    print_parameters(std::cout, yarn.params());
+    print_presets(std::cout, yarn.presets(), options.has("verbose"));
+  }
   return 0;
 }
 
@@ -128,7 +139,7 @@ const Command& models_command() {
   static const Command command = {
       "models",
       "[--verbose]",
-      "list the models with their parameter schemas and presets",
+      "list the models with their parameter schemas and presets, and the procedural yarn's",
       "Ranges are inclusive; COUNT is the number of values a parameter takes. Angles are in degrees.",
       {{"verbose", "", "also list every parameter value of each preset"}},
       run_models,

@@ -129,7 +129,7 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
     request.set_error_target(parse_number(*target_error, "--error-target"));
   request.set_force_full_fidelity(options.has("full-fidelity"));
   if (auto exposure = options.last("exposure")) request.set_exposure(parse_number(*exposure, "--exposure"));
-  if (auto yarn = options.last("yarn")) request.mutable_yarn()->set_preset(*yarn);
+  if (options.has("yarn") || options.has("yarn-param")) yarn_from_options(options, request.mutable_yarn());
   if (auto weave = options.last("weave")) request.mutable_woven()->mutable_weave()->set_preset(*weave);
   if (auto v = enum_option(options, "fiber-detail", "FIBER_DETAIL_", v1::FiberDetail_Parse)) request.set_fiber_detail(*v);
   if (auto v = enum_option(options, "fiber-shadows", "FIBER_SHADOWS_", v1::FiberShadows_Parse))
@@ -201,6 +201,7 @@ OptionList render_options() {
   options.insert(options.end(), {
       {"scene", "NAME", "sphere (default), cylinders, swatch, curtain; fiber scenes: yarn, woven-patch"},
       {"yarn", "PRESET", "fiber scenes: the yarn, cotton1 (default), cotton2, polyester1, rayon2 or silk1"},
+      {"yarn-param", "NAME=V", "fiber scenes: override a yarn parameter (repeatable; names: `loomlight models`)"},
       {"weave", "PRESET", "woven-patch: lay out warp and weft by this woven preset's pattern (default cotton_twill)"},
       {"fiber-detail", "auto|full|cores", "fiber scenes: Eq. 4's level of detail (auto: from the pixel footprint)"},
       {"fiber-shadows", "auto|traced|slices", "fiber scenes: light through the fibers traced, or the self-shadow slices"},

@@ -27,9 +27,7 @@ const char* fiber_type_name(int type) {
 v1::YarnGeometryRequest yarn_request(const ParsedOptions& options) {
   v1::YarnGeometryRequest request;
   v1::Yarn& yarn = *request.mutable_yarn();
-  if (auto preset = options.last("yarn")) yarn.set_preset(*preset);
-  for (const auto& entry : options.matching({"yarn-param"}))
-    *yarn.add_params() = parse_param(entry.value, "--yarn-param");
+  yarn_from_options(options, &yarn);
   if (auto seed = options.last("seed")) {
     const double s = parse_number(*seed, "--seed");
     if (!(s >= 0 && s <= 9007199254740992.0) || s != static_cast<double>(static_cast<uint64_t>(s)))

@@ -216,6 +216,24 @@ TEST_F(Integration, ClientWithoutItsImageModuleSaysWhichFileAPlotNeeds) {
   EXPECT_FALSE(std::ifstream(dir + "/lobe.png").good());
 }
 
+// `models` lists the procedural yarn's parameters after the models, and `render --yarn-param` sends them: a
+// bad value comes back naming its field, a good one renders.
+TEST_F(Integration, ClientListsAndSetsYarnParameters) {
+  std::string out;
+  ASSERT_EQ(testing::RunClient(server_->address(), "models", &out), 0) << out;
+  const size_t yarn = out.find("\nyarn (fiber scenes");
+  ASSERT_NE(yarn, std::string::npos) << out;
+  EXPECT_NE(out.find("fibers_per_ply", yarn), std::string::npos) << out;
+  EXPECT_NE(out.find("cotton1", yarn), std::string::npos) << out;
+  const std::string path = ::testing::TempDir() + "/yarn_param.exr";
+  const std::string render = "render --preset cotton --scene yarn --size 32x16 --spp 1 --out " + path;
+  EXPECT_EQ(testing::RunClient(server_->address(), render + " --yarn-param fibers_per_ply=0", &out), 1) << out;
+  EXPECT_NE(out.find("yarn.fibers_per_ply"), std::string::npos) << out;
+  EXPECT_EQ(testing::RunClient(server_->address(), render + " --yarn cotton2 --yarn-param fibers_per_ply=40", &out), 0)
+      << out;
+  EXPECT_NE(out.find("fiber curves"), std::string::npos) << out;
+}
+
 // The "LOBE,THETA_I,ANGLE,VALUE" lines of `plot` (full circle, fiber), by lobe name.
 struct Peak {
   double theta_i, angle, value;

@@ -14,7 +14,7 @@ constexpr double kDegree = std::numbers::pi / 180;
 // Light samples this close to the surface plane carry no light (f is 0 there for every model).
 constexpr double kMinCosine = 1e-6;
 // SamplePoints' dimension pairs: the pixel position, then one per sampling strategy.
-enum Pair : uint32_t { kPixelPair, kBrightPair, kRestPair, kMaterialPair, kMaterialChoicePair, kAmbientPair, kCoreDepthPair };
+enum Pair : uint32_t { kPixelPair, kBrightPair, kRestPair, kMaterialPair, kMaterialChoicePair, kAmbientPair, kCoreDepthPair, kCoreNormalPair };
 
 float WrapUnit(double t) {
   const float f = static_cast<float>(t - std::floor(t));
@@ -194,9 +194,25 @@ class CoreBundle {
 // all of a sample's rays: each estimate stays unbiased).
 constexpr double kRouletteTransmittance = 0.05;
 
+// The frame of a thin fiber along `axis` met by a ray along `direction` at offset h (uniform in [-1, 1])
+// across it: its normal on the side facing the ray, sqrt(1 - h^2) of the way toward the ray, h sideways.
+Frame ThinFiberFrame(Vec3 axis, Vec3 direction, double h) {
+  Vec3 toward = -1.0 * direction - Dot(-1.0 * direction, axis) * axis;
+  const double m = Length(toward);
+  toward = m > 1e-9 ? (1 / m) * toward : Cross(axis, Length(Cross(axis, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});
+  const Vec3 side = Cross(axis, toward);
+  const Vec3 n = std::sqrt(std::max(0.0, 1 - h * h)) * toward + h * side;
+  return {axis, Cross(n, axis), n};
+}
+
 void ShadeFiber(const RenderSetup& setup, const Hit& hit, Vec3 direction, const SamplePoints& points,
                 const EnvironmentDraws* drawn, ShadingPoint* point) {
-  const Frame frame{hit.tangent_s, hit.tangent_t, hit.normal};
+  // A core's fiber met inside the bundle is shaded about its own surface normal, drawn as a ray meets a thin
+  // fiber, not the rod's outer normal: on the rod the side facing the light is also the one its light reaches
+  // through the least of the bundle, a correlation the fibers it stands for do not have.
+  const Frame frame = hit.fiber_core && hit.fiber_core_free_path > 0
+                          ? ThinFiberFrame(hit.fiber_axis, direction, 2 * points.Get1D(kCoreNormalPair) - 1)
+                          : Frame{hit.tangent_s, hit.tangent_t, hit.normal};
   point->wo = frame.ToLocal(-direction);
   point->wo.z = std::max(point->wo.z, 0.0);  // the normal faces the ray
   point->axis = frame.ToLocal(hit.fiber_axis);

@@ -25,9 +25,9 @@ const ImageModule& image_module() {
       return;
     }
     using Entry = const ImageModule* (*)();
-    const auto entry = reinterpret_cast<Entry>(dlsym(handle, "loomlight_image_module"));
+    const auto entry = reinterpret_cast<Entry>(dlsym(handle, LOOMLIGHT_IMAGE_MODULE_ENTRY));
     if (entry == nullptr || (module = entry()) == nullptr)
-      error = path + " is not the loomlight image module (no loomlight_image_module)";
+      error = path + " is not this client's image module (no " LOOMLIGHT_IMAGE_MODULE_ENTRY "): copy the one built with it";
   });
   if (module == nullptr) throw std::runtime_error(error);
   return *module;

@@ -40,5 +40,8 @@ const ImageModule& image_module();
 
 }  // namespace loomlight::client
 
-// The module's one export: its ImageModule, alive as long as the process.
-extern "C" const loomlight::client::ImageModule* loomlight_image_module();
+// The module's one export: its ImageModule, alive as long as the process. The interface's version is in the
+// name, so a module built for another layout of these classes (a stale copy beside a newer CLI) is refused by
+// name instead of called. Change both together whenever CanvasPixels or ImageModule change.
+#define LOOMLIGHT_IMAGE_MODULE_ENTRY "loomlight_image_module_v1"
+extern "C" const loomlight::client::ImageModule* loomlight_image_module_v1();

@@ -77,7 +77,7 @@ class OiioImageModule final : public ImageModule {
 }  // namespace
 }  // namespace loomlight::client
 
-extern "C" const loomlight::client::ImageModule* loomlight_image_module() {
+extern "C" const loomlight::client::ImageModule* loomlight_image_module_v1() {
   static const loomlight::client::OiioImageModule module;
   return &module;
 }

@@ -202,7 +202,7 @@ TEST(Client, StartsWithoutLoadingOpenImageIO) {
 }
 
 // A client copied without its image module still runs commands that need no image, and a plot fails with an
-// error naming the module it looked for.
+// error naming the module it looked for; beside a module of another interface version, likewise.
 TEST_F(Integration, ClientWithoutItsImageModuleSaysWhichFileAPlotNeeds) {
   const std::string dir = ::testing::TempDir() + "/client_alone";
   std::string out;
@@ -213,6 +213,11 @@ TEST_F(Integration, ClientWithoutItsImageModuleSaysWhichFileAPlotNeeds) {
   EXPECT_EQ(RunShell(client + "plot --preset velvet --size 200 --out " + dir + "/lobe.png", &out), 1) << out;
   EXPECT_NE(out.find("client_alone/libloomlight_images.so"), std::string::npos) << out;
   EXPECT_NE(out.find("cannot be loaded"), std::string::npos) << out;
+  EXPECT_FALSE(std::ifstream(dir + "/lobe.png").good());
+  // A module of another interface version beside it is refused by its entry's name, not called.
+  ASSERT_EQ(RunShell(std::string("cp ") + STALE_IMAGE_MODULE + " " + dir + "/libloomlight_images.so", &out), 0) << out;
+  EXPECT_EQ(RunShell(client + "plot --preset velvet --size 200 --out " + dir + "/lobe.png", &out), 1) << out;
+  EXPECT_NE(out.find("is not this client's image module (no loomlight_image_module_v1)"), std::string::npos) << out;
   EXPECT_FALSE(std::ifstream(dir + "/lobe.png").good());
 }
 

@@ -216,7 +216,7 @@ void FiberHitToHit(const yarn::FiberHit& h, double distance, Vec3 position, int 
   hit->fiber_core_fiber_width = h.core_fiber_width;
   // The axis made perpendicular to the normal (they are perpendicular on a straight fiber's side).
   Vec3 along = hit->fiber_axis - Dot(hit->fiber_axis, hit->normal) * hit->normal;
-  if (Length(along) < 1e-9) along = Cross(hit->normal, Length(Cross(hit->normal, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});
+  if (Length(along) < 1e-9) along = AnyPerpendicular(hit->normal);
   hit->tangent_s = Normalize(along);
   hit->tangent_t = Cross(hit->normal, hit->tangent_s);
   hit->s = hit->t = 0;

@@ -197,9 +197,9 @@ constexpr double kRouletteTransmittance = 0.05;
 // The frame of a thin fiber along `axis` met by a ray along `direction` at offset h (uniform in [-1, 1])
 // across it: its normal on the side facing the ray, sqrt(1 - h^2) of the way toward the ray, h sideways.
 Frame ThinFiberFrame(Vec3 axis, Vec3 direction, double h) {
-  Vec3 toward = -1.0 * direction - Dot(-1.0 * direction, axis) * axis;
+  Vec3 toward = -direction + Dot(direction, axis) * axis;
   const double m = Length(toward);
-  toward = m > 1e-9 ? (1 / m) * toward : Cross(axis, Length(Cross(axis, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0});
+  toward = m > 1e-9 ? (1 / m) * toward : AnyPerpendicular(axis);
   const Vec3 side = Cross(axis, toward);
   const Vec3 n = std::sqrt(std::max(0.0, 1 - h * h)) * toward + h * side;
   return {axis, Cross(n, axis), n};

@@ -23,6 +23,10 @@ inline Vec3 Normalize(Vec3 a) {
   const double len = Length(a);
   return len > 0 ? (1.0 / len) * a : Vec3{};
 }
+// A unit vector perpendicular to the unit a (a's cross product with whichever of +z and +x is not along it).
+inline Vec3 AnyPerpendicular(Vec3 a) {
+  return Normalize(Cross(a, Length(Cross(a, {0, 0, 1})) > 1e-3 ? Vec3{0, 0, 1} : Vec3{1, 0, 0}));
+}
 inline bool IsFinite(Vec3 a) { return std::isfinite(a.x) && std::isfinite(a.y) && std::isfinite(a.z); }
 
 using Rgb = Vec3;  // linear RGB radiance, irradiance or weights

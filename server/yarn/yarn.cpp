@@ -1,7 +1,6 @@
 #include "server/yarn/yarn.h"
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <numeric>
@@ -632,16 +631,8 @@ std::string GenerateYarn(const YarnParams& p, const YarnCurve& curve, const Deta
       }
     }
   };
-  std::atomic<bool> stopped{false};
-  runtime::ParallelFor(tasks.size(), options.threads, {}, [&](size_t t) {
-    if (stopped.load(std::memory_order_relaxed)) return;
-    if (options.stop && options.stop()) {
-      stopped = true;
-      return;
-    }
-    run_task(tasks[t]);
-  });
-  if (stopped) return "cancelled";
+  if (!runtime::ParallelFor(tasks.size(), options.threads, options.stop, [&](size_t t) { run_task(tasks[t]); }))
+    return "cancelled";
   out->fibers = std::move(result);
   out->control_points = points;
   out->lambda = lod.lambda;

@@ -35,6 +35,8 @@ Sizes Sizes::Quick() {
   s.cpu_calls = 200;
   s.cpu_seconds = 0.3;
   s.cpu_warmup_calls = 20;
+  s.concurrent_seconds = 0.3;
+  s.concurrent_rounds = 3;
   s.cpu_idle_seconds = 0.2;
   s.btf_texels = 16;
   s.btf_queries = 20000;

@@ -25,6 +25,10 @@ struct Sizes {
   double cpu_seconds = 3.0;
   int cpu_rounds = 5;
   size_t cpu_warmup_calls = 200;  // of each kind, before the first round
+  // The pinned 64-client throughput: many short interleaved rounds, so that the machine's drift (rounds of one
+  // transport varied by up to 1.7x within a run of 3 s rounds) falls on every transport alike.
+  double concurrent_seconds = 1.0;
+  int concurrent_rounds = 15;
   double cpu_idle_seconds = 1.0;  // the idle server's own CPU is measured over this long
   int btf_texels = 64;             // BTF asset tile, per side (81 x 81 images of it)
   size_t btf_queries = 2000000;    // random BTF reconstruction queries timed per variant and implementation

@@ -7,7 +7,9 @@
 
 #include <algorithm>
 #include <atomic>
-#include <barrier>
+#include <condition_variable>
+#include <functional>
+#include <mutex>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -74,7 +76,26 @@ class Client {
     return status.ok();
   }
 
+  // The same Evaluate call through gRPC's callback API: `done(ok)` runs on one of gRPC's threads when it ends,
+  // so many calls in flight need no thread each (a blocking thread per call costs the client a context switch
+  // and a completion queue per call).
+  void CallAsync(size_t kind, std::function<void(bool)> done) {
+    auto call = std::make_shared<AsyncCall>();
+    call->ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    loomlight_->async()->Evaluate(&call->ctx, &requests_[kind], &call->response,
+                                  [call, done = std::move(done)](grpc::Status status) {
+                                    if (!status.ok())
+                                      std::fprintf(stderr, "service cpu: call failed: %s\n",
+                                                   status.error_message().c_str());
+                                    done(status.ok());
+                                  });
+  }
+
  private:
+  struct AsyncCall {
+    grpc::ClientContext ctx;
+    v1::EvaluateResponse response;
+  };
   std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<Health::Stub> health_;
   std::unique_ptr<v1::Loomlight::Stub> loomlight_;
@@ -168,7 +189,10 @@ std::vector<Transport> Transports() {
           {"TLS + token",
            {"--tls-cert", kTlsDir + "server.pem", "--tls-key", kTlsDir + "server.key", "--tokens",
             kTlsDir + "tokens.txt"},
-           grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl), grpc::AccessTokenCredentials(kTlsToken))}};
+           grpc::CompositeChannelCredentials(grpc::SslCredentials(ssl), grpc::AccessTokenCredentials(kTlsToken))},
+          // TLS alone (no tokens file, no token sent): what the bearer-token check adds on top of TLS.
+          {"TLS", {"--tls-cert", kTlsDir + "server.pem", "--tls-key", kTlsDir + "server.key"},
+           grpc::SslCredentials(ssl)}};
 }
 
 struct TransportResult {
@@ -233,27 +257,54 @@ class PinnedProcess {
 constexpr int kConcurrentClients = 64;
 constexpr size_t kConcurrentKind = 2;  // Evaluate of 64 queries
 
-// Queries per second of kConcurrentClients threads, each on its own connection, calling Evaluate of 64 queries
-// back to back for `seconds`.
-double ConcurrentRound(std::vector<std::unique_ptr<Client>>& clients, double seconds, size_t* failures) {
+struct RoundRate {
+  double queries_per_second = 0;
+  double server_busy = 0;  // the server's CPU seconds per second of the round (its one CPU: 1 = saturated)
+  double client_busy = 0;  // the same for this process (the clients' CPU)
+};
+
+// Queries per second of the clients, each on its own connection with one Evaluate call of 64 queries in flight,
+// the next started as the last ends, for `seconds`; with how busy the server's and the clients' CPUs were. The
+// calls go through gRPC's callback API so that the clients' side costs as little CPU as it can: with remote
+// clients none of it would be on the server's machine.
+RoundRate ConcurrentRound(std::vector<std::unique_ptr<Client>>& clients, const ChildServer& server, double seconds,
+                          size_t* failures) {
   std::atomic<size_t> calls{0}, failed{0};
-  Clock::time_point start;
-  std::barrier ready(static_cast<std::ptrdiff_t>(clients.size()), [&start]() noexcept { start = Clock::now(); });
-  std::vector<std::thread> threads;
-  for (auto& client : clients)
-    threads.emplace_back([&, c = client.get()] {
-      ready.arrive_and_wait();
-      while (SecondsSince(start) < seconds) (c->Call(kConcurrentKind) ? calls : failed)++;
+  std::mutex mutex;
+  std::condition_variable all_done;
+  size_t running = clients.size();
+  const double server_cpu = server.CpuSeconds(), client_cpu = SelfCpuSeconds();
+  const Clock::time_point start = Clock::now();
+  // One closed loop per client: each completion starts that client's next call until the time is up.
+  std::function<void(Client*)> next = [&](Client* client) {
+    client->CallAsync(kConcurrentKind, [&, client](bool ok) {
+      (ok ? calls : failed)++;
+      if (SecondsSince(start) < seconds) {
+        next(client);
+        return;
+      }
+      std::lock_guard<std::mutex> lock(mutex);
+      if (--running == 0) all_done.notify_one();
     });
-  for (auto& t : threads) t.join();
+  };
+  for (auto& client : clients) next(client.get());
+  {
+    std::unique_lock<std::mutex> lock(mutex);
+    all_done.wait(lock, [&] { return running == 0; });
+  }
+  const double wall = SecondsSince(start);
   *failures += failed.load();
-  return static_cast<double>(calls.load() * kKinds[kConcurrentKind].queries) / SecondsSince(start);
+  RoundRate out;
+  out.queries_per_second = static_cast<double>(calls.load() * kKinds[kConcurrentKind].queries) / wall;
+  out.server_busy = (server.CpuSeconds() - server_cpu) / wall;
+  out.client_busy = (SelfCpuSeconds() - client_cpu) / wall;
+  return out;
 }
 
 struct ConcurrentResult {
   bool ran = false;
   std::string why_not;
-  std::vector<std::vector<double>> rate;  // queries per second, [transport][round]
+  std::vector<std::vector<RoundRate>> rate;  // [transport][round]
   size_t failures = 0;
 };
 
@@ -282,10 +333,10 @@ ConcurrentResult MeasureConcurrent(const std::vector<Transport>& transports, con
       for (size_t i = 0; i < 20; ++i) clients[t].back()->Call(kConcurrentKind);  // connection, handshake, warm-up
     }
   out.rate.resize(transports.size());
-  for (int round = 0; round < sizes.cpu_rounds; ++round)
+  for (int round = 0; round < sizes.concurrent_rounds; ++round)
     for (size_t t = 0; t < transports.size(); ++t) {
       Progress("service cpu, %d clients, %s: round %d\n", kConcurrentClients, transports[t].name.c_str(), round + 1);
-      out.rate[t].push_back(ConcurrentRound(clients[t], sizes.cpu_seconds, &out.failures));
+      out.rate[t].push_back(ConcurrentRound(clients[t], *servers[t], sizes.concurrent_seconds, &out.failures));
     }
   out.ran = true;
   return out;
@@ -319,9 +370,10 @@ std::string ServiceCpuSection(const Sizes& sizes) {
 
   const std::string method =
       "The real `loomlight-server` binary as a child process of the benchmark (`--address 127.0.0.1:0`, default "
-      "options: batching on), so that its CPU time holds nothing of the client's; once in plaintext and once "
-      "with TLS and bearer tokens (`--tls-cert`, `--tls-key`, `--tokens`: the test-only certificate and token "
-      "file of tests/data/tls; the client sends its token on every call but health, which needs none). One "
+      "options: batching on), so that its CPU time holds nothing of the client's; in plaintext, with TLS and "
+      "bearer tokens (`--tls-cert`, `--tls-key`, `--tokens`: the test-only certificate and token file of "
+      "tests/data/tls; the client sends its token on every call but health, which needs none), and with TLS "
+      "alone (no tokens: what the token check adds). One "
       "client thread in the benchmark, on one channel (one TCP connection, its TLS handshake in the warm-up), "
       "calls it back to back: the standard `grpc.health.v1` Health/Check (service \"\", the empty call) and "
       "Evaluate with section 3's request (a microcylinder preset, fp32, default T) of 1 and of 64 random pairs, "
@@ -332,7 +384,7 @@ std::string ServiceCpuSection(const Sizes& sizes) {
       Fixed(sizes.cpu_seconds, 1) + " s, whichever comes first. Server CPU per call is the difference of " +
       results[0].clock_name + " over a round, divided by its calls; the table gives the median round. The idle "
       "server used " + Fixed(1e6 * results[0].idle_rate, 0) + " us of CPU per second in plaintext, " +
-      Fixed(1e6 * results[1].idle_rate, 0) + " with TLS (measured over " + Fixed(sizes.cpu_idle_seconds, 1) +
+      Fixed(1e6 * results[1].idle_rate, 0) + " with TLS and tokens (measured over " + Fixed(sizes.cpu_idle_seconds, 1) +
       " s before the rounds; included in the per-call figures, shown as \"of it idle\"); it ran " +
       std::to_string(results[0].threads) + " threads at the end. Client CPU is the whole benchmark process's.";
   const std::string body =
@@ -348,29 +400,41 @@ std::string ServiceCpuSection(const Sizes& sizes) {
   if (!concurrent.ran) {
     concurrent_block = "\nThe pinned throughput run was skipped: " + concurrent.why_not + ".\n";
   } else {
-    Table rates({"transport", "queries/s (median round)", "rounds min-max", "vs plaintext (median of rounds)"}, 1);
+    Table rates({"transport", "queries/s (median round)", "rounds min-max", "server CPU busy", "clients' CPU busy",
+                 "vs plaintext (median of rounds)"},
+                1);
     std::vector<double> round_ratio;
     for (size_t t = 0; t < transports.size(); ++t) {
-      const std::vector<double>& r = concurrent.rate[t];
-      std::vector<double> ratios;
-      for (size_t i = 0; i < r.size(); ++i) ratios.push_back(r[i] / concurrent.rate[0][i]);
+      std::vector<double> r, server_busy, client_busy, ratios;
+      for (size_t i = 0; i < concurrent.rate[t].size(); ++i) {
+        const RoundRate& round = concurrent.rate[t][i];
+        r.push_back(round.queries_per_second);
+        server_busy.push_back(round.server_busy);
+        client_busy.push_back(round.client_busy);
+        ratios.push_back(round.queries_per_second / concurrent.rate[0][i].queries_per_second);
+      }
       if (t == 1) round_ratio = ratios;
       rates.Add({transports[t].name, Rate(Median(r)),
                  Rate(*std::min_element(r.begin(), r.end())) + "-" + Rate(*std::max_element(r.begin(), r.end())),
+                 Fixed(100 * Median(server_busy), 0) + "%", Fixed(100 * Median(client_busy), 0) + "%",
                  Fixed(Median(ratios), 2)});
     }
     std::string each;
     for (double x : round_ratio) each += (each.empty() ? "" : ", ") + Fixed(x, 2);
     concurrent_block =
         "\n**" + std::to_string(kConcurrentClients) + " clients x 64 queries, the server on a CPU of its own.** "
-        "The same two servers, started again with every thread pinned to CPU 0; the benchmark's " +
-        std::to_string(kConcurrentClients) + " client threads, each on its own connection (its TLS handshake "
-        "before the clock), and every other thread of the benchmark pinned to CPU 1, so that the clients' own "
-        "TLS work is not taken from the server's CPU (as with clients on other machines) and the server's one "
-        "CPU is the bottleneck. Each client calls Evaluate of 64 random pairs back to back; " +
-        std::to_string(sizes.cpu_rounds) + " interleaved rounds of " + Fixed(sizes.cpu_seconds, 1) +
+        "The same servers, started again with every thread pinned to CPU 0; the benchmark's " +
+        std::to_string(kConcurrentClients) + " clients, each on its own connection (its TLS handshake before the "
+        "clock), and every thread of the benchmark pinned to CPU 1, so that the clients' own TLS work is not "
+        "taken from the server's CPU (as with clients on other machines) and the server's one CPU is the "
+        "bottleneck. Each client keeps one Evaluate call of 64 random pairs in flight, starting the next as the "
+        "last ends, through gRPC's callback API (a blocking thread per client spent the clients' CPU on context "
+        "switches, and the clients' CPU, not the server's, was then the limit); " +
+        std::to_string(sizes.concurrent_rounds) + " interleaved rounds of " + Fixed(sizes.concurrent_seconds, 1) +
         " s per transport, " + Count(concurrent.failures) + " calls failed.\n\n" +
-        TableBlock("queries/s higher is better; the ratio is TLS's queries over plaintext's in the same round.",
+        TableBlock("queries/s higher is better; the ratio is TLS's queries over plaintext's in the same round; "
+                   "CPU busy is CPU seconds per second of the round (median round): the server's one CPU at 100% is "
+                   "the bottleneck the figure means, less says the calls waited on something else.",
                    rates) +
         "**Evaluate throughput with TLS and tokens, 64 clients x 64 queries, as a share of plaintext's (median "
         "of the rounds' ratios " + each + "): " + Fixed(Median(round_ratio), 2) +

@@ -56,7 +56,7 @@ struct EvaluateCall : PlanCall<v1::EvaluateRequest, v1::EvaluateResponse> {
                                                             &call->approximation);
       if (!error.empty()) return call->Finish(Invalid(error));
     } else {
-      call->approximation = models::DescribeOwnSettings(*call->material);
+      call->approximation = call->material->own_settings;
     }
     if (std::string error = CheckEvaluateQueries(request, *call->material->model, call->material->transmission != nullptr);
         !error.empty())

@@ -68,6 +68,7 @@ std::string MaterialCache::Get(const v1::Material& material, const Registry& reg
       }
       entry->transmission = std::move(shared_layer);
     }
+    entry->own_settings = DescribeOwnSettings(*entry);
     *out = entry;
     Insert(std::move(key), entry, false);
   }
@@ -133,7 +134,7 @@ std::string MaterialCache::GetWithin(const v1::Material& material, const Registr
   std::shared_ptr<const Entry> base;
   if (std::string error = Get(material, registry, &base); !error.empty()) return error;
   if (error_target <= 0) {
-    *approximation = DescribeOwnSettings(*base);
+    *approximation = base->own_settings;
     *out = std::move(base);
     return "";
   }

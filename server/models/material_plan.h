@@ -28,6 +28,9 @@ struct PreparedMaterial {
   ParamValues values;
   PackedMaterial packed;
   std::shared_ptr<const PreparedMaterial> transmission;  // a curtain's layer (Material.transmission), or null
+  // What Evaluate reports as the approximation when no error target is asked (DescribeOwnSettings), written once
+  // by the material cache: its two snprintf on every call were ~1% of a small Evaluate's server CPU.
+  std::string own_settings;
 
   // The model's estimated error at each accuracy-knob setting for this material (Model::KnobErrors), measured
   // on first use and kept.

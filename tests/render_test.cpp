@@ -665,8 +665,12 @@ TEST_F(RenderTest, FiberScenesRenderDeterministicallyWithTheirDetailReported) {
   request.set_height(32);
   Append(request.mutable_camera()->mutable_position(), {7, 0, 0.5});
   Append(request.mutable_camera()->mutable_look_at(), {0, 0, 0.5});
+  request.set_fiber_detail(v1::FIBER_DETAIL_LOD);
   const std::string far = chosen(request);
   EXPECT_TRUE(far == "lod" || far == "cores") << far;
+  request.set_fiber_detail(v1::FIBER_DETAIL_AUTO);  // Eq. 4 as LOD, or full detail where the pilot says so
+  const std::string checked = chosen(request);
+  EXPECT_TRUE(checked == far || checked == "full") << checked;
   request.set_force_full_fidelity(true);
   EXPECT_EQ(chosen(request), "full");
   request.set_force_full_fidelity(false);
@@ -756,6 +760,50 @@ TEST_F(RenderTest, CoresShadeLambertianFibersLikeTheFibersTheyStandFor) {
   ASSERT_GT(mean[0], 0);
   std::printf("Lambertian fibers, mean radiance: full detail %.5f, cores %.5f\n", mean[0], mean[1]);
   EXPECT_NEAR(mean[1] / mean[0], 1.0, 0.15);
+}
+
+// AUTO's level of detail is checked against full detail (the pilot's radiance through both): on the distant
+// woven patch of the render benchmark, cotton's thinned fibers are brighter than full detail by more than the
+// 2% target (README "Render: fibers": their R highlight), so AUTO renders full detail and says why; with a loose
+// target it keeps the thinning and reports the estimate, which agrees in sign and size with the images' own
+// difference (LOD against FULL, rendered).
+TEST_F(RenderTest, AutoFiberDetailIsCheckedAgainstFullDetail) {
+  RenderRequest request = Request("cotton", v1::SCENE_WOVEN_PATCH, 96, 96, 8);
+  Append(request.mutable_camera()->mutable_position(), {0.51, 0.2, 3.0});
+  Append(request.mutable_camera()->mutable_look_at(), {0.51, 0.51, 0});
+  request.set_fiber_shadows(v1::FIBER_SHADOWS_TRACED);
+  request.set_fiber_occlusion(v1::FIBER_OCCLUSION_TRACED);
+  const auto render = [&](const RenderRequest& r, v1::FidelityChoice* geometry) {
+    const Rendered out = Render(*stub_, r);
+    EXPECT_TRUE(out.status.ok()) << out.status.error_message();
+    if (!out.status.ok()) return 0.0;
+    if (const v1::FidelityChoice* c = Choice(out.last().fidelity(0), "geometry")) *geometry = *c;
+    return out.last().mean(0) + out.last().mean(1) + out.last().mean(2);
+  };
+  v1::FidelityChoice geometry;
+  render(request, &geometry);
+  EXPECT_EQ(geometry.chosen(), "full") << geometry.reason();
+  EXPECT_NE(geometry.reason().find("from full detail"), std::string::npos) << geometry.reason();
+  EXPECT_NE(geometry.reason().find("over the target: full detail"), std::string::npos) << geometry.reason();
+
+  request.set_error_target(0.5);
+  render(request, &geometry);
+  EXPECT_TRUE(geometry.chosen() == "lod" || geometry.chosen() == "cores") << geometry.reason();
+  const double estimate = geometry.estimated_error();
+  EXPECT_GT(estimate, 0.02) << geometry.reason();
+  EXPECT_LE(estimate, 0.5) << geometry.reason();
+
+  request.set_error_target(0);
+  request.set_samples_per_pixel(32);
+  request.set_fiber_detail(v1::FIBER_DETAIL_FULL);
+  const double full = render(request, &geometry);
+  request.set_fiber_detail(v1::FIBER_DETAIL_LOD);
+  const double lod = render(request, &geometry);
+  ASSERT_GT(full, 0);
+  const double measured = std::fabs(lod / full - 1);
+  std::printf("distant woven patch: LoD against full detail, pilot %.3f, images %.3f\n", estimate, measured);
+  EXPECT_GT(measured, 0.02);
+  EXPECT_NEAR(estimate, measured, 0.5 * measured);
 }
 
 // Ambient light alone (a black light, ambient radiance 1): each pixel averages the fiber's ambient factor

@@ -120,9 +120,12 @@ std::string FiberJobOf(const models::Registry& registry, const v1::RenderRequest
   return YarnJobOf(registry, r.yarn(), r.scene() == v1::SCENE_WOVEN_PATCH ? &woven : nullptr, 0, job);
 }
 
-// Eq. 4's level of detail for a fiber scene: from the pixel footprint at the camera's look-at point (AUTO), or
-// as the request says. Sets job->detail and the fidelity report's entry.
-void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderSetup::FiberDetail* report) {
+// Eq. 4's level of detail for a fiber scene: from the pixel footprint at the camera's look-at point (AUTO, LOD),
+// or as the request says. Sets job->detail and the fidelity report's entry; *check says whether the choice is
+// AUTO's thinning, which the fidelity chooser compares with full detail before the render keeps it.
+void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderSetup::FiberDetail* report,
+                       bool* check) {
+  *check = false;
   const render::Scene scene = render::MakeScene(ToSceneKind(r.scene()));
   const render::CameraSpec camera = CameraOf(r, scene);
   const render::PinholeCamera pinhole(camera, static_cast<int>(r.height()), static_cast<int>(r.height()));
@@ -147,11 +150,12 @@ void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderS
     const yarn::LodChoice lod = yarn::ChooseLod(p.fiber_width, ply_width, footprint, p.fibers_per_ply,
                                                 d.core_radius, d.points_per_twist);
     report->chosen = lod.lambda >= 1 ? "full" : lod.lambda <= 0 ? "cores" : "lod";
+    *check = asked == v1::FIBER_DETAIL_AUTO && lod.lambda < 1;
     std::snprintf(text, sizeof text,
-                  "a pixel covers %.3g at the look-at point, fibers are %.3g wide (%.3g pixels), plies %.3g: "
+                  "%sa pixel covers %.3g at the look-at point, fibers are %.3g wide (%.3g pixels), plies %.3g: "
                   "Eq. 4 lambda %.3g keeps %d of %d fibers per ply",
-                  footprint, p.fiber_width, p.fiber_width / footprint, ply_width, lod.lambda, lod.fibers,
-                  p.fibers_per_ply);
+                  asked == v1::FIBER_DETAIL_LOD ? "fiber_detail LOD: " : "", footprint, p.fiber_width,
+                  p.fiber_width / footprint, ply_width, lod.lambda, lod.fibers, p.fibers_per_ply);
     report->reason = text;
   }
 }
@@ -168,11 +172,12 @@ void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderS
 class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
-             std::shared_ptr<const models::PreparedMaterial> material, std::unique_ptr<YarnJob> fiber_job,
+             std::shared_ptr<const models::PreparedMaterial> material, FiberJobs fiber_jobs,
              render::RenderSetup::FiberDetail fiber_detail, Admission admission, Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), request_(request),
         material_(std::move(material)), fp64_(request.precision() == v1::PRECISION_FP64),
-        fiber_job_(std::move(fiber_job)), fiber_detail_(std::move(fiber_detail)) {
+        fiber_job_(std::move(fiber_jobs.chosen)), full_fiber_job_(std::move(fiber_jobs.full)),
+        fiber_detail_(std::move(fiber_detail)) {
     const v1::RenderEnvironment& env = request_.environment();
     const bool map = !env.name().empty() || !env.data().empty();
     if (map || fiber_job_) {
@@ -244,10 +249,11 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // client is there, and within the memory budget (the BVH's bytes, estimated before it is built, are
   // admitted first and bound the build).
   grpc::Status BuildFibers() {
-    grpc::Status s = BuildFiberScene(
-        fiber_job_.get(), [this] { return StopStatus(context_, deadline_); },
-        [this](size_t bytes) { return admission_.bytes.Grow(bytes); }, &fibers_, &fiber_visibility_,
-        deps_.fiber_scenes);
+    const auto stop = [this] { return StopStatus(context_, deadline_); };
+    const auto grow = [this](size_t bytes) { return admission_.bytes.Grow(bytes); };
+    grpc::Status s = BuildFiberScene(fiber_job_.get(), stop, grow, &fibers_, &fiber_visibility_, deps_.fiber_scenes);
+    if (s.ok() && full_fiber_job_)  // AUTO's thinning is checked against full detail (both kept in the cache)
+      s = BuildFiberScene(full_fiber_job_.get(), stop, grow, &full_fibers_, &full_fiber_visibility_, deps_.fiber_scenes);
     if (s.ok()) fiber_count_ = static_cast<uint64_t>(fibers_->stats().curves);
     return s;
   }
@@ -259,6 +265,8 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     s.scene = render::MakeScene(ToSceneKind(r.scene()));
     s.scene.fibers = fibers_;
     s.scene.fiber_visibility = fiber_visibility_;
+    s.full_detail_fibers = full_fibers_;
+    s.full_detail_visibility = full_fiber_visibility_;
     s.fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_SLICES ? yarn::ShadowMethod::kSlices : yarn::ShadowMethod::kTraced;
     s.fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_TEXTURE    ? yarn::OcclusionMethod::kTexture
                         : r.fiber_occlusion() == v1::FIBER_OCCLUSION_DISTANCE ? yarn::OcclusionMethod::kDistance
@@ -315,6 +323,13 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       status_ = {grpc::StatusCode::INTERNAL, e};
       return;
     }
+    if (plan_.fiber_full_detail) {  // AUTO's thinning was over the target: the render is at full detail
+      s.scene.fibers = full_fibers_;
+      s.scene.fiber_visibility = full_fiber_visibility_;
+      fiber_count_ = static_cast<uint64_t>(full_fibers_->stats().curves);
+    }
+    s.full_detail_fibers.reset();
+    s.full_detail_visibility.reset();
     s.fiber_shadows = plan_.fiber_shadows;
     s.fiber_occlusion = plan_.fiber_occlusion;
     ChooseBtfEnvironment();
@@ -779,6 +794,9 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   std::shared_ptr<const models::PreparedMaterial> material_;  // set by SetUp
   const bool fp64_;
   std::unique_ptr<YarnJob> fiber_job_;  // fiber scenes: the yarn to generate (null otherwise)
+  std::unique_ptr<YarnJob> full_fiber_job_;  // AUTO's thinning: the same yarn at full detail, to check it against
+  std::shared_ptr<const yarn::FiberScene> full_fibers_;
+  std::shared_ptr<const yarn::YarnVisibility> full_fiber_visibility_;
   render::RenderSetup::FiberDetail fiber_detail_;
   std::shared_ptr<const yarn::FiberScene> fibers_;
   std::shared_ptr<const yarn::YarnVisibility> fiber_visibility_;
@@ -911,8 +929,9 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
 }
 
 grpc::Status CheckRenderRequest(const models::Registry& registry, const v1::RenderRequest& request,
-                                const models::Model& model, bool has_fp64, std::unique_ptr<YarnJob>* fiber_job,
+                                const models::Model& model, bool has_fp64, FiberJobs* fiber_jobs,
                                 render::RenderSetup::FiberDetail* detail) {
+  std::unique_ptr<YarnJob>* fiber_job = &fiber_jobs->chosen;
   if (std::string error = ValidateRenderRequest(request); !error.empty()) return Invalid(error);
   if (request.precision() == v1::PRECISION_FP64 && !has_fp64)
     return {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"};
@@ -927,7 +946,12 @@ grpc::Status CheckRenderRequest(const models::Registry& registry, const v1::Rend
   if (model.fiber_axis_param().empty() || request.material().has_transmission())
     return Invalid("material: the fiber scenes shade each fiber with a fiber model (e.g. preset cotton), not '" +
                    model.name() + "'" + (request.material().has_transmission() ? " with a layer" : ""));
-  ChooseFiberDetail(request, fiber_job->get(), detail);
+  bool check = false;
+  ChooseFiberDetail(request, fiber_job->get(), detail, &check);
+  if (check) {
+    fiber_jobs->full = std::make_unique<YarnJob>(**fiber_job);
+    fiber_jobs->full->detail.footprint = 0;
+  }
   return grpc::Status::OK;
 }
 
@@ -941,17 +965,19 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
   if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
     return reject(Invalid(error));
-  std::unique_ptr<YarnJob> fiber_job;
+  FiberJobs fiber_jobs;
   render::RenderSetup::FiberDetail detail;
-  if (grpc::Status s = CheckRenderRequest(*deps.registry, *request, *model, deps.has_fp64, &fiber_job, &detail); !s.ok())
+  if (grpc::Status s = CheckRenderRequest(*deps.registry, *request, *model, deps.has_fp64, &fiber_jobs, &detail); !s.ok())
     return reject(s);
   // A woven patch's centre polylines twice: the layout while its fibers are generated, and the copies the
-  // visibility approximations keep for the render (the centre curves and the other yarns' tubes).
-  const size_t layout_bytes = fiber_job ? 2 * fiber_job->layout_bytes : 0;
+  // visibility approximations keep for the render (the centre curves and the other yarns' tubes); per detail.
+  size_t layout_bytes = 0;
+  for (const auto* job : {fiber_jobs.chosen.get(), fiber_jobs.full.get()})
+    if (job) layout_bytes += 2 * job->layout_bytes;
   Admission admission;
   if (grpc::Status s = AdmitLongCall(deps, *context, RenderBytes(*request) + layout_bytes, &admission); !s.ok())
     return reject(s);
-  return new RenderCall(deps, context, *request, std::move(material), std::move(fiber_job), std::move(detail),
+  return new RenderCall(deps, context, *request, std::move(material), std::move(fiber_jobs), std::move(detail),
                         std::move(admission), received);
 }
 

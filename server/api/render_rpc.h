@@ -47,11 +47,15 @@ using RenderDeps = ServiceDeps;
 // Checks every field except the material, whether a named environment map exists and device support.
 // Returns "" or "field: reason".
 std::string ValidateRenderRequest(const v1::RenderRequest& request);
+// A fiber scene's yarn at the detail chosen and, when that is AUTO's thinning, at full detail to check it by.
+struct FiberJobs {
+  std::unique_ptr<YarnJob> chosen, full;
+};
 // Every check of a request once its material's model is known (no packing, no map read, no fiber generated):
 // its fields (ValidateRenderRequest), fp64 where the device has it, and for a fiber scene its yarn and a fiber
-// model, whose job and level of detail go to *fiber_job and *detail. OK or the status to reply.
+// model, whose jobs and level of detail go to *fiber_jobs and *detail. OK or the status to reply.
 grpc::Status CheckRenderRequest(const models::Registry& registry, const v1::RenderRequest& request,
-                                const models::Model& model, bool has_fp64, std::unique_ptr<YarnJob>* fiber_job,
+                                const models::Model& model, bool has_fp64, FiberJobs* fiber_jobs,
                                 render::RenderSetup::FiberDetail* detail);
 // The bytes a validated request's call holds (its admission), before any environment map is decoded.
 size_t RenderBytes(const v1::RenderRequest& request);

@@ -7,6 +7,7 @@
 #include <numbers>
 
 #include "server/runtime/parallel_for.h"
+#include "server/yarn/fiber_scene.h"
 
 namespace loomlight::render {
 namespace {
@@ -242,6 +243,38 @@ double FiberPilotTotal(RenderSetup setup, yarn::ShadowMethod shadows, yarn::Occl
 
 // The fiber scene's shadow and occlusion methods: the request's, or (where it left them to the chooser) the
 // approximation whose pilot radiance is closest to the traced one, when within the target.
+// AUTO's thinned fibers (Eq. 4) against full detail: the pilot's radiance through each, shadows and occlusion
+// traced in both (the geometry's own error, apart from the visibility approximations'). Fills the geometry
+// choice's estimate and reason; true where the thinning is over the target and full detail is to be rendered.
+// Measured on the distant woven patch (cotton): the thinned fibers' R highlight, the core's one helix of
+// directions against the spread of the fibers', put the image 20% above full detail's.
+bool ChooseFiberGeometry(const RenderSetup& thinned, const RenderSetup& full, const std::vector<Evaluator>& evaluators,
+                         const ObjectShading& shading, double target, int threads, FidelityChoice* geometry) {
+  using yarn::OcclusionMethod;
+  using yarn::ShadowMethod;
+  double total[2] = {0, 0};
+  int hits[2] = {0, 0};
+  runtime::ParallelFor(2, threads, {}, [&](size_t i) {
+    total[i] = FiberPilotTotal(i == 0 ? thinned : full, ShadowMethod::kTraced, OcclusionMethod::kTraced, evaluators,
+                               shading, &hits[i]);
+  });
+  if (hits[1] == 0 || total[1] <= 0) {
+    geometry->reason += "; no full-detail fiber hit by the pilot rays: kept";
+    return false;
+  }
+  const double error = std::fabs(total[0] - total[1]) / total[1];
+  const bool over = error > target;
+  geometry->reason += Format("; pilot radiance %.2g from full detail (%d and %d pilot samples), %s", error, hits[0],
+                             hits[1], over ? "over the target: full detail" : "within the target");
+  if (!over) {
+    geometry->estimated_error = error;
+    return false;
+  }
+  geometry->chosen = "full";
+  geometry->reason += Format(", %lld fiber curves", static_cast<long long>(full.scene.fibers->stats().curves));
+  return true;
+}
+
 void ChooseFiberVisibility(const RenderSetup& setup, const std::vector<Evaluator>& evaluators,
                            const ObjectShading& shading, double target, bool force_full, int threads,
                            FidelityPlan* plan, ObjectFidelity* out) {
@@ -392,8 +425,21 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
         shading.ambient_evaluator =
             EvaluatorIndex(&plan->evaluators, {requested, false, false, true, models::Quantity::kAmbient});
       const RenderSetup::FiberDetail& d = setup.fiber_detail;
-      out.choices.push_back({"geometry", d.chosen, d.full, 0, d.reason});
-      ChooseFiberVisibility(setup, plan->evaluators, shading, target, force_full, threads, plan, &out);
+      FidelityChoice geometry{"geometry", d.chosen, d.full, 0, d.reason};
+      const RenderSetup* chosen_setup = &setup;
+      RenderSetup full_detail;
+      if (setup.full_detail_fibers && !force_full) {
+        full_detail = setup;
+        full_detail.scene.fibers = setup.full_detail_fibers;
+        full_detail.scene.fiber_visibility = setup.full_detail_visibility;
+        if (ChooseFiberGeometry(setup, full_detail, plan->evaluators, shading, target, threads, &geometry)) {
+          plan->fiber_full_detail = true;
+          chosen_setup = &full_detail;
+        }
+      }
+      out.estimated_error += geometry.estimated_error;
+      out.choices.push_back(geometry);
+      ChooseFiberVisibility(*chosen_setup, plan->evaluators, shading, target, force_full, threads, plan, &out);
       plan->objects.push_back(shading);
       plan->fidelity.push_back(std::move(out));
       continue;

@@ -97,6 +97,9 @@ struct FidelityPlan {
   // Fiber scenes: the visibility methods to render with (the setup's, or the chooser's where it chose).
   yarn::ShadowMethod fiber_shadows = yarn::ShadowMethod::kTraced;
   yarn::OcclusionMethod fiber_occlusion = yarn::OcclusionMethod::kTraced;
+  // Fiber scenes: AUTO's thinned geometry was further from full detail than the target; the render uses the
+  // setup's full_detail_fibers (and visibility) instead of scene.fibers.
+  bool fiber_full_detail = false;
 };
 
 // Fills *plan for every object of setup.scene, its pilots on up to `threads` threads. Returns "" or why a

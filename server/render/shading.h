@@ -65,6 +65,11 @@ struct RenderSetup {
   struct FiberDetail {
     std::string chosen, full, reason;
   } fiber_detail;
+  // Fiber scenes where Eq. 4 thinned the fibers for AUTO: the same yarn at full detail, which the fidelity
+  // chooser's pilot compares the thinned geometry with (FidelityPlan::fiber_full_detail: which one the render
+  // keeps). Null otherwise.
+  std::shared_ptr<const yarn::FiberScene> full_detail_fibers;
+  std::shared_ptr<const yarn::YarnVisibility> full_detail_visibility;
 };
 
 struct LightSample {

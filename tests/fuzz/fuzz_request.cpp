@@ -193,10 +193,13 @@ void FuzzRender(const v1::RenderRequest& request, bool has_fp64) {
   const models::Model* model = nullptr;
   ResolveMaterial(request.material(), &model);
   if (!model) return;
-  std::unique_ptr<api::YarnJob> fiber_job;
+  api::FiberJobs fiber_jobs;
   render::RenderSetup::FiberDetail detail;
-  if (grpc::Status s = api::CheckRenderRequest(Registry(), request, *model, has_fp64, &fiber_job, &detail); !s.ok())
+  if (grpc::Status s = api::CheckRenderRequest(Registry(), request, *model, has_fp64, &fiber_jobs, &detail); !s.ok())
     return CheckRejection(s, has_fp64);
+  const std::unique_ptr<api::YarnJob>& fiber_job = fiber_jobs.chosen;
+  FUZZ_CHECK(!fiber_jobs.full || (fiber_job && fiber_jobs.full->detail.footprint == 0),
+             "a full-detail job to check against without a chosen one, or not at full detail");
   const bool fiber_scene = request.scene() == v1::SCENE_YARN || request.scene() == v1::SCENE_WOVEN_PATCH;
   FUZZ_CHECK(bool(fiber_job) == fiber_scene, "fiber job " + std::to_string(bool(fiber_job)) + " for scene " +
                                                  std::to_string(request.scene()));

@@ -241,43 +241,53 @@ double FiberPilotTotal(RenderSetup setup, yarn::ShadowMethod shadows, yarn::Occl
   return total[0];
 }
 
-// The fiber scene's shadow and occlusion methods: the request's, or (where it left them to the chooser) the
-// approximation whose pilot radiance is closest to the traced one, when within the target.
+// A pilot pass's radiance total and the fiber hits it had.
+struct PilotTotal {
+  double total = 0;
+  int hits = 0;
+};
+
 // AUTO's thinned fibers (Eq. 4) against full detail: the pilot's radiance through each, shadows and occlusion
 // traced in both (the geometry's own error, apart from the visibility approximations'). Fills the geometry
 // choice's estimate and reason; true where the thinning is over the target and full detail is to be rendered.
-// Measured on the distant woven patch (cotton): the thinned fibers' R highlight, the core's one helix of
+// *kept: the traced pass of the geometry the render keeps (the visibility chooser's reference, not traced
+// twice). Measured on the distant woven patch (cotton): the thinned fibers' R highlight, the core's one helix of
 // directions against the spread of the fibers', put the image 20% above full detail's.
 bool ChooseFiberGeometry(const RenderSetup& thinned, const RenderSetup& full, const std::vector<Evaluator>& evaluators,
-                         const ObjectShading& shading, double target, int threads, FidelityChoice* geometry) {
+                         const ObjectShading& shading, double target, int threads, FidelityChoice* geometry,
+                         PilotTotal* kept) {
   using yarn::OcclusionMethod;
   using yarn::ShadowMethod;
-  double total[2] = {0, 0};
-  int hits[2] = {0, 0};
+  PilotTotal pass[2];  // thinned, full
   runtime::ParallelFor(2, threads, {}, [&](size_t i) {
-    total[i] = FiberPilotTotal(i == 0 ? thinned : full, ShadowMethod::kTraced, OcclusionMethod::kTraced, evaluators,
-                               shading, &hits[i]);
+    pass[i].total = FiberPilotTotal(i == 0 ? thinned : full, ShadowMethod::kTraced, OcclusionMethod::kTraced,
+                                    evaluators, shading, &pass[i].hits);
   });
-  if (hits[1] == 0 || total[1] <= 0) {
+  *kept = pass[0];
+  if (pass[1].hits == 0 || pass[1].total <= 0) {
     geometry->reason += "; no full-detail fiber hit by the pilot rays: kept";
     return false;
   }
-  const double error = std::fabs(total[0] - total[1]) / total[1];
+  const double error = std::fabs(pass[0].total - pass[1].total) / pass[1].total;
   const bool over = error > target;
-  geometry->reason += Format("; pilot radiance %.2g from full detail (%d and %d pilot samples), %s", error, hits[0],
-                             hits[1], over ? "over the target: full detail" : "within the target");
+  geometry->reason += Format("; pilot radiance %.2g from full detail (%d and %d pilot samples), %s", error,
+                             pass[0].hits, pass[1].hits, over ? "over the target: full detail" : "within the target");
   if (!over) {
     geometry->estimated_error = error;
     return false;
   }
+  *kept = pass[1];
   geometry->chosen = "full";
   geometry->reason += Format(", %lld fiber curves", static_cast<long long>(full.scene.fibers->stats().curves));
   return true;
 }
 
+// The fiber scene's shadow and occlusion methods: the request's, or (where it left them to the chooser) the
+// approximation whose pilot radiance is closest to the traced one, when within the target. `traced`: the traced
+// pass when the caller has it already (null: traced here).
 void ChooseFiberVisibility(const RenderSetup& setup, const std::vector<Evaluator>& evaluators,
                            const ObjectShading& shading, double target, bool force_full, int threads,
-                           FidelityPlan* plan, ObjectFidelity* out) {
+                           const PilotTotal* traced, FidelityPlan* plan, ObjectFidelity* out) {
   using yarn::OcclusionMethod;
   using yarn::ShadowMethod;
   FidelityChoice shadows{"fiber_shadows", yarn::ToString(setup.fiber_shadows), "traced", 0, "requested"};
@@ -306,8 +316,14 @@ void ChooseFiberVisibility(const RenderSetup& setup, const std::vector<Evaluator
       passes.push_back({ShadowMethod::kTraced, OcclusionMethod::kTexture});
       passes.push_back({ShadowMethod::kTraced, OcclusionMethod::kDistance});
     }
-    runtime::ParallelFor(passes.size(), threads, {}, [&](size_t i) {
-      passes[i].total = FiberPilotTotal(setup, passes[i].shadows, passes[i].occlusion, evaluators, shading, &passes[i].hits);
+    if (traced) {
+      passes[0].total = traced->total;
+      passes[0].hits = traced->hits;
+    }
+    const size_t first = traced ? 1 : 0;
+    runtime::ParallelFor(passes.size() - first, threads, {}, [&](size_t k) {
+      Pass& p = passes[first + k];
+      p.total = FiberPilotTotal(setup, p.shadows, p.occlusion, evaluators, shading, &p.hits);
     });
     const double traced = passes[0].total;
     const int hits = passes[0].hits;
@@ -428,18 +444,21 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
       FidelityChoice geometry{"geometry", d.chosen, d.full, 0, d.reason};
       const RenderSetup* chosen_setup = &setup;
       RenderSetup full_detail;
-      if (setup.full_detail_fibers && !force_full) {
+      PilotTotal traced;
+      const bool check = setup.full_detail_fibers && !force_full;
+      if (check) {
         full_detail = setup;
         full_detail.scene.fibers = setup.full_detail_fibers;
         full_detail.scene.fiber_visibility = setup.full_detail_visibility;
-        if (ChooseFiberGeometry(setup, full_detail, plan->evaluators, shading, target, threads, &geometry)) {
+        if (ChooseFiberGeometry(setup, full_detail, plan->evaluators, shading, target, threads, &geometry, &traced)) {
           plan->fiber_full_detail = true;
           chosen_setup = &full_detail;
         }
       }
       out.estimated_error += geometry.estimated_error;
       out.choices.push_back(geometry);
-      ChooseFiberVisibility(*chosen_setup, plan->evaluators, shading, target, force_full, threads, plan, &out);
+      ChooseFiberVisibility(*chosen_setup, plan->evaluators, shading, target, force_full, threads,
+                            check ? &traced : nullptr, plan, &out);
       plan->objects.push_back(shading);
       plan->fidelity.push_back(std::move(out));
       continue;

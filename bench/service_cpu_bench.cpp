@@ -8,11 +8,11 @@
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
-#include <functional>
-#include <mutex>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <mutex>
 #include <thread>
 
 #include "bench/bench.h"

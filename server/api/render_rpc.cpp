@@ -328,8 +328,12 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       s.scene.fiber_visibility = full_fiber_visibility_;
       fiber_count_ = static_cast<uint64_t>(full_fibers_->stats().curves);
     }
+    // The check's full-detail geometry is held only by s.scene from here (when chosen): otherwise the render
+    // does not keep it alive, and the scene cache may let it go.
     s.full_detail_fibers.reset();
     s.full_detail_visibility.reset();
+    full_fibers_.reset();
+    full_fiber_visibility_.reset();
     s.fiber_shadows = plan_.fiber_shadows;
     s.fiber_occlusion = plan_.fiber_occlusion;
     ChooseBtfEnvironment();

@@ -229,9 +229,14 @@ int main(int argc, char** argv) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     if (g_reload) {
       g_reload = 0;
-      const std::string reload_error = server->ReloadTokens();
-      std::fprintf(stderr, "loomlight-server: SIGHUP: %s\n",
-                   reload_error.empty() ? "tokens reloaded" : ("tokens kept: " + reload_error).c_str());
+      if (!options.access.tokens_file.empty()) {
+        // A file that fails to load fails closed (LoomlightServer::ReloadTokens).
+        const std::string reload_error = server->ReloadTokens();
+        std::fprintf(stderr, "loomlight-server: SIGHUP: %s\n",
+                     reload_error.empty()
+                         ? "tokens reloaded"
+                         : ("NOT_SERVING, every token refused until the file loads: " + reload_error).c_str());
+      }
       server->SyncBtfAssets();
     }
   }

@@ -2,12 +2,17 @@
 
 #include <arpa/inet.h>
 #include <grpcpp/security/server_credentials.h>
+#include <netdb.h>
 
+#include <algorithm>
 #include <cstring>
 
 #include <fstream>
 #include <sstream>
 #include <string_view>
+
+#include "loomlight/v1/loomlight.pb.h"
+#include "server/models/quote.h"
 
 namespace loomlight::api {
 namespace {
@@ -16,12 +21,21 @@ constexpr size_t kMinTokenChars = 16;  // shorter tokens are guessable
 constexpr size_t kMaxTokenFileBytes = size_t{1} << 20;
 constexpr const char* kBearer = "Bearer ";
 
-// Compares every byte whatever the first difference, so the time taken does not tell how much matched.
-bool EqualInConstantTime(const std::string& a, const std::string& b) {
-  if (a.size() != b.size()) return false;
-  unsigned char difference = 0;
-  for (size_t i = 0; i < a.size(); ++i) difference |= static_cast<unsigned char>(a[i] ^ b[i]);
+// Compares every byte of the token given whatever the first difference, and a length mismatch too, so the
+// time taken depends on the given token's length only: not on how much matched, nor on the listed token's
+// length (`listed` is never empty: tokens have at least kMinTokenChars).
+bool EqualInConstantTime(const std::string& listed, const std::string& given) {
+  size_t difference = listed.size() ^ given.size();
+  for (size_t i = 0; i < given.size(); ++i)
+    difference |= static_cast<unsigned char>(listed[i % listed.size()] ^ given[i]);
   return difference == 0;
+}
+
+// Whether a 16-byte address (IPv4 mapped into IPv6) is loopback: 127.0.0.0/8 or ::1.
+bool IsLoopback(const std::array<uint8_t, 16>& a) {
+  static constexpr std::array<uint8_t, 12> kMapped = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xff, 0xff};
+  if (std::equal(kMapped.begin(), kMapped.end(), a.begin())) return a[12] == 127;
+  return std::all_of(a.begin(), a.end() - 1, [](uint8_t b) { return b == 0; }) && a[15] == 1;
 }
 
 // An IPv4 or IPv6 address as 16 bytes (IPv4 mapped into IPv6), or false.
@@ -128,12 +142,20 @@ std::shared_ptr<const TokenTable> TokenTable::Load(const std::string& path, std:
   std::istringstream lines(text);
   std::string line;
   for (int number = 1; std::getline(lines, line); ++number) {
-    if (const size_t hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    const std::string where = path + ":" + std::to_string(number);
+    for (size_t i = 0; i < line.size(); ++i)
+      if (line[i] == '#' && (i == 0 || line[i - 1] == ' ' || line[i - 1] == '\t')) {
+        line.resize(i);  // a comment
+        break;
+      }
+    if (line.find('#') != std::string::npos) {
+      *error = where + ": '#' inside a field (a comment starts at the line's start or after a space or tab)";
+      return nullptr;
+    }
     std::istringstream fields(line);
     Entry entry;
     std::string calls, extra;
     if (!(fields >> entry.token)) continue;  // blank or comment
-    const std::string where = path + ":" + std::to_string(number);
     if (!(fields >> entry.client >> calls) || (fields >> extra)) {
       *error = where + ": expected 'TOKEN CLIENT CALLS'";
       return nullptr;
@@ -147,14 +169,13 @@ std::shared_ptr<const TokenTable> TokenTable::Load(const std::string& path, std:
         *error = where + ": the token is listed twice";
         return nullptr;
       }
-    if (calls != "*") {
-      std::istringstream names(calls);
-      for (std::string name; std::getline(names, name, ',');)
-        if (!name.empty()) entry.calls.insert(name);
-      if (entry.calls.empty()) {
-        *error = where + ": no calls listed (use '*' for all)";
-        return nullptr;
-      }
+    std::istringstream names(calls);
+    for (std::string name; std::getline(names, name, ',');)
+      if (name == "*") entry.all_rpcs = true;
+      else if (!name.empty()) entry.calls.insert(name);
+    if (!entry.all_rpcs && entry.calls.empty()) {
+      *error = where + ": no calls listed (use '*' for every RPC)";
+      return nullptr;
     }
     table->entries_.push_back(std::move(entry));
   }
@@ -171,48 +192,81 @@ const TokenTable::Entry* TokenTable::Find(const std::string& token) const {
 std::string CallName(const std::string& path) {
   if (path.rfind("/grpc.reflection.", 0) == 0) return "reflection";
   if (path.rfind("/grpc.health.", 0) == 0) return "health";
-  const size_t slash = path.rfind('/');
-  return slash == std::string::npos ? path : path.substr(slash + 1);
+  // The service's own methods, as its descriptor lists them: a name a client makes up is "unknown".
+  static const google::protobuf::ServiceDescriptor* const service =
+      v1::ListModelsRequest::descriptor()->file()->FindServiceByName("Loomlight");
+  static const std::string prefix = "/" + service->full_name() + "/";
+  if (path.rfind(prefix, 0) == 0 && service->FindMethodByName(path.substr(prefix.size())) != nullptr)
+    return path.substr(prefix.size());
+  return "unknown";
 }
 
-grpc::Status TokenAuthProcessor::Process(const InputMetadata& auth_metadata, grpc::AuthContext* context,
-                                         OutputMetadata* consumed_auth_metadata, OutputMetadata*) {
-  std::string call;
-  if (auto path = auth_metadata.find(":path"); path != auth_metadata.end())
-    call = CallName(std::string(path->second.data(), path->second.size()));
+namespace {
+
+// The live processors (one per server with tokens: a process runs one, tests several), for ClientName.
+std::mutex processors_mutex;
+std::vector<const TokenAuthProcessor*> processors;
+
+// The bearer token a call carries, or "".
+std::string_view BearerToken(std::string_view header) {
+  const std::string_view bearer = kBearer;
+  return header.substr(0, bearer.size()) == bearer ? header.substr(bearer.size()) : std::string_view();
+}
+
+}  // namespace
+
+TokenAuthProcessor::TokenAuthProcessor(std::shared_ptr<const TokenTable> table) : table_(std::move(table)) {
+  std::lock_guard<std::mutex> lock(processors_mutex);
+  processors.push_back(this);
+}
+
+TokenAuthProcessor::~TokenAuthProcessor() {
+  std::lock_guard<std::mutex> lock(processors_mutex);
+  processors.erase(std::find(processors.begin(), processors.end(), this));
+}
+
+grpc::Status TokenAuthProcessor::Process(const InputMetadata& auth_metadata, grpc::AuthContext*, OutputMetadata*,
+                                         OutputMetadata*) {
+  std::string path;
+  if (auto found = auth_metadata.find(":path"); found != auth_metadata.end())
+    path.assign(found->second.data(), found->second.size());
+  const std::string call = CallName(path);
   if (call == "health") return grpc::Status::OK;
+  std::string reload_failure;
+  std::shared_ptr<const TokenTable> current;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    reload_failure = failure_;
+    current = table_;
+  }
+  if (!reload_failure.empty())
+    return {grpc::StatusCode::UNAUTHENTICATED,
+            "the server's token file failed to reload: every token is refused until its operator fixes it"};
   auto header = auth_metadata.find("authorization");
   if (header == auth_metadata.end())
     return {grpc::StatusCode::UNAUTHENTICATED, "no bearer token: send 'authorization: Bearer TOKEN'"};
-  const std::string value(header->second.data(), header->second.size());
-  if (value.rfind(kBearer, 0) != 0)
-    return {grpc::StatusCode::UNAUTHENTICATED, "the authorization header is not 'Bearer TOKEN'"};
-  const std::shared_ptr<const TokenTable> current = table();
-  const TokenTable::Entry* entry = current->Find(value.substr(std::char_traits<char>::length(kBearer)));
+  const std::string token(BearerToken(std::string_view(header->second.data(), header->second.size())));
+  if (token.empty()) return {grpc::StatusCode::UNAUTHENTICATED, "the authorization header is not 'Bearer TOKEN'"};
+  const TokenTable::Entry* entry = current->Find(token);
   if (entry == nullptr) return {grpc::StatusCode::UNAUTHENTICATED, "unknown bearer token"};
-  if (call.empty() || !entry->Allows(call))
+  // The refusal names the caller's own client only, and the method as the client sent it, quoted and cut short.
+  if (!entry->Allows(call))
     return {grpc::StatusCode::PERMISSION_DENIED,
-            "client '" + entry->client + "' may not call " + (call.empty() ? "this method" : call)};
-  // The context is the connection's (gRPC hands the processor the channel's auth context): it names its
-  // client once, and a connection that authenticated as one client cannot call as another.
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    const std::vector<grpc::string_ref> named = context->FindPropertyValues(kClientProperty);
-    if (named.empty())
-      context->AddProperty(kClientProperty, entry->client);
-    else if (named.front() != entry->client)
-      return {grpc::StatusCode::PERMISSION_DENIED,
-              "this connection is client '" + std::string(named.front().data(), named.front().size()) +
-                  "'; another client's token needs its own connection"};
-  }
-  // Handlers never see the token.
-  consumed_auth_metadata->insert({"authorization", value});
+            "client '" + entry->client + "' may not call " + (call == "unknown" ? models::Quote(path) : call)};
+  // The token is not consumed: ClientName finds each call's client by it (see the class comment).
   return grpc::Status::OK;
 }
 
 void TokenAuthProcessor::Replace(std::shared_ptr<const TokenTable> table) {
   std::lock_guard<std::mutex> lock(mutex_);
   table_ = std::move(table);
+  failure_.clear();
+}
+
+void TokenAuthProcessor::Fail(const std::string& reason) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  table_ = std::make_shared<TokenTable>();
+  failure_ = reason.empty() ? "the token file failed to load" : reason;
 }
 
 std::shared_ptr<const TokenTable> TokenAuthProcessor::table() const {
@@ -220,10 +274,34 @@ std::shared_ptr<const TokenTable> TokenAuthProcessor::table() const {
   return table_;
 }
 
+std::string TokenAuthProcessor::failure() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return failure_;
+}
+
 bool IsLoopbackAddress(const std::string& address) {
   if (address.rfind("unix:", 0) == 0) return true;
   const std::string host = HostOf(address);
-  return host == "localhost" || host == "::1" || host.rfind("127.", 0) == 0;
+  if (host.empty()) return false;  // ":PORT" is every interface
+  std::array<uint8_t, 16> bytes;
+  if (ParseAddress(host, &bytes)) return IsLoopback(bytes);
+  // A name binds every address it resolves to (as gRPC binds it): loopback only if each of them is.
+  addrinfo hints{};
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  addrinfo* found = nullptr;
+  if (getaddrinfo(host.c_str(), nullptr, &hints, &found) != 0) return false;
+  bool loopback = found != nullptr;
+  for (const addrinfo* a = found; a != nullptr; a = a->ai_next) {
+    char text[INET6_ADDRSTRLEN] = "";
+    const void* raw = a->ai_family == AF_INET
+                          ? static_cast<const void*>(&reinterpret_cast<const sockaddr_in*>(a->ai_addr)->sin_addr)
+                          : static_cast<const void*>(&reinterpret_cast<const sockaddr_in6*>(a->ai_addr)->sin6_addr);
+    loopback = loopback && (a->ai_family == AF_INET || a->ai_family == AF_INET6) &&
+               inet_ntop(a->ai_family, raw, text, sizeof text) && ParseAddress(text, &bytes) && IsLoopback(bytes);
+  }
+  freeaddrinfo(found);
+  return loopback;
 }
 
 std::string MakeServerCredentials(const AccessOptions& options, const std::string& address,
@@ -262,14 +340,18 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
 }
 
 std::string ClientName(const grpc::ServerContextBase& context) {
+  if (auto header = context.client_metadata().find("authorization"); header != context.client_metadata().end()) {
+    const std::string token(BearerToken(std::string_view(header->second.data(), header->second.size())));
+    std::lock_guard<std::mutex> lock(processors_mutex);
+    for (const TokenAuthProcessor* processor : processors) {
+      const std::shared_ptr<const TokenTable> table = processor->table();
+      if (const TokenTable::Entry* entry = token.empty() ? nullptr : table->Find(token)) return entry->client;
+    }
+  }
   const std::shared_ptr<const grpc::AuthContext> auth = context.auth_context();
-  if (auth) {
-    // One value at most: the processor names a connection's client once.
-    for (const grpc::string_ref& value : auth->FindPropertyValues(kClientProperty))
-      return std::string(value.data(), value.size());
+  if (auth)
     for (const grpc::string_ref& value : auth->FindPropertyValues(GRPC_X509_CN_PROPERTY_NAME))
       return std::string(value.data(), value.size());
-  }
   return "anonymous";
 }
 

@@ -46,22 +46,27 @@ struct AccessOptions {
   TrustedProxies trusted_proxies;       // load balancers whose X-Forwarded-For names the client
 };
 
-// The auth context property carrying the caller's name (set by TokenTable's processor or taken from the
-// client certificate's common name).
-inline constexpr const char* kClientProperty = "loomlight.client";
-
 // One token file: "TOKEN CLIENT CALLS" per line, CALLS a comma list of RPC names (Evaluate, Render, ...),
-// `reflection`, `metrics`, or `*` for all; '#' starts a comment. Tokens are at least 16 characters.
+// `reflection`, `metrics`, and `*` for every RPC. `*` does not include `metrics` (scraping is not an RPC): a
+// scraper's token lists `metrics` itself ("*,metrics" for both). A comment starts with a '#' at the start of a
+// line or after a space or tab and runs to the line's end; a '#' inside a field (a token, a client, a call) is
+// an error, not the start of a comment, so a token with a '#' is never silently cut short. Tokens are at least
+// 16 characters.
 class TokenTable {
  public:
   struct Entry {
     std::string token, client;
-    std::set<std::string> calls;  // empty: all
-    bool Allows(const std::string& call) const { return calls.empty() || calls.count(call) > 0; }
+    bool all_rpcs = false;        // `*`
+    std::set<std::string> calls;  // listed by name
+    bool Allows(const std::string& call) const {
+      return (all_rpcs && call != "metrics") || calls.count(call) > 0;
+    }
   };
   // Parses the file; nullptr with *error naming the line on failure.
   static std::shared_ptr<const TokenTable> Load(const std::string& path, std::string* error);
-  // The entry holding `token` (every entry is compared, in constant time, so timing tells nothing), or null.
+  // The entry holding `token`, or null. Every entry is compared, each in time that depends only on the length of
+// the token given (not on where or whether it differs, nor on the listed token's length), so timing tells
+// nothing about the tokens listed.
   const Entry* Find(const std::string& token) const;
   size_t size() const { return entries_.size(); }
 
@@ -69,29 +74,44 @@ class TokenTable {
   std::vector<Entry> entries_;
 };
 
-// The call an RPC path names, as token files list it: "/loomlight.v1.Loomlight/Evaluate" -> "Evaluate",
-// reflection's methods -> "reflection", health's -> "health".
+// The call an RPC path names, as token files and the metrics' labels know it: "/loomlight.v1.Loomlight/Evaluate"
+// -> "Evaluate", reflection's methods -> "reflection", health's -> "health", and any path that is none of the
+// service's methods -> "unknown" (one name, so a client inventing method names cannot grow the metrics).
 std::string CallName(const std::string& path);
 
-// Checks each call's bearer token against the current table (swapped whole by Reload, so calls never see half
+// Checks each call's bearer token against the current table (swapped whole by Replace, so calls never see half
 // a file); answers UNAUTHENTICATED without a known token, PERMISSION_DENIED for a call the token does not
-// allow. Health checks need no token: load balancers and probes carry none. A connection is one client: the
-// first token it authenticates with names it, and another client's token on it is PERMISSION_DENIED.
+// allow. Health checks need no token: load balancers and probes carry none.
+//
+// Each call is the client its own token names, whatever else its connection carried: a proxy (HAProxy) sends
+// many clients' calls over one connection. gRPC 1.51 hands the processor the connection's auth context (the
+// server auth filter passes its channel's; a call's security context refers to the same one), so nothing
+// per call can be stored there; the token stays in the call's metadata instead, and ClientName looks it up.
 class TokenAuthProcessor : public grpc::AuthMetadataProcessor {
  public:
-  explicit TokenAuthProcessor(std::shared_ptr<const TokenTable> table) : table_(std::move(table)) {}
+  explicit TokenAuthProcessor(std::shared_ptr<const TokenTable> table);
+  ~TokenAuthProcessor() override;
   bool IsBlocking() const override { return false; }  // a lookup in memory
   grpc::Status Process(const InputMetadata& auth_metadata, grpc::AuthContext* context,
                        OutputMetadata* consumed_auth_metadata, OutputMetadata* response_metadata) override;
+  // A new table; ends a failure.
   void Replace(std::shared_ptr<const TokenTable> table);
+  // The token file failed to reload: fail closed. No token is valid (a token the operator removed must not
+  // stay valid because the new file has a typo) until a reload succeeds; calls are told why, and the server
+  // reports NOT_SERVING meanwhile.
+  void Fail(const std::string& reason);
   std::shared_ptr<const TokenTable> table() const;
+  std::string failure() const;  // "" unless the last reload failed
 
  private:
   mutable std::mutex mutex_;
   std::shared_ptr<const TokenTable> table_;
+  std::string failure_;
 };
 
-// Whether `address` ("host:port") binds only the loopback interface.
+// Whether `address` ("host:port") binds only the loopback interface: "unix:" paths; literal addresses in
+// 127.0.0.0/8, ::1 and IPv4-mapped 127.0.0.0/8; a name only when it resolves, and every address it resolves
+// to is one of those ("127.evil.example" is a name like any other).
 bool IsLoopbackAddress(const std::string& address);
 
 // The server's listening credentials for `address`, with the token processor when tokens are on (*processor
@@ -101,7 +121,8 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
                                   std::shared_ptr<grpc::ServerCredentials>* credentials,
                                   std::shared_ptr<TokenAuthProcessor>* processor);
 
-// The caller's name: its token's client, else its certificate's common name, else "anonymous".
+// The caller's name: the client its own bearer token names (looked up per call in the live token tables), else
+// its certificate's common name, else "anonymous".
 std::string ClientName(const grpc::ServerContextBase& context);
 
 // Whom fair share and per-client limits count a call against: its client's name when the caller is known

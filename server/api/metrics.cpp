@@ -137,6 +137,7 @@ std::string Metrics::Serve(const std::string& address, const AccessOptions& acce
     exposer_->RegisterAuth(
         [this](const std::string& user, const std::string& password) {
           const TokenTable::Entry* entry = metrics_tokens_->table()->Find(password);
+          // Allows("metrics") holds only for a token that lists `metrics`: `*` is every RPC, not scraping.
           return entry != nullptr && entry->client == user && entry->Allows("metrics");
         },
         "loomlight metrics");

@@ -34,7 +34,7 @@ class Metrics {
   Metrics();
   // Starts the HTTP endpoint ("host:port", port 0 picks one); "" on success, else the reason. Only on loopback
   // unless plaintext on other addresses is allowed; with tokens a scraper authenticates by HTTP basic auth
-  // (user: a client, password: its token, which must allow `metrics`).
+  // (user: a client, password: its token, which must list `metrics` itself: `*` does not include it).
   std::string Serve(const std::string& address, const AccessOptions& access,
                     std::shared_ptr<TokenAuthProcessor> tokens);
   int port() const;
@@ -53,7 +53,8 @@ class Metrics {
   // The batcher's queues now, per priority (sampled with the resources).
   void Queues(const batching::QueueStats& stats);
   // Counts every finished call by client name, method and status (loomlight_client_calls_total), whichever
-  // service it went to (reflection, health): installed on the gRPC server as an interceptor.
+  // service it went to (reflection, health): installed on the gRPC server as an interceptor. A method the server
+  // does not have is "unknown" (CallName), so made-up method names add one series, not one each.
   std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> ClientCallCounter();
   void ClientCall(const std::string& client, const std::string& call, grpc::StatusCode code);
   // Kernel queries a Render call finished evaluating.

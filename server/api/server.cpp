@@ -91,16 +91,19 @@ std::string LoomlightServer::ReloadTokens() {
   if (!tokens_) return "no tokens file is in use (--tokens)";
   std::string error;
   auto table = TokenTable::Load(options_.access.tokens_file, &error);
-  if (!table) return error;
-  tokens_->Replace(std::move(table));
-  return "";
+  // Fail closed: a file that does not load leaves no token valid (TokenAuthProcessor::Fail), rather than
+  // keeping one the operator just removed; the replica reports NOT_SERVING until a reload succeeds.
+  if (table) tokens_->Replace(std::move(table));
+  else tokens_->Fail(error);
+  UpdateServing();
+  return error;
 }
 
 void LoomlightServer::SyncBtfAssets() { service_->SyncBtfAssets(); }
 
 void LoomlightServer::UpdateServing() {
   std::lock_guard<std::mutex> lock(mutex_);  // held throughout, so concurrent updates cannot end stale
-  const bool serving = warm_ && !draining_ && !stuck_;
+  const bool serving = warm_ && !draining_ && !stuck_ && (!tokens_ || tokens_->failure().empty());
   service_->SetServing(serving);
   grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService();
   health->SetServingStatus("", serving);

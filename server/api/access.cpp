@@ -203,9 +203,16 @@ std::string CallName(const std::string& path) {
 
 namespace {
 
-// The live processors (one per server with tokens: a process runs one, tests several), for ClientName.
-std::mutex processors_mutex;
-std::vector<const TokenAuthProcessor*> processors;
+// The live processors (one per server with tokens: a process runs one, tests several), for ClientName. Never
+// destroyed: gRPC may let go of a server's credentials, and so of its processor, during the process's exit.
+struct Processors {
+  std::mutex mutex;
+  std::vector<const TokenAuthProcessor*> live;
+};
+Processors& LiveProcessors() {
+  static Processors* const processors = new Processors;
+  return *processors;
+}
 
 // The bearer token a call carries, or "".
 std::string_view BearerToken(std::string_view header) {
@@ -216,13 +223,15 @@ std::string_view BearerToken(std::string_view header) {
 }  // namespace
 
 TokenAuthProcessor::TokenAuthProcessor(std::shared_ptr<const TokenTable> table) : table_(std::move(table)) {
-  std::lock_guard<std::mutex> lock(processors_mutex);
-  processors.push_back(this);
+  Processors& processors = LiveProcessors();
+  std::lock_guard<std::mutex> lock(processors.mutex);
+  processors.live.push_back(this);
 }
 
 TokenAuthProcessor::~TokenAuthProcessor() {
-  std::lock_guard<std::mutex> lock(processors_mutex);
-  processors.erase(std::find(processors.begin(), processors.end(), this));
+  Processors& processors = LiveProcessors();
+  std::lock_guard<std::mutex> lock(processors.mutex);
+  processors.live.erase(std::find(processors.live.begin(), processors.live.end(), this));
 }
 
 grpc::Status TokenAuthProcessor::Process(const InputMetadata& auth_metadata, grpc::AuthContext*, OutputMetadata*,
@@ -342,8 +351,9 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
 std::string ClientName(const grpc::ServerContextBase& context) {
   if (auto header = context.client_metadata().find("authorization"); header != context.client_metadata().end()) {
     const std::string token(BearerToken(std::string_view(header->second.data(), header->second.size())));
-    std::lock_guard<std::mutex> lock(processors_mutex);
-    for (const TokenAuthProcessor* processor : processors) {
+    Processors& processors = LiveProcessors();
+    std::lock_guard<std::mutex> lock(processors.mutex);
+    for (const TokenAuthProcessor* processor : processors.live) {
       const std::shared_ptr<const TokenTable> table = processor->table();
       if (const TokenTable::Entry* entry = token.empty() ? nullptr : table->Find(token)) return entry->client;
     }

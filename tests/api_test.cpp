@@ -22,6 +22,7 @@
 #include "server/api/server.h"
 #include "server/models/material.h"
 #include "server/models/quote.h"
+#include "server/models/weave/wif.h"
 #include "tests/testing.h"
 
 namespace loomlight {
@@ -280,6 +281,51 @@ TEST_F(ApiTest, WifDraftsSetTheWovenPattern) {
     EXPECT_NE(st.error_message().find(c.expected), std::string::npos)
         << c.name << ": '" << st.error_message() << "' should contain '" << c.expected << "'";
   }
+}
+
+// A WIF draft's parse holds up to its size + 1 MiB (models::weave::WifParseBytes): charged to the memory
+// budget while it runs (issue 44), so many large drafts at once are refused RESOURCE_EXHAUSTED instead of held.
+// Here the budget (1.5 MiB) holds a small draft's parse (1 MiB and its size) and not a 600 KiB draft's.
+TEST(MemoryBudget, WifParsesAreChargedWhileTheyRun) {
+  api::ServerOptions options;
+  options.limits.memory_budget_bytes = size_t{3} << 19;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
+  auto stub = testing::Connect(server->port());
+  const std::string large = std::string(kPlainWif) + ";" + std::string(size_t{600} << 10, 'x') + "\n";
+  ASSERT_GT(models::weave::WifParseBytes(large.size()), options.limits.memory_budget_bytes);
+
+  EvaluateRequest small_draft = Request("cotton_twill", 4, 1);
+  AddText(small_draft, "pattern.wif", kPlainWif);
+  EvaluateResponse resp;
+  const grpc::Status ok = Call(*stub, small_draft, &resp);
+  EXPECT_TRUE(ok.ok()) << ok.error_message();
+
+  EvaluateRequest large_draft = Request("cotton_twill", 4, 1);
+  AddText(large_draft, "pattern.wif", large);
+  const grpc::Status refused = Call(*stub, large_draft, &resp);
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error_message();
+  EXPECT_NE(refused.error_message().find("memory budget"), std::string::npos) << refused.error_message();
+
+  // Render checks its material on the gRPC thread, before its own admission: charged there too.
+  v1::RenderRequest render;
+  *render.mutable_material() = large_draft.material();
+  render.set_scene(v1::SCENE_SPHERE);
+  render.set_width(8);
+  render.set_height(8);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  auto reader = stub->Render(&ctx, render);
+  v1::RenderUpdate chunk;
+  while (reader->Read(&chunk)) {
+  }
+  const grpc::Status rendered = reader->Finish();
+  EXPECT_EQ(rendered.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << rendered.error_message();
+  EXPECT_NE(rendered.error_message().find("memory budget"), std::string::npos) << rendered.error_message();
+  // Each refused or finished parse gave its bytes back: a small draft's parse (over 1 MiB) still fits after them.
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(Call(*stub, large_draft, &resp).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  const grpc::Status again = Call(*stub, small_draft, &resp);
+  EXPECT_TRUE(again.ok()) << again.error_message();
 }
 
 // Evaluate with uv runs the woven BTF kernel: equal to the double reference (fp64 to float rounding; fp32

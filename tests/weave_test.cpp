@@ -2,13 +2,46 @@
 // drafts against the line that is wrong, float extraction and the standard-weave builders.
 #include <gtest/gtest.h>
 
+#include <malloc.h>
+
 #include <algorithm>
+#include <atomic>
+#include <cstdlib>
+#include <new>
 #include <ostream>
 #include <string>
 #include <vector>
 
 #include "server/models/weave/pattern.h"
 #include "server/models/weave/wif.h"
+
+// ---- A counting allocator for this test binary: the heap in use, and its peak since the last reset ----
+
+namespace {
+std::atomic<size_t> heap_in_use{0};
+std::atomic<size_t> heap_peak{0};
+
+void* CountedAllocate(size_t n) {
+  void* p = std::malloc(n ? n : 1);
+  if (!p) throw std::bad_alloc();
+  const size_t now = heap_in_use.fetch_add(malloc_usable_size(p)) + malloc_usable_size(p);
+  for (size_t peak = heap_peak.load(); now > peak && !heap_peak.compare_exchange_weak(peak, now);) {
+  }
+  return p;
+}
+void CountedFree(void* p) {
+  if (!p) return;
+  heap_in_use.fetch_sub(malloc_usable_size(p));
+  std::free(p);
+}
+}  // namespace
+
+void* operator new(size_t n) { return CountedAllocate(n); }
+void* operator new[](size_t n) { return CountedAllocate(n); }
+void operator delete(void* p) noexcept { CountedFree(p); }
+void operator delete[](void* p) noexcept { CountedFree(p); }
+void operator delete(void* p, size_t) noexcept { CountedFree(p); }
+void operator delete[](void* p, size_t) noexcept { CountedFree(p); }
 
 namespace loomlight::models::weave {
 
@@ -360,6 +393,9 @@ TEST(WifTest, MalformedDraftsReportTheLine) {
       {"line without '='", {{"[THREADING]\n1=1\n", "[THREADING]\n1 1 ; <-- bad\n"}}, true, "no '='"},
       {"index given twice", {{"[THREADING]\n1=1\n", "[THREADING]\n1=1\n1=2 ; <-- bad\n"}}, true,
        "thread 1 repeated"},
+      {"shaft listed twice in a tie-up", {{"2=2,3\n", "2=2,3,2 ; <-- bad\n"}}, true, "treadle 2 lists shaft 2 twice"},
+      {"treadle pressed twice at a pick", {{"[TREADLING]\n1=1\n", "[TREADLING]\n1=1, 1 ; <-- bad\n"}}, true,
+       "pick 1 lists treadle 1 twice"},
       {"[THREADING] listed but missing",
        {{"THREADING=true\n", "THREADING=true ; <-- bad\n"}, {"[THREADING]\n1=1\n2=2\n3=3\n4=4\n", ""}}, true,
        "no [THREADING] section"},
@@ -590,8 +626,8 @@ TEST(WifTest, LongValuesAreEchoedCutWithTheirSize) {
       {"Rising Shed=", {{"Rising Shed=true", "Rising Shed=" + junk + " ; <-- bad"}}, true, "Rising Shed='xxx"},
       {"Version=", {{"Version=1.1", "Version=" + junk + " ; <-- bad"}}, true, "WIF version 'xxx"},
       {"[CONTENTS] value", {{"WEFT=true", "WEFT=" + junk + " ; <-- bad"}}, true, "'xxx"},
-      {"[CONTENTS] key", {{"WEFT=true", "WEFT=true\n" + junk + "=true ; <-- bad"}}, true, "the file has no ['XXX"},
-      {"index key", {{"[THREADING]\n1=1\n", "[THREADING]\n" + junk + "=1 ; <-- bad\n"}}, true, "thread 'XXX"},
+      {"[CONTENTS] key", {{"WEFT=true", "WEFT=true\n" + junk + "=true ; <-- bad"}}, true, "the file has no ['xxx"},
+      {"index key", {{"[THREADING]\n1=1\n", "[THREADING]\n" + junk + "=1 ; <-- bad\n"}}, true, "thread 'xxx"},
       {"index value", {{"[THREADING]\n1=1\n", "[THREADING]\n1=1," + junk + " ; <-- bad\n"}}, true, "shaft 'xxx"},
   };
   for (const BadDraft& c : cases) {
@@ -607,6 +643,112 @@ TEST(WifTest, LongValuesAreEchoedCutWithTheirSize) {
     EXPECT_LT(err.size(), 400u) << err.substr(0, 300);
     EXPECT_EQ(err.find('\x01'), std::string::npos) << "control byte echoed raw";
   }
+}
+
+// ---- What a parse may cost (issue 44): drafts built to multiply memory ----
+
+// A draft with `treadles` treadles on `shafts` shafts: tie-up row t lists `tieup_list`, every one of `picks`
+// picks presses `pressed_list`.
+std::string TreadlingDraft(int shafts, int treadles, int picks, const std::string& tieup_list,
+                           const std::string& pressed_list) {
+  std::string text = Header("WEAVING=yes\nTHREADING=yes\nTIEUP=yes\nTREADLING=yes\n") + "[WEAVING]\nShafts=" +
+                     std::to_string(shafts) + "\nTreadles=" + std::to_string(treadles) + "\n[THREADING]\n";
+  for (int w = 1; w <= kMaxRepeat; ++w) text += std::to_string(w) + "=" + std::to_string(1 + (w - 1) % shafts) + "\n";
+  text += "[TIEUP]\n";
+  for (int t = 1; t <= treadles; ++t) text += std::to_string(t) + "=" + tieup_list + "\n";
+  text += "[TREADLING]\n";
+  for (int p = 1; p <= picks; ++p) text += std::to_string(p) + "=" + pressed_list + "\n";
+  return text;
+}
+
+// "1,2,...,n" or "k,k,...,k" (n times).
+std::string Sequence(int n) {
+  std::string s;
+  for (int i = 1; i <= n; ++i) {
+    if (i > 1) s += ',';
+    s += std::to_string(i);
+  }
+  return s;
+}
+std::string Repeat(const std::string& item, size_t n) {
+  std::string s;
+  for (size_t i = 0; i < n; ++i) {
+    if (i) s += ',';
+    s += item;
+  }
+  return s;
+}
+
+// The heap ParseWif holds at its peak, from the counting allocator at the top of this file.
+size_t PeakHeapOfParse(const std::string& text, std::string* error) {
+  WeavePattern pattern;
+  const size_t before = ::heap_in_use.load();
+  ::heap_peak = before;
+  *error = ParseWif(text, &pattern);
+  return ::heap_peak.load() - before;
+}
+
+// The attack: a tie-up row repeating one shaft tens of thousands of times and picks pressing one treadle as
+// often made each pick append every pressed treadle's whole row (gigabytes from a draft under the 1 MiB
+// limit). Repeats are refused at the first repeated value, and the parse holds at most WifParseBytes.
+TEST(WifCostTest, RepeatedIndicesAreRefusedAndCannotMultiplyMemory) {
+  const std::string tieup = Repeat("1", 100000), pressed = Repeat("1", 1400);
+  const std::string text = TreadlingDraft(4, 1, 256, tieup, pressed);
+  ASSERT_LE(text.size(), kMaxWifBytes);
+  ASSERT_GT(text.size(), kMaxWifBytes * 3 / 4);
+  std::string error;
+  const size_t peak = PeakHeapOfParse(text, &error);
+  const int tieup_line = LineOf(text, "[TIEUP]") + 1;
+  EXPECT_EQ(error.rfind("line " + std::to_string(tieup_line) + ": [TIEUP] treadle 1 lists shaft 1 twice", 0), 0u)
+      << error.substr(0, 300);
+  EXPECT_LE(peak, WifParseBytes(text.size())) << "bytes held at the peak of a " << text.size() << "-byte parse";
+
+  // The treadling's repeats alone, with a tie-up that is fine.
+  const std::string treadling_only = TreadlingDraft(4, 1, 256, "1", pressed);
+  const size_t peak2 = PeakHeapOfParse(treadling_only, &error);
+  EXPECT_NE(error.find("[TREADLING] pick 1 lists treadle 1 twice"), std::string::npos) << error.substr(0, 300);
+  EXPECT_LE(peak2, WifParseBytes(treadling_only.size()));
+}
+
+// The largest draft the format allows without repeats: 256 treadles each tied to all 256 shafts and 256
+// picks each pressing all 256 treadles. Lifted shafts are a set (256 at most), so this is cheap, and every
+// warp end is up at every pick.
+TEST(WifCostTest, EveryTreadlePressedAtEveryPickIsASetUnion) {
+  const std::string text = TreadlingDraft(kMaxRepeat, kMaxRepeat, kMaxRepeat, Sequence(kMaxRepeat), Sequence(kMaxRepeat));
+  std::string error;
+  const size_t peak = PeakHeapOfParse(text, &error);
+  EXPECT_EQ(error, "");
+  EXPECT_LE(peak, WifParseBytes(text.size()));
+  const WeavePattern p = Wif(text);
+  EXPECT_EQ(p.warps, kMaxRepeat);
+  EXPECT_EQ(p.picks, kMaxRepeat);
+  EXPECT_EQ(std::count(p.cells.begin(), p.cells.end(), 1), kMaxRepeat * kMaxRepeat);
+}
+
+// Sections and entries are counted as they are read, so neither a flood of section headers nor of entries
+// in one section is held.
+TEST(WifCostTest, SectionAndEntryFloodsAreRefusedWhereTheyPassTheLimit) {
+  std::string sections = kTwillWif;
+  for (int i = 0; i < 5000; ++i) sections += "[Private" + std::to_string(i) + "]\n";
+  std::string error;
+  const size_t peak = PeakHeapOfParse(sections, &error);
+  EXPECT_NE(error.find("more than 1024 sections"), std::string::npos) << error;
+  EXPECT_LE(peak, WifParseBytes(sections.size()));
+
+  std::string entries = Edit(kTwillWif, "[WIF]\n", "[WIF]\n; flood below\n");
+  std::string flood;
+  for (int i = 0; i < 200000; ++i) flood += "k=\n";
+  entries = Edit(entries, "; flood below\n", flood);
+  ASSERT_LE(entries.size(), kMaxWifBytes);
+  const size_t peak2 = PeakHeapOfParse(entries, &error);
+  const int line = LineOf(entries, "[WIF]") + 1025;  // the 1025th entry of [WIF] (Version= is after the flood)
+  EXPECT_EQ(error.rfind("line " + std::to_string(line) + ": more than 1024 entries in one section", 0), 0u) << error;
+  EXPECT_LE(peak2, WifParseBytes(entries.size()));
+  // Unread sections hold no entries: free text of any length is skipped.
+  std::string notes = kTwillWif + "[NOTES]\n";
+  for (int i = 0; i < 200000; ++i) notes += "n=\n";
+  EXPECT_LE(PeakHeapOfParse(notes, &error), WifParseBytes(notes.size()));
+  EXPECT_EQ(error, "");
 }
 
 }  // namespace

@@ -616,7 +616,7 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> cached;
   if (std::string e = deps.materials->Peek(request->material(), *deps.registry, &model, &cached); !e.empty())
-    return reject(Invalid(e));
+    return reject(MaterialError(e));
   Admission admission;
   if (grpc::Status s = AdmitLongCall(deps, *context, bytes, &admission); !s.ok()) return reject(s);
   return new CreateBtfCall(deps, context, std::move(job), request->material(), std::move(fibers), std::move(admission),

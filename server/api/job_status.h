@@ -13,6 +13,7 @@
 #include "server/api/access.h"
 #include "server/api/admission.h"
 #include "server/batching/batcher.h"
+#include "server/models/material_cache.h"
 #include "server/models/material_plan.h"
 
 namespace loomlight::api {
@@ -115,6 +116,13 @@ inline grpc::Status Invalid(const std::string& message) {
   size_t n = kMaxStatusMessageBytes - mark.size();  // message[n] is the first byte left out
   for (int k = 0; k < 3 && n > 0 && (static_cast<uint8_t>(message[n]) & 0xC0) == 0x80; ++k) --n;
   return {grpc::StatusCode::INVALID_ARGUMENT, message.substr(0, n) + mark};
+}
+
+// A material's error from the material cache: RESOURCE_EXHAUSTED when the memory budget could not hold its
+// text parse now (models::kParseBudgetError), else INVALID_ARGUMENT.
+inline grpc::Status MaterialError(const std::string& message) {
+  if (message.rfind(models::kParseBudgetError, 0) == 0) return {grpc::StatusCode::RESOURCE_EXHAUSTED, message};
+  return Invalid(message);
 }
 
 inline grpc::Status ToStatus(const batching::JobResult& r) {

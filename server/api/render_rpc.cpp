@@ -968,7 +968,7 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
   if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
-    return reject(Invalid(error));
+    return reject(MaterialError(error));
   FiberJobs fiber_jobs;
   render::RenderSetup::FiberDetail detail;
   if (grpc::Status s = CheckRenderRequest(*deps.registry, *request, *model, deps.has_fp64, &fiber_jobs, &detail); !s.ok())

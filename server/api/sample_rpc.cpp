@@ -37,7 +37,7 @@ struct SampleCall : PlanCall<v1::SampleRequest, v1::SampleResponse> {
                                                               request.error_target(), &call->material,
                                                               &call->approximation);
         !error.empty())
-      return call->Finish(Invalid(error));
+      return call->Finish(MaterialError(error));
     if (std::string error = CheckSampleQueries(request, *call->material->model); !error.empty())
       return call->Finish(Invalid(error));
     const int n = static_cast<int>(call->n);

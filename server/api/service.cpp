@@ -54,7 +54,7 @@ struct EvaluateCall : PlanCall<v1::EvaluateRequest, v1::EvaluateResponse> {
       std::string error = call->deps->materials->GetWithin(request.material(), *call->deps->registry,
                                                             request.error_target(), &call->material,
                                                             &call->approximation);
-      if (!error.empty()) return call->Finish(Invalid(error));
+      if (!error.empty()) return call->Finish(MaterialError(error));
     } else {
       call->approximation = call->material->own_settings;
     }
@@ -87,6 +87,7 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
       client_long_calls_(limits.max_long_calls_per_client),
       idle_uploads_(limits.upload_idle_timeout) {
   deps_.materials = &materials_;
+  materials_.ChargeParsesTo(deps_.memory);  // a WIF draft's parse holds up to its size + 1 MiB
   deps_.folds = &folds_;
   deps_.fiber_scenes = fiber_scenes_.get();
   deps_.idle_uploads = &idle_uploads_;
@@ -130,7 +131,8 @@ grpc::Status AdmitLongCall(const ServiceDeps& deps, const grpc::ServerContextBas
 
 grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& material,
                              std::shared_ptr<const models::PreparedMaterial>* out) {
-  if (std::string error = deps.materials->Get(material, *deps.registry, out); !error.empty()) return Invalid(error);
+  if (std::string error = deps.materials->Get(material, *deps.registry, out); !error.empty())
+    return MaterialError(error);
   return grpc::Status::OK;
 }
 

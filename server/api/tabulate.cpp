@@ -553,7 +553,7 @@ grpc::ServerWriteReactor<v1::TabulateChunk>* HandleTabulate(const TabulateDeps& 
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
   if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
-    return reject(Invalid(error));
+    return reject(MaterialError(error));
   TabulationGrid grid;
   if (grpc::Status s = CheckTabulateRequest(*request, *model, deps.has_fp64, &grid); !s.ok()) return reject(s);
   Admission admission;

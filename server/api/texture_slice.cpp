@@ -354,7 +354,7 @@ grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc:
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
   if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
-    return Reject(deps, context, received, Invalid(error));
+    return Reject(deps, context, received, MaterialError(error));
   if (!model->spatially_varying())
     return Reject(deps, context, received,
                   Invalid("material: model '" + model->name() +

@@ -38,6 +38,22 @@ std::string CheckValues(const ParamSpec& spec, const std::vector<double>& values
 
 }  // namespace
 
+size_t TextParseBytes(const v1::Material& material, const Registry& registry) {
+  size_t bytes = 0;
+  const Model* model = nullptr;
+  for (const v1::Param& param : material.params()) {
+    if (param.text().empty()) continue;
+    if (!model) {
+      const PresetSpec* preset = nullptr;
+      model = !material.preset().empty() ? registry.FindPreset(material.preset(), &preset)
+                                         : registry.FindModel(material.model());
+      if (!model) return bytes;
+    }
+    bytes += model->TextParseBytes(param.name(), param.text().size());
+  }
+  return bytes + (material.has_transmission() ? TextParseBytes(material.transmission(), registry) : 0);
+}
+
 std::string ResolveMaterial(const v1::Material& material, const Registry& registry, ResolvedMaterial* out,
                             const std::string& field) {
   const Model* model = nullptr;

@@ -19,4 +19,8 @@ struct ResolvedMaterial {
 std::string ResolveMaterial(const v1::Material& material, const Registry& registry, ResolvedMaterial* out,
                             const std::string& field = "material");
 
+// The most heap resolving `material` (its transmission layer too) holds for its text parameters' parses
+// (Model::TextParseBytes); 0 when it has no text. Names that do not resolve count nothing: resolving refuses them.
+size_t TextParseBytes(const v1::Material& material, const Registry& registry);
+
 }  // namespace loomlight::models

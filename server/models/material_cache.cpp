@@ -46,7 +46,7 @@ std::string MaterialCache::Get(const v1::Material& material, const Registry& reg
     if (Find(alias, out)) return "";
   }
   ResolvedMaterial top, layer;
-  if (std::string error = ResolveComposition(material, registry, &top, &layer); !error.empty())
+  if (std::string error = Resolve(material, registry, &top, &layer); !error.empty())
     return error;  // bad materials are not cached: they are cheap to reject again
   std::string key = CanonicalKey(top, layer);
   if (!Find(key, out)) {
@@ -94,10 +94,20 @@ std::string MaterialCache::Peek(const v1::Material& material, const Registry& re
     return "";
   }
   ResolvedMaterial top, layer;
-  if (std::string error = ResolveComposition(material, registry, &top, &layer); !error.empty()) return error;
+  if (std::string error = Resolve(material, registry, &top, &layer); !error.empty()) return error;
   *model = top.model;
   Find(CanonicalKey(top, layer), cached);
   return "";
+}
+
+std::string MaterialCache::Resolve(const v1::Material& material, const Registry& registry, ResolvedMaterial* top,
+                                   ResolvedMaterial* layer) {
+  batching::Budget::Reservation parse;
+  if (const size_t bytes = TextParseBytes(material, registry); parse_budget_ && bytes > 0 &&
+                                                               !parse_budget_->TryReserve(bytes, &parse))
+    return std::string(kParseBudgetError) + "the server cannot hold this material's text parse (" +
+           std::to_string(bytes) + " bytes) now; retry later";
+  return ResolveComposition(material, registry, top, layer);
 }
 
 bool MaterialCache::Find(const v1::Material& material, std::shared_ptr<const Entry>* out) {

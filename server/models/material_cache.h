@@ -5,9 +5,11 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <unordered_map>
 
 #include "loomlight/v1/loomlight.pb.h"
+#include "server/batching/budget.h"
 #include "server/models/material.h"
 #include "server/models/material_plan.h"
 #include "server/models/registry.h"
@@ -21,10 +23,17 @@ namespace loomlight::models {
 // parameter order or a preset spelled out value by value cannot make new entries. A request with no unknown
 // field also gets an alias keyed on its own bytes, so the same request again skips resolving (~5 us); the
 // aliases share the LRU order and the byte bound.
+// How Get, GetWithin and Peek's error starts when the memory budget cannot hold a material's text parse now
+// (MaterialCache::ChargeParsesTo): the API answers it RESOURCE_EXHAUSTED, every other error INVALID_ARGUMENT.
+inline constexpr std::string_view kParseBudgetError = "memory budget: ";
+
 class MaterialCache {
  public:
   using Entry = PreparedMaterial;
   explicit MaterialCache(size_t capacity_bytes) : capacity_bytes_(capacity_bytes) {}
+  // Charges each material's text parses (a WIF draft's; TextParseBytes) to `budget` while they run, so that
+  // many large drafts at once are refused rather than held; null (the default): nothing is charged.
+  void ChargeParsesTo(batching::Budget* budget) { parse_budget_ = budget; }
   // The cached entry, or one packed now ("" on success, else the INVALID_ARGUMENT message).
   std::string Get(const v1::Material& material, const Registry& registry,
                   std::shared_ptr<const Entry>* out);
@@ -62,9 +71,13 @@ class MaterialCache {
   static bool HasUnknownFields(const v1::Material& material);
   static std::string CanonicalKey(const ResolvedMaterial& top, const ResolvedMaterial& layer);
   bool Find(const std::string& key, std::shared_ptr<const Entry>* out);
+  // ResolveComposition with its text parses charged to parse_budget_.
+  std::string Resolve(const v1::Material& material, const Registry& registry, ResolvedMaterial* top,
+                      ResolvedMaterial* layer);
   void Insert(std::string key, std::shared_ptr<const Entry> entry, bool alias);
 
   const size_t capacity_bytes_;
+  batching::Budget* parse_budget_ = nullptr;
   mutable std::mutex mutex_;
   std::list<std::string> order_;  // keys, most recently used first
   std::unordered_map<std::string, Slot> map_;

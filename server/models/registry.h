@@ -123,6 +123,9 @@ class Model {
   virtual std::string ApplyText(const std::string& name, const std::string& text, ParamValues* values) const {
     return "parameter '" + name + "' takes no text";
   }
+  // The most heap ApplyText holds at once for a text of `text_bytes` bytes, the text's copy included: what a
+  // server charges to its memory budget while a client's text parses. Models whose parse holds more override it.
+  virtual size_t TextParseBytes(const std::string& name, size_t text_bytes) const { return text_bytes; }
   // Double-precision host reference: f for n queries (RGB), the kernel's own source built for the host
   // (server/models/host_kernels.h). uv (pairs) selects the spatially varying kernel; nullptr: f(wi, wo).
   void ReferenceEval(const PackedMaterial& m, const float* wi, const float* wo, const float* uv, size_t n,

@@ -168,6 +168,10 @@ class WovenModel : public Model {
     return "";
   }
 
+  size_t TextParseBytes(const std::string& name, size_t text_bytes) const override {
+    return name == "pattern.wif" ? weave::WifParseBytes(text_bytes) : text_bytes;
+  }
+
   double ThreadsPerRepeat(const ParamValues& v) const override {
     weave::WeavePattern pattern;
     if (!PatternOf(v, &pattern).empty()) return 1;

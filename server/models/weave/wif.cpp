@@ -1,6 +1,7 @@
 #include "server/models/weave/wif.h"
 
 #include <algorithm>
+#include <bitset>
 #include <cctype>
 #include <map>
 #include <optional>
@@ -53,10 +54,17 @@ bool ParseBool(std::string_view s, bool* out) {
 }
 
 // ---- Lexing: text -> sections of key=value entries, each with its line ----
+//
+// What a parse holds is bounded by the text, never multiplied by it: entries are views into the text (no
+// copies), a read section holds at most kMaxEntriesPerSection entries and a draft at most kMaxSections
+// sections, and every index list is a set of at most kMaxRepeat values (kParseBytesPerTextByte below).
+
+constexpr size_t kMaxSections = 1024;          // real drafts have a few dozen
+constexpr size_t kMaxEntriesPerSection = 1024;  // an index section needs at most kMaxRepeat
 
 struct Entry {
-  std::string key;    // trimmed, upper case
-  std::string value;  // trimmed
+  std::string_view key;    // trimmed, as written (compared case-insensitively)
+  std::string_view value;  // trimmed
   int line = 0;
 };
 
@@ -67,6 +75,12 @@ struct Section {
 
 using Sections = std::map<std::string, Section>;  // by upper-case name
 
+bool EqualsIgnoringCase(std::string_view a, std::string_view b) {
+  return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
+           return std::toupper(static_cast<unsigned char>(x)) == std::toupper(static_cast<unsigned char>(y));
+         });
+}
+
 // The sections this importer interprets; only these are checked line by line.
 bool IsRead(const std::string& name) {
   static const char* const kRead[] = {"WIF",     "CONTENTS",  "WEAVING", "WARP",    "WEFT",
@@ -74,45 +88,50 @@ bool IsRead(const std::string& name) {
   return std::find(std::begin(kRead), std::end(kRead), name) != std::end(kRead);
 }
 
-// Lines split at "\r\n", "\n" or "\r" (WIF dates from DOS and classic Mac OS as well as Unix).
-std::vector<std::string_view> SplitLines(std::string_view text) {
-  std::vector<std::string_view> lines;
-  size_t start = 0;
-  for (size_t i = 0; i < text.size(); ++i) {
-    if (text[i] != '\n' && text[i] != '\r') continue;
-    lines.push_back(text.substr(start, i - start));
-    if (text[i] == '\r' && i + 1 < text.size() && text[i + 1] == '\n') ++i;
-    start = i + 1;
+// The next line of `*text` (ending at "\r\n", "\n" or "\r": WIF dates from DOS and classic Mac OS as well as
+// Unix), removed from it; false at the end. Walked line by line so that no table of lines is held.
+bool NextLine(std::string_view* text, std::string_view* line) {
+  if (text->empty()) return false;
+  const size_t end = text->find_first_of("\r\n");
+  *line = text->substr(0, end);
+  if (end == std::string_view::npos) {
+    *text = {};
+    return true;
   }
-  if (start < text.size()) lines.push_back(text.substr(start));
-  return lines;
+  const size_t next = end + ((*text)[end] == '\r' && end + 1 < text->size() && (*text)[end + 1] == '\n' ? 2 : 1);
+  text->remove_prefix(next);
+  return true;
 }
 
 std::string Lex(std::string_view text, Sections* sections) {
   if (text.substr(0, 3) == "\xEF\xBB\xBF") text.remove_prefix(3);
-  const std::vector<std::string_view> lines = SplitLines(text);
-  std::string current;  // name of the section being read; empty before the first header
-  for (size_t i = 0; i < lines.size(); ++i) {
-    const int n = int(i) + 1;
-    std::string_view line = lines[i];
+  Section* current = nullptr;  // the section being read; null before the first header and in unread sections
+  bool in_section = false;
+  std::string_view line;
+  for (int n = 1; NextLine(&text, &line); ++n) {
     line = Trim(line.substr(0, line.find(';')));
     if (line.empty()) continue;
     if (line.front() == '[') {
       if (line.back() != ']') return LineError(n, "section header must end with ']'");
-      current = Upper(Trim(line.substr(1, line.size() - 2)));
-      if (current.empty()) return LineError(n, "empty section name");
-      const auto [it, inserted] = sections->insert({current, Section{n, {}}});
-      if (!inserted && IsRead(current))
-        return Repeated(n, "section [" + current + "]", it->second.line);
+      const std::string name = Upper(Trim(line.substr(1, line.size() - 2)));
+      if (name.empty()) return LineError(n, "empty section name");
+      const auto [it, inserted] = sections->insert({name, Section{n, {}}});
+      if (!inserted && IsRead(name)) return Repeated(n, "section [" + name + "]", it->second.line);
+      if (sections->size() > kMaxSections)
+        return LineError(n, "more than " + std::to_string(kMaxSections) + " sections");
+      in_section = true;
+      current = IsRead(name) ? &it->second : nullptr;
       continue;
     }
-    if (current.empty()) return LineError(n, "entry before the first [section] header");
-    if (!IsRead(current)) continue;
+    if (!in_section) return LineError(n, "entry before the first [section] header");
+    if (!current) continue;  // a section this importer does not read: free text allowed
     const size_t eq = line.find('=');
     if (eq == std::string_view::npos) return LineError(n, "expected key=value, found no '='");
-    const std::string key = Upper(Trim(line.substr(0, eq)));
+    const std::string_view key = Trim(line.substr(0, eq));
     if (key.empty()) return LineError(n, "missing key before '='");
-    (*sections)[current].entries.push_back({key, std::string(Trim(line.substr(eq + 1))), n});
+    if (current->entries.size() == kMaxEntriesPerSection)
+      return LineError(n, "more than " + std::to_string(kMaxEntriesPerSection) + " entries in one section");
+    current->entries.push_back({key, Trim(line.substr(eq + 1)), n});
   }
   return "";
 }
@@ -132,10 +151,9 @@ std::string Require(const Sections& sections, const std::string& name, const Sec
 // The entry for `key` (display spelling, e.g. "Rising Shed") in section `name`, or nullptr when absent;
 // a key given twice is an error at its second line.
 std::string FindKey(const Section& s, const std::string& name, const std::string& key, const Entry** out) {
-  const std::string wanted = Upper(key);
   *out = nullptr;
   for (const Entry& e : s.entries) {
-    if (e.key != wanted) continue;
+    if (!EqualsIgnoringCase(e.key, key)) continue;
     if (*out) return Repeated(e.line, "[" + name + "] " + key + "=", (*out)->line);
     *out = &e;
   }
@@ -180,13 +198,19 @@ std::string ParseIndex(std::string_view text, const Range& range, int line, int*
   return "";
 }
 
+// A set of indices 1..kMaxRepeat (bit i for index i): what a thread is threaded on, a treadle ties up, a
+// pick presses or lifts. A set, so that a list can never hold more than kMaxRepeat values.
+using IndexSet = std::bitset<kMaxRepeat + 1>;
+
 struct IndexTable {
-  std::vector<std::vector<int>> rows;  // rows[index - 1]: the values of that index; empty if no entry
-  int max_key = 0;                     // largest index with an entry
+  std::vector<IndexSet> rows;  // rows[index - 1]: the values of that index; empty if no entry
+  int max_key = 0;             // largest index with an entry
 };
 
 // The one parser shared by [THREADING], [TIEUP], [TREADLING] and [LIFTPLAN]: each entry is a key in
-// `keys` and a comma-separated (possibly empty) list of values in `values`.
+// `keys` and a comma-separated (possibly empty) list of distinct values in `values`. A value listed twice
+// in one entry is refused (a thread on shaft 2 "twice" is a broken draft, and a list then stays at most
+// kMaxRepeat long).
 std::string ParseIndexSection(const Section& s, const std::string& name, const Range& keys, const Range& values,
                               IndexTable* out) {
   out->rows.assign(keys.max, {});
@@ -199,11 +223,15 @@ std::string ParseIndexSection(const Section& s, const std::string& name, const R
     first_line[key - 1] = e.line;
     out->max_key = std::max(out->max_key, key);
     if (e.value.empty()) continue;  // listed without shafts: the same as no entry
+    IndexSet& row = out->rows[key - 1];
     for (std::string_view rest = e.value;;) {
       const size_t comma = rest.find(',');
       int v = 0;
       if (std::string err = ParseIndex(Trim(rest.substr(0, comma)), values, e.line, &v); !err.empty()) return err;
-      out->rows[key - 1].push_back(v);
+      if (row.test(v))
+        return LineError(e.line, "[" + name + "] " + keys.what + " " + std::to_string(key) + " lists " + values.what +
+                                     " " + std::to_string(v) + " twice");
+      row.set(v);
       if (comma == std::string_view::npos) break;
       rest.remove_prefix(comma + 1);
     }
@@ -242,7 +270,7 @@ std::string CheckHeader(const Sections& sections) {
   for (const Entry& e : contents->entries) {
     bool present = false;
     if (!ParseBool(e.value, &present)) return LineError(e.line, Quote(e.value) + " is not a boolean");
-    if (present && !Find(sections, e.key))
+    if (present && !Find(sections, Upper(e.key)))
       return LineError(e.line, "listed in [CONTENTS], but the file has no [" + EchoToken(e.key) + "] section");
   }
   return "";
@@ -289,28 +317,25 @@ std::string ReadTables(const Sections& sections, Draft* d) {
 }
 
 // The shafts lifted at each pick, indexed like the pick rows: the liftplan when there is one, else the
-// union of the tie-ups of the treadles pressed.
-std::vector<std::vector<int>> LiftedShafts(const Draft& d) {
+// union of the tie-ups of the treadles pressed (a union of sets: at most kMaxRepeat shafts, whatever the
+// draft repeats).
+std::vector<IndexSet> LiftedShafts(const Draft& d) {
   if (d.liftplan) return d.liftplan->rows;
-  std::vector<std::vector<int>> lifts(d.treadling->rows.size());
+  std::vector<IndexSet> lifts(d.treadling->rows.size());
   for (size_t p = 0; p < lifts.size(); ++p)
-    for (int t : d.treadling->rows[p])
-      lifts[p].insert(lifts[p].end(), d.tieup->rows[t - 1].begin(), d.tieup->rows[t - 1].end());
+    for (size_t t = 1; t < d.tieup->rows.size() + 1; ++t)
+      if (d.treadling->rows[p].test(t)) lifts[p] |= d.tieup->rows[t - 1];
   return lifts;
 }
 
 WeavePattern Drawdown(const Draft& d, int warps, int picks) {
-  const std::vector<std::vector<int>> lifts = LiftedShafts(d);
+  const std::vector<IndexSet> lifts = LiftedShafts(d);
   WeavePattern p{warps, picks, std::vector<uint8_t>(size_t(warps) * picks)};
-  for (int pick = 0; pick < picks; ++pick) {
-    std::vector<bool> lifted(d.shafts + 1, false);
-    for (int s : lifts[pick]) lifted[s] = true;
+  for (int pick = 0; pick < picks; ++pick)
     for (int warp = 0; warp < warps; ++warp) {
-      const std::vector<int>& on = d.threading->rows[warp];
-      const bool up = std::any_of(on.begin(), on.end(), [&](int s) { return lifted[s]; });
+      const bool up = (d.threading->rows[warp] & lifts[pick]).any();
       p.cells[size_t(pick) * warps + warp] = up == d.rising ? 1 : 0;  // a sinking shed inverts the cell
     }
-  }
   return p;
 }
 

@@ -13,6 +13,11 @@ namespace loomlight::models::weave {
 // Largest WIF text accepted, in bytes. A 256 x 256 draft with every optional section is well under it.
 inline constexpr size_t kMaxWifBytes = size_t(1) << 20;
 
+// The most heap a ParseWif of `text_bytes` bytes holds at once: the text's size (section names are copied)
+// plus a fixed part (at most 1024 sections, 1024 entries in each section read, index sets of 256 values,
+// the 256 x 256 drawdown). What the server charges to its memory budget for a draft while it parses.
+inline constexpr size_t WifParseBytes(size_t text_bytes) { return text_bytes + (size_t(1) << 20); }
+
 // Parses a WIF draft into *out (left untouched on error). Returns "" or "line N: reason", N being the
 // 1-based line that failed; a missing section is reported at line 0, a missing key at the line of its
 // section header, and a section that [CONTENTS] lists but the file lacks at that [CONTENTS] line.
@@ -36,8 +41,10 @@ inline constexpr size_t kMaxWifBytes = size_t(1) << 20;
 // - [THREADING] (required) thread=shaft[,shaft...]; [TIEUP] treadle=shaft[,...]; [TREADLING]
 //   pick=treadle[,...]; [LIFTPLAN] pick=shaft[,...]. Every index is a decimal integer from 1 to its
 //   bound: the declared count (Shafts=, Treadles=, WARP/WEFT Threads=) or, for undeclared thread and
-//   pick counts, 256. An index given twice in a section is an error. A thread, pick or treadle with no
-//   entry, or an empty value, has no shafts (never lifted).
+//   pick counts, 256. An index given twice in a section is an error, and so is a value given twice in one
+//   entry ("3=2,2": refused, naming the line, not folded). A thread, pick or treadle with no entry, or an
+//   empty value, has no shafts (never lifted).
+// - At most 1024 sections, and at most 1024 entries in each section read.
 //
 // Drawdown: the shafts lifted at pick p are those of the [LIFTPLAN] line for p when the file has a
 // liftplan (it is what the loom does, so it wins over any treadling also present), otherwise the union

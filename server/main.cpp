@@ -62,6 +62,10 @@ void Usage() {
                "  --environment-cache-mb N   decoded environment maps kept, in MiB (default 256)\n"
                "  --grpc-memory-mb N         gRPC's own buffers, in MiB (default 512)\n"
                "  --stall-seconds N          health NOT_SERVING while one task runs longer (default 20)\n"
+               "  --max-call-seconds [PRIORITY:]N  a call's deadline is its client's, at most N s (both priorities,\n"
+               "                             or interactive: Evaluate, Sample, TextureSlice; bulk: Tabulate, Render,\n"
+               "                             YarnGeometry, CreateBtf; repeatable; default interactive 120, bulk 3600)\n"
+               "  --stall-write-seconds N    a stream whose client reads nothing for N s is cancelled (default 60)\n"
                "  --shutdown-grace SECONDS   on SIGTERM, in-flight calls may finish this long (default 30)\n");
 }
 
@@ -198,6 +202,25 @@ int main(int argc, char** argv) {
     else if (arg == "--environment-cache-mb") options.environment_cache_bytes = mebibytes();
     else if (arg == "--grpc-memory-mb") options.grpc_memory_bytes = mebibytes();
     else if (arg == "--stall-seconds") options.stall_limit = std::chrono::seconds(positive());
+    else if (arg == "--max-call-seconds") {
+      // "N" caps both priorities, "interactive:N" or "bulk:N" one.
+      const std::string v = value();
+      const size_t colon = v.find(':');
+      const std::string priority = colon == std::string::npos ? "" : v.substr(0, colon);
+      const std::string n = v.substr(colon == std::string::npos ? 0 : colon + 1);
+      char* end = nullptr;
+      const unsigned long long seconds = std::strtoull(n.c_str(), &end, 10);
+      if ((colon != std::string::npos && priority != "interactive" && priority != "bulk") || n.empty() || *end ||
+          seconds == 0) {
+        std::fprintf(stderr, "error: --max-call-seconds takes N, interactive:N or bulk:N (N >= 1), got '%.80s'\n",
+                     v.c_str());
+        return 2;
+      }
+      const std::chrono::milliseconds cap = std::chrono::seconds(std::min(seconds, 31536000ULL));  // a year at most
+      if (priority != "bulk") options.call_caps.interactive = cap;
+      if (priority != "interactive") options.call_caps.bulk = cap;
+    }
+    else if (arg == "--stall-write-seconds") options.stall_write_timeout = std::chrono::seconds(positive());
     else if (arg == "--shutdown-grace") options.shutdown_grace = std::chrono::seconds(number());
     else if (arg == "--help" || arg == "-h") { Usage(); return 0; }
     else { std::fprintf(stderr, "error: unknown option '%s'\n", arg.c_str()); Usage(); return 2; }

@@ -245,4 +245,6 @@ expect_refused "takes no value" --allow-plaintext-remote=yes
 expect_refused "unknown option '--no-such-option'" --no-such-option=1
 expect_refused "must be at least 1" --memory-budget-mb=0
 expect_refused "not ADDRESS or ADDRESS/BITS" --trusted-proxy=proxy.example
+expect_refused "takes N, interactive:N or bulk:N" --max-call-seconds=batch:5
+expect_refused "takes N, interactive:N or bulk:N" --max-call-seconds=bulk:0
 echo "PASS"

@@ -19,9 +19,11 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <future>
 #include <sstream>
 #include <thread>
+#include <tuple>
 
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "loomlight/v1/loomlight.grpc.pb.h"
@@ -626,6 +628,203 @@ TEST(Metrics, AStreamWhoseDeadlinePassedCountsAsDeadlineExceeded) {
   EXPECT_NE(text.find("loomlight_resource{name=\"long_calls_limit\"} 16"), std::string::npos) << text;
   EXPECT_NE(text.find("loomlight_resource{name=\"memory_bytes_limit\"} 2147483648"), std::string::npos);
   EXPECT_NE(text.find("loomlight_resource{name=\"serving\"} 1"), std::string::npos);
+}
+
+// ---- No call holds a slot or budget forever (issue 44, item 2) ----
+
+// Waits until `done()` or `guard` passes (a hang guard, not a speed bound: what is waited for takes milliseconds).
+bool WaitFor(const std::function<bool()>& done, std::chrono::seconds guard = std::chrono::seconds(60)) {
+  const auto until = Clock::now() + guard;
+  while (!done()) {
+    if (Clock::now() > until) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return true;
+}
+
+// The count of loomlight_calls_total{code, rpc} in the server's metrics ("" when not there yet).
+std::string CallCount(int metrics_port, const std::string& code, const std::string& rpc) {
+  const std::string text = testing::HttpGet(metrics_port, "/metrics");
+  const std::string key = "loomlight_calls_total{code=\"" + code + "\",rpc=\"" + rpc + "\"} ";
+  const size_t at = text.find(key);
+  if (at == std::string::npos) return "";
+  return text.substr(at + key.size(), text.find('\n', at) - at - key.size());
+}
+
+v1::TabulateRequest SmallTable() {
+  v1::TabulateRequest r;
+  r.mutable_material()->set_preset("velvet");
+  r.mutable_in_plane()->set_theta_i_count(4);
+  r.mutable_in_plane()->set_theta_o_count(4);
+  r.set_format(v1::TABLE_FORMAT_RAW);
+  return r;
+}
+
+grpc::Status TabulateAll(v1::Loomlight::Stub& stub, const v1::TabulateRequest& request, uint64_t* cells_done = nullptr,
+                         uint64_t* cells_total = nullptr, bool deadline = true) {
+  grpc::ClientContext context;
+  if (deadline) context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+  auto reader = stub.Tabulate(&context, request);
+  v1::TabulateChunk chunk;
+  while (reader->Read(&chunk)) {
+    if (cells_done) *cells_done = chunk.cells_done();
+    if (cells_total) *cells_total = chunk.cells_total();
+  }
+  return reader->Finish();
+}
+
+// A Tabulate call without a deadline (gRPC's default) ran until its 33.5 M cells were done, holding the only
+// long-call slot all along; now the bulk cap ends it, saying so, and the next call gets the slot.
+TEST(CallCaps, ABulkCallWithoutADeadlineIsEndedByTheCapAndTheNextCallGetsItsSlot) {
+  api::ServerOptions options;
+  options.limits.max_long_running_calls = 1;
+  options.call_caps.bulk = std::chrono::seconds(1);
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
+  auto stub = testing::Connect(server->port());
+  const size_t idle_bytes = server->memory_in_use();
+  std::atomic<bool> started{false};
+  auto first = std::async(std::launch::async, [&] {
+    grpc::ClientContext context;  // no deadline
+    auto reader = stub->Tabulate(&context, BigTable());
+    v1::TabulateChunk chunk;
+    uint64_t done = 0, total = 0;
+    while (reader->Read(&chunk)) {  // read as fast as it comes: nothing stalls but the work's length
+      started = true;
+      done = chunk.cells_done();
+      total = chunk.cells_total();
+    }
+    const grpc::Status status = reader->Finish();
+    return std::make_tuple(status, done, total);
+  });
+  ASSERT_TRUE(WaitFor([&] { return started.load(); }));
+  // Meanwhile the slot is the first call's.
+  EXPECT_EQ(TabulateAll(*stub, SmallTable()).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  const auto [status, done, total] = first.get();
+  std::printf("  a deadline-less 33.5 M-cell Tabulate under a 1 s bulk cap ended %s after %llu of %llu cells: %s\n",
+              status.ok() ? "OK" : "with an error", static_cast<unsigned long long>(done),
+              static_cast<unsigned long long>(total), status.error_message().c_str());
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << status.error_message();
+  EXPECT_NE(status.error_message().find("--max-call-seconds"), std::string::npos) << status.error_message();
+  EXPECT_LT(done, total);
+  // Its slot and bytes are given back, and the next call is admitted.
+  EXPECT_EQ(server->long_calls_in_use(), 0u);
+  EXPECT_TRUE(WaitFor([&] { return server->memory_in_use() == idle_bytes; })) << server->memory_in_use();
+  const grpc::Status next = TabulateAll(*stub, SmallTable());
+  EXPECT_TRUE(next.ok()) << next.error_message();
+}
+
+// The interactive cap applies to interactive calls: an Evaluate without a deadline, queued behind a 3 s batch
+// delay, ends at its launch with the cap's DEADLINE_EXCEEDED instead of running, and its bytes are released.
+TEST(CallCaps, AnInteractiveCallWithoutADeadlineGetsTheInteractiveCap) {
+  api::ServerOptions options;
+  options.call_caps.interactive = std::chrono::seconds(1);
+  options.batcher.interactive.max_queue_delay = std::chrono::seconds(3);
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
+  auto stub = testing::Connect(server->port());
+  const size_t idle_bytes = server->memory_in_use();
+  const accuracy::Pairs pairs = accuracy::RandomPairs(8192, 9);  // over the inline launch's 4,096: queued
+  v1::EvaluateRequest r;
+  r.mutable_material()->set_preset("linen_plain");
+  r.mutable_wi()->Add(pairs.wi.begin(), pairs.wi.end());
+  r.mutable_wo()->Add(pairs.wo.begin(), pairs.wo.end());
+  grpc::ClientContext context;  // no deadline
+  v1::EvaluateResponse response;
+  const grpc::Status status = stub->Evaluate(&context, r, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << status.error_message();
+  EXPECT_NE(status.error_message().find("interactive calls, 1 s (--max-call-seconds)"), std::string::npos)
+      << status.error_message();
+  EXPECT_TRUE(WaitFor([&] { return server->memory_in_use() == idle_bytes; })) << server->memory_in_use();
+}
+
+// A client that starts a tabulation and reads nothing held its long-call slot and the bytes of its buffers for as
+// long as it kept the connection; now the write it leaves in flight is cut off after --stall-write-seconds.
+TEST(StalledStreams, AStreamNobodyReadsIsCancelledAndItsSlotAndMemoryReleased) {
+  api::ServerOptions options;
+  options.limits.max_long_running_calls = 1;
+  options.stall_write_timeout = std::chrono::seconds(1);
+  options.metrics_address = "127.0.0.1:0";
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
+  auto stub = testing::Connect(server->port());
+  const size_t idle_bytes = server->memory_in_use();
+  grpc::ClientContext context;  // no deadline, and nothing read after the first chunk
+  auto reader = stub->Tabulate(&context, BigTable());
+  v1::TabulateChunk chunk;
+  ASSERT_TRUE(reader->Read(&chunk));
+  const size_t held = server->memory_in_use() - idle_bytes;
+  EXPECT_GT(held, 0u);
+  EXPECT_EQ(server->long_calls_in_use(), 1u);
+  // The server's writes fill the flow-control windows and wait; the watchdog cancels the call.
+  EXPECT_TRUE(WaitFor([&] { return CallCount(server->metrics_port(), "DEADLINE_EXCEEDED", "Tabulate") == "1"; }));
+  EXPECT_EQ(server->long_calls_in_use(), 0u);
+  EXPECT_TRUE(WaitFor([&] { return server->memory_in_use() == idle_bytes; })) << server->memory_in_use();
+  std::printf("  an unread 33.5 M-cell Tabulate held %.1f MiB and the only long-call slot until cut off\n",
+              held / 1048576.0);
+  // The next call gets the slot; the stalled client finds its stream cancelled once it reads again.
+  const grpc::Status next = TabulateAll(*stub, SmallTable());
+  EXPECT_TRUE(next.ok()) << next.error_message();
+  while (reader->Read(&chunk)) {
+  }
+  EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  // A client that reads, however slowly the server's work goes between writes, is not cut off.
+  EXPECT_TRUE(TabulateAll(*stub, SmallTable()).ok());
+}
+
+// Larger than the whole memory budget is a permanent refusal: FAILED_PRECONDITION (gRPC's guide: do not retry
+// until the system's state is fixed), checked before a slot is taken, so a busy server does not answer it
+// "retry later"; what does not fit now is still RESOURCE_EXHAUSTED.
+TEST(PermanentRefusal, MoreThanTheWholeBudgetIsFailedPreconditionAndNotRetryLater) {
+  batching::Budget memory(100), slots(1);
+  api::Admission busy, a, b, c;
+  ASSERT_TRUE(api::Admit(&memory, &slots, 60, &busy).ok());  // the only slot and 60 of 100 bytes in use
+  const grpc::Status too_big = api::Admit(&memory, &slots, 101, &a);
+  EXPECT_EQ(too_big.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << too_big.error_message();
+  EXPECT_EQ(too_big.error_message().find("retry"), std::string::npos) << too_big.error_message();
+  const grpc::Status later = api::Admit(&memory, nullptr, 50, &b);  // fits the budget, not what is free now
+  EXPECT_EQ(later.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << later.error_message();
+  EXPECT_NE(later.error_message().find("retry later"), std::string::npos) << later.error_message();
+  EXPECT_EQ(api::Admit(&memory, &slots, 10, &c).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);  // the slot
+  EXPECT_EQ(memory.in_use(), 60u);
+  EXPECT_EQ(slots.in_use(), 1u);
+  // A call growing past the whole budget mid-way is told the same.
+  EXPECT_EQ(api::MemoryRefusal(memory, 60, 41, "x").error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_EQ(api::MemoryRefusal(memory, 60, 40, "x").error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+}
+
+// A tabulation larger than a server's whole budget: the server answers FAILED_PRECONDITION, and `loomlight batch`
+// gives up on the job after its one attempt (it retried RESOURCE_EXHAUSTED four more times).
+TEST(PermanentRefusal, TheBatchClientDoesNotRetryARequestLargerThanTheWholeBudget) {
+  api::ServerOptions options;
+  options.limits.memory_budget_bytes = size_t{1} << 20;
+  options.metrics_address = "127.0.0.1:0";
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
+  auto stub = testing::Connect(server->port());
+  const grpc::Status direct = TabulateAll(*stub, BigTable());
+  EXPECT_EQ(direct.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << direct.error_message();
+  EXPECT_NE(direct.error_message().find("whole memory budget (1 MiB)"), std::string::npos) << direct.error_message();
+
+  const std::string dir = ::testing::TempDir() + "/loomlight_refusal_" + std::to_string(getpid());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::ofstream(dir + "/jobs.csv") << "id,kind,out,options\nbig,tab," << dir << "/big.binary,--preset velvet\n";
+  std::string out;
+  EXPECT_EQ(testing::RunClient(server->port(),
+                               "batch --csv " + dir + "/jobs.csv --retries 4 --backoff 0 --log " + dir + "/jobs.log",
+                               &out),
+            1)
+      << out;
+  const std::string log = ReadFile(dir + "/jobs.log");
+  EXPECT_NE(log.find("big,tab,failed,1,"), std::string::npos) << log;  // one attempt
+  EXPECT_NE(log.find("FAILED_PRECONDITION"), std::string::npos) << log;
+  EXPECT_FALSE(fs::exists(dir + "/big.binary"));
+  // The server saw the direct call and the batch's one attempt, nothing more.
+  EXPECT_TRUE(WaitFor([&] { return CallCount(server->metrics_port(), "FAILED_PRECONDITION", "Tabulate") == "2"; }))
+      << CallCount(server->metrics_port(), "FAILED_PRECONDITION", "Tabulate");
+  EXPECT_EQ(CallCount(server->metrics_port(), "RESOURCE_EXHAUSTED", "Tabulate"), "");
+  fs::remove_all(dir);
 }
 
 }  // namespace

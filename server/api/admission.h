@@ -1,11 +1,15 @@
 // Admission: what a call may hold while it runs, decided before it starts. Every call reserves the bytes
 // its buffers will need from the service's memory budget; long-running calls (TextureSlice, Tabulate,
 // Render) also take one of a fixed number of slots. What does not fit is answered RESOURCE_EXHAUSTED at
-// once, instead of growing the process or queueing behind everyone else (README "Limits and admission").
+// once, instead of growing the process or queueing behind everyone else; a call that could never fit is
+// FAILED_PRECONDITION, and no call holds what it was admitted with past its priority's cap (CallCaps) (README
+// "Limits and admission").
 #pragma once
 
 #include <grpcpp/grpcpp.h>
 
+#include <algorithm>
+#include <chrono>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -80,9 +84,57 @@ struct Admission {
   }
 };
 
-// Reserves `bytes` (and a slot from `slots` when not null). Returns OK or RESOURCE_EXHAUSTED saying which
-// limit was reached.
+// How long a call may hold what it was admitted with. gRPC calls have no deadline unless the client sets one,
+// and such a call would hold its slot and bytes for as long as its work (or its client) lasts: a call's deadline
+// is its client's, at most the server's cap for its priority (--max-call-seconds).
+struct CallCaps {
+  std::chrono::milliseconds interactive{120000};  // Evaluate, Sample, TextureSlice
+  std::chrono::milliseconds bulk{3600000};        // Tabulate, Render, YarnGeometry, CreateBtf
+
+  std::chrono::milliseconds of(batching::Priority priority) const {
+    return priority == batching::Priority::kInteractive ? interactive : bulk;
+  }
+  // The deadline of a call of `priority` received at `received` whose client set `client_deadline` (max: none).
+  batching::Clock::time_point Deadline(batching::Clock::time_point received, batching::Clock::time_point client_deadline,
+                                       batching::Priority priority) const {
+    return std::min(client_deadline, received + of(priority));
+  }
+  // The status a call ends with: a DEADLINE_EXCEEDED that was the cap (it came before the client's deadline)
+  // says so, since the client set no such deadline itself.
+  grpc::Status Explain(const grpc::Status& status, batching::Clock::time_point received,
+                       batching::Clock::time_point client_deadline, batching::Priority priority) const {
+    if (status.error_code() != grpc::StatusCode::DEADLINE_EXCEEDED || client_deadline <= received + of(priority))
+      return status;
+    return {grpc::StatusCode::DEADLINE_EXCEEDED,
+            "the call ran for the server's limit on " + std::string(batching::PriorityName(priority)) + " calls, " +
+                std::to_string(std::chrono::duration_cast<std::chrono::seconds>(of(priority)).count()) +
+                " s (--max-call-seconds): ask for less work per call"};
+  }
+};
+
+// Why `memory` does not hold `bytes` more for a call that already holds `held`: FAILED_PRECONDITION when they
+// are more than the whole budget, so no retry can succeed until the request shrinks or the operator raises
+// --memory-budget-mb (gRPC's guide: do not retry until the system's state is fixed; this server answers a
+// missing fp64 device the same way), else RESOURCE_EXHAUSTED, "retry later": the budget is in use now.
+inline grpc::Status MemoryRefusal(const batching::Budget& memory, size_t held, size_t bytes, const std::string& what) {
+  const size_t mib = (held + bytes + (size_t{1} << 20) - 1) >> 20;
+  if (bytes > memory.limit() || held > memory.limit() - bytes)
+    return {grpc::StatusCode::FAILED_PRECONDITION,
+            what + " needs " + std::to_string(mib) + " MiB of buffers, more than the server's whole memory budget (" +
+                std::to_string(memory.limit() >> 20) + " MiB): ask for less (fewer queries, a smaller image or table)"};
+  return {grpc::StatusCode::RESOURCE_EXHAUSTED, what + " needs " + std::to_string(mib) +
+                                                    " MiB of buffers and the server's memory budget (" +
+                                                    std::to_string(memory.limit() >> 20) + " MiB) is in use; retry later"};
+}
+
+// Reserves `bytes` (and a slot from `slots` when not null). Returns OK, RESOURCE_EXHAUSTED saying which limit was
+// reached, or FAILED_PRECONDITION when the call needs more than the whole memory budget (MemoryRefusal).
 inline grpc::Status Admit(batching::Budget* memory, batching::Budget* slots, size_t bytes, Admission* out) {
+  // A call no budget could hold is refused before it takes a slot (and whatever is in use).
+  if (bytes > memory->limit()) {
+    out->client_slot.Release();
+    return MemoryRefusal(*memory, 0, bytes, "the call");
+  }
   if (slots && !slots->TryReserve(1, &out->slot)) {
     out->client_slot.Release();
     return {grpc::StatusCode::RESOURCE_EXHAUSTED, "the server is running its limit of " +
@@ -92,9 +144,7 @@ inline grpc::Status Admit(batching::Budget* memory, batching::Budget* slots, siz
   if (!memory->TryReserve(bytes, &out->bytes)) {
     out->slot.Release();
     out->client_slot.Release();
-    return {grpc::StatusCode::RESOURCE_EXHAUSTED,
-            "the call needs " + std::to_string(bytes >> 20) + " MiB of buffers and the server's memory budget (" +
-                std::to_string(memory->limit() >> 20) + " MiB) is in use; retry later"};
+    return MemoryRefusal(*memory, 0, bytes, "the call");
   }
   return grpc::Status::OK;
 }

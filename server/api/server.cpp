@@ -45,6 +45,9 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   deps.environments = s->environments_.get();
   deps.btf_store = s->btf_store_.get();
   deps.trusted_proxies = &s->options_.access.trusted_proxies;
+  s->stalled_writes_ = std::make_unique<IdleStreams>(options.stall_write_timeout);
+  deps.stalled_writes = s->stalled_writes_.get();
+  deps.call_caps = options.call_caps;
   s->service_ = std::make_unique<LoomlightService>(deps, options.limits);
   if (!options.metrics_address.empty()) {
     *error = s->metrics_->Serve(options.metrics_address, options.access, s->tokens_);
@@ -125,6 +128,7 @@ void LoomlightServer::Watch() {
                          service_->materials().bytes(), warm_ && !stuck_});
     metrics_->Queues(batcher_->Stats());
     service_->CancelIdleUploads();
+    stalled_writes_->CancelIdle();
     const auto now = batching::Clock::now();
     std::string reason;
     const std::pair<const char*, batching::Clock::time_point> busy[] = {

@@ -38,6 +38,9 @@ struct ServerOptions {
   // with one task for longer than this (stuck), and SERVING again when it recovers.
   std::chrono::milliseconds stall_limit{20000};
   std::chrono::milliseconds shutdown_grace{30000};  // in-flight calls may finish for this long on Shutdown
+  CallCaps call_caps;  // a call's deadline is its client's, at most its priority's cap (--max-call-seconds)
+  // A server-streaming call whose write waits this long on a client that reads nothing is cancelled.
+  std::chrono::milliseconds stall_write_timeout{60000};
 };
 
 class LoomlightServer {
@@ -58,6 +61,9 @@ class LoomlightServer {
   int metrics_port() const { return metrics_->port(); }
   const Metrics& metrics() const { return *metrics_; }
   const runtime::ClRuntime& runtime() const { return *runtime_; }
+  // What calls hold now: bytes of the memory budget, and long-running call slots.
+  size_t memory_in_use() const { return memory_->in_use(); }
+  size_t long_calls_in_use() const { return long_calls_->in_use(); }
 
  private:
   LoomlightServer() = default;
@@ -72,6 +78,7 @@ class LoomlightServer {
   std::unique_ptr<batching::Budget> memory_, long_calls_;
   std::unique_ptr<assets::EnvironmentMaps> environments_;
   std::unique_ptr<assets::BtfStore> btf_store_;
+  std::unique_ptr<IdleStreams> stalled_writes_;  // outlives the service and the gRPC server
   std::unique_ptr<LoomlightService> service_;
   std::unique_ptr<grpc::Server> server_;
   std::shared_ptr<TokenAuthProcessor> tokens_;  // null when tokens are off

@@ -71,6 +71,9 @@ struct ServiceDeps {
   assets::EnvironmentMaps* environments = nullptr;
   assets::BtfStore* btf_store = nullptr;  // null: the server keeps no BTF assets
   IdleStreams* idle_uploads = nullptr;     // UploadBtf calls, cut off when they stop sending
+  // Server-streaming calls, cut off when their client reads nothing (server/api/stream_call.h; null: never).
+  IdleStreams* stalled_writes = nullptr;
+  CallCaps call_caps;  // how long a call may run when its client set no shorter deadline
   const TrustedProxies* trusted_proxies = &kNoTrustedProxies;  // whose X-Forwarded-For names the client
 };
 

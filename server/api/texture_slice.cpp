@@ -119,7 +119,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
         total_queries_(uint64_t{width_} * height_ * samples_),
         // Whole pixels per chunk, so each pixel's mean comes from one chunk.
         chunk_queries_(std::min<uint64_t>(kSliceChunkQueries / samples_ * samples_, total_queries_)) {
-    deadline_ = CallDeadline(context, received);
+    deadline_ = deps.call_caps.Deadline(received, CallDeadline(context, received), batching::Priority::kInteractive);
     for (int c = 0; c < 3; ++c) {
       wi_one_[c] = request.wi(c);
       wo_one_[c] = request.wo(c);

@@ -46,7 +46,8 @@ struct PlanCall {
   PlanCall(const ServiceDeps& deps, const char* rpc, grpc::CallbackServerContext* context, const Request* request,
            Response* response, batching::Clock::time_point received, bool fp64)
       : deps(&deps), rpc(rpc), context(context), request(request), response(response),
-        reactor(context->DefaultReactor()), received(received), deadline(CallDeadline(context, received)),
+        reactor(context->DefaultReactor()), received(received), client_deadline(CallDeadline(context, received)),
+        deadline(deps.call_caps.Deadline(received, client_deadline, batching::Priority::kInteractive)),
         client(FairShareKey(*context, *deps.trusted_proxies)), fp64(fp64) {}
 
   // Sends the plan's parts (f, 3 per query, into `f`); when all have returned, the first failure finishes the
@@ -69,7 +70,8 @@ struct PlanCall {
                });
   }
 
-  void Finish(const grpc::Status& status) {
+  void Finish(grpc::Status status) {
+    status = deps->call_caps.Explain(status, received, client_deadline, batching::Priority::kInteractive);
     if (status.ok()) {
       response->set_model(material->model->name());
       response->set_approximation(approximation);
@@ -88,7 +90,9 @@ struct PlanCall {
   const Request* const request;
   Response* const response;
   grpc::ServerUnaryReactor* const reactor;
-  const batching::Clock::time_point received, deadline;
+  const batching::Clock::time_point received;
+  const batching::Clock::time_point client_deadline;  // max when the client set none
+  const batching::Clock::time_point deadline;         // the client's, at most the interactive cap (CallCaps)
   const std::string client;  // FairShareKey
   const bool fp64;
   Admission admission;  // the call's bytes, held until the call object goes

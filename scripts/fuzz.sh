@@ -35,13 +35,17 @@ cmake --build "$build" -j"$(nproc)" --target "${targets[@]}"
 
 # UBSan reports are failures, not warnings: libFuzzer then keeps the input.
 export UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1
+max_len=$(( (1 << 20) + 4096 ))
 failed=0
 for target in "${targets[@]}"; do
   corpus=tests/fuzz/corpus/$target
   found=$build/fuzz-corpus/$target
   crashes=$build/crashes/$target
   mkdir -p "$found" "$crashes"
-  options=(-max_total_time="$seconds" -timeout=30 -max_len=8192 -print_final_stats=1 -artifact_prefix="$crashes/")
+  # Inputs up to the request field limit (1 MiB, and a request's other fields): the parsers must stay linear
+  # there, not only on small inputs; libFuzzer's RSS limit (2 GiB) turns a parse that multiplies memory into a crash.
+  options=(-max_total_time="$seconds" -timeout=30 -max_len="$max_len" -rss_limit_mb=2048 -print_final_stats=1
+           -artifact_prefix="$crashes/")
   [[ -f tests/fuzz/$target.dict ]] && options+=(-dict="tests/fuzz/$target.dict")
   echo "== $target: ${seconds} s from $(find "$corpus" -type f | wc -l) corpus inputs"
   # The first directory receives new inputs; the corpus in the tree is only read.
@@ -51,7 +55,7 @@ for target in "${targets[@]}"; do
     continue
   fi
   if (( merge )); then
-    "$build/tests/fuzz/$target" -merge=1 -max_len=8192 "$corpus" "$found"
+    "$build/tests/fuzz/$target" -merge=1 -max_len="$max_len" "$corpus" "$found"
     echo "== $target: corpus now $(find "$corpus" -type f | wc -l) inputs"
   fi
 done

@@ -1,14 +1,19 @@
-// Writes the request fuzzer's seed corpus (tests/fuzz/corpus/request/seed_*): small valid requests of every RPC
-// and every model the registry has (found there, not named here), each option the checks branch on, and a few
-// requests that must be refused. Run it again when models or request fields are added:
+// Writes the request fuzzer's seed corpus (tests/fuzz/corpus/fuzz_request/seed_*): small valid requests of every
+// RPC and every model the registry has (found there, not named here), each option the checks branch on, and a few
+// requests that must be refused; and, with a second directory, the WIF fuzzer's structure-aware seeds
+// (tests/fuzz/corpus/fuzz_wif/seed_*): drafts up to the 1 MiB field limit that repeat indices and fill every
+// count, the shapes that once multiplied a parse's memory (issue 44). Run it again when models or request fields
+// are added:
 //
-//     build/tests/fuzz/make_seed_corpus tests/fuzz/corpus/request
+//     build/tests/fuzz/make_seed_corpus tests/fuzz/corpus/fuzz_request tests/fuzz/corpus/fuzz_wif
 //
-// The WIF corpus (tests/fuzz/corpus/wif/) is hand-written drafts.
+// The WIF corpus's other inputs are hand-written drafts.
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "loomlight/v1/loomlight.pb.h"
 #include "server/models/registry.h"
@@ -55,6 +60,56 @@ v1::Material Spelled(const models::Model& model) {
 const char kTwillWif[] =
     "[WIF]\nVersion=1.1\n[CONTENTS]\nWEAVING=yes\nTHREADING=yes\nTIEUP=yes\nTREADLING=yes\n[WEAVING]\nShafts=4\n"
     "Treadles=4\n[THREADING]\n1=1\n2=2\n3=3\n4=4\n[TIEUP]\n1=1,2\n2=2,3\n3=3,4\n4=4,1\n[TREADLING]\n1=1\n2=2\n3=3\n4=4\n";
+
+// ---- WIF drafts at scale ----
+
+// A treadled draft on `shafts` shafts and `treadles` treadles, every warp end threaded in turn, tie-up row t
+// listing `tieup` and each of `picks` picks pressing `pressed`.
+std::string TreadledDraft(int shafts, int treadles, int picks, const std::string& tieup, const std::string& pressed) {
+  std::string text = "[WIF]\nVersion=1.1\n[CONTENTS]\nWEAVING=yes\nTHREADING=yes\nTIEUP=yes\nTREADLING=yes\n"
+                     "[WEAVING]\nShafts=" + std::to_string(shafts) + "\nTreadles=" + std::to_string(treadles) +
+                     "\n[THREADING]\n";
+  for (int w = 1; w <= 256; ++w) text += std::to_string(w) + "=" + std::to_string(1 + (w - 1) % shafts) + "\n";
+  text += "[TIEUP]\n";
+  for (int t = 1; t <= treadles; ++t) text += std::to_string(t) + "=" + tieup + "\n";
+  text += "[TREADLING]\n";
+  for (int p = 1; p <= picks; ++p) text += std::to_string(p) + "=" + pressed + "\n";
+  return text;
+}
+
+// `item` n times, comma-separated; or 1..n when item is empty.
+std::string List(const std::string& item, int n) {
+  std::string s;
+  for (int i = 1; i <= n; ++i) {
+    if (i > 1) s += ',';
+    s += item.empty() ? std::to_string(i) : item;
+  }
+  return s;
+}
+
+// The drafts a WIF parse must stay linear on: each under the 1 MiB limit.
+std::vector<std::pair<std::string, std::string>> WifDraftsAtScale() {
+  std::string liftplan = "[WIF]\nVersion=1.1\n[CONTENTS]\nWEAVING=yes\nTHREADING=yes\nLIFTPLAN=yes\n[WEAVING]\n"
+                         "Shafts=2\n[THREADING]\n1=1\n2=2\n[LIFTPLAN]\n";
+  for (int p = 1; p <= 256; ++p) liftplan += std::to_string(p) + "=" + List("2", 1500) + "\n";
+  std::string sections = TreadledDraft(4, 4, 4, "1,2", "1");
+  for (int i = 0; sections.size() < 900000; ++i) sections += "[PRIVATE" + std::to_string(i) + "]\nfree text\n";
+  return {
+      {"repeated_tieup_and_treadling", TreadledDraft(4, 1, 256, List("1", 100000), List("1", 1400))},
+      {"repeated_treadling", TreadledDraft(4, 4, 256, "1,2", List("3", 1900))},
+      {"every_treadle_every_shaft", TreadledDraft(256, 256, 256, List("", 256), List("", 256))},
+      {"repeated_liftplan", liftplan},
+      {"section_flood", sections},
+  };
+}
+
+void WriteWifSeeds(const std::filesystem::path& dir) {
+  std::filesystem::create_directories(dir);
+  for (const auto& [name, text] : WifDraftsAtScale()) {
+    std::ofstream(dir / ("seed_" + name + ".wif"), std::ios::binary) << text;
+    ++written;
+  }
+}
 
 void WriteEvaluateSeeds(const models::Registry& registry) {
   const models::Model* surface = nullptr;      // a reflection model, for a curtain's front
@@ -103,6 +158,10 @@ void WriteEvaluateSeeds(const models::Registry& registry) {
         text->set_text(kTwillWif);
         AddPairs(r.mutable_wi(), r.mutable_wo());
         Write("evaluate_" + first + "_text_" + p.name, kEvaluate, r);
+        if (p.name.size() > 4 && p.name.compare(p.name.size() - 4, 4, ".wif") == 0) {
+          text->set_text(WifDraftsAtScale().front().second);  // repeats up to the field limit: refused, cheaply
+          Write("evaluate_" + first + "_text_" + p.name + "_repeats", kEvaluate, r);
+        }
       }
     if (model->transmission()) transmitting = model.get();
     else if (model->fiber_axis_param().empty()) surface = model.get();
@@ -237,8 +296,8 @@ void WriteCreateBtfSeeds() {
 }  // namespace loomlight
 
 int main(int argc, char** argv) {
-  if (argc != 2) {
-    std::fprintf(stderr, "usage: %s OUTPUT_DIR\n", argv[0]);
+  if (argc != 2 && argc != 3) {
+    std::fprintf(stderr, "usage: %s REQUEST_SEED_DIR [WIF_SEED_DIR]\n", argv[0]);
     return 2;
   }
   loomlight::out_dir = argv[1];
@@ -249,6 +308,7 @@ int main(int argc, char** argv) {
   loomlight::WriteTabulateSeeds(registry);
   loomlight::WriteRenderSeeds(registry);
   loomlight::WriteCreateBtfSeeds();
+  if (argc == 3) loomlight::WriteWifSeeds(argv[2]);
   std::printf("%d seeds written to %s\n", loomlight::written, argv[1]);
   return 0;
 }

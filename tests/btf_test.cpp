@@ -4,10 +4,14 @@
 // synthesised and compressed, evaluated, kept across a restart, deleted; bad names and materials rejected.
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <sys/resource.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <random>
 #include <thread>
@@ -340,6 +344,196 @@ TEST(BtfStore, NamesThatCouldEscapeTheDirectoryAreRefused) {
     EXPECT_NE(assets::ValidateAssetName(bad), "") << bad;
   EXPECT_EQ(assets::ValidateAssetName("twill_64.v2-a"), "");
   EXPECT_NE(assets::ValidateAssetName(std::string(65, 'a')), "");
+}
+
+// ---- The store on disk (two stores on one directory are two replicas sharing a volume) ----
+
+class BtfStoreOnDisk : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("loomlight-btf-store-" + std::to_string(::getpid()) + "-" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::remove_all(dir_);
+  }
+  void TearDown() override {
+    for (const auto& a : models::btf::Assets::Global().List())
+      if (a->name.rfind("disk_", 0) == 0) models::btf::Assets::Global().Remove(a->id);
+    std::filesystem::remove_all(dir_);
+  }
+  std::unique_ptr<assets::BtfStore> Open() {
+    std::string error;
+    auto store = assets::BtfStore::Open(dir_.string(), uint64_t{1} << 30, &error);
+    EXPECT_TRUE(store) << error;
+    return store;
+  }
+  // A small asset; `source` tells whose it is.
+  static std::shared_ptr<models::btf::BtfAsset> Small(const std::string& name, const std::string& source) {
+    auto asset = models::btf::Compress(LowRankImages(SmallGrid(), 4, 2, 5), {.max_components = 2}, nullptr, nullptr);
+    asset->name = name;
+    asset->source = source;
+    return asset;
+  }
+  // The source in the manifest the directory holds under `name` ("" when none can be read).
+  std::string SourceOnDisk(const std::string& name) const {
+    std::ifstream in(dir_ / "btf" / name / "manifest.pb", std::ios::binary);
+    v1::BtfAssetInfo info;
+    return in && info.ParseFromIstream(&in) ? info.source() : "";
+  }
+  std::filesystem::path dir_;
+};
+
+// Store B checks the name, writes, and before it publishes, store A (another replica) stores the same name:
+// B gets ALREADY_EXISTS and A's asset stays (B used to move A's directory away and put its own in place).
+TEST_F(BtfStoreOnDisk, ACreateThatLosesTheRaceIsAlreadyExistsAndKeepsTheWinnersAsset) {
+  auto a = Open(), b = Open();
+  ASSERT_TRUE(a && b);
+  std::string error_a, error_b;
+  assets::BtfStore::Outcome won = assets::BtfStore::Outcome::kFailed;
+  b->set_before_publish_for_test([&] { won = a->Put(Small("disk_race", "a"), false, &error_a); });
+  EXPECT_EQ(b->Put(Small("disk_race", "b"), false, &error_b), assets::BtfStore::Outcome::kExists) << error_b;
+  EXPECT_EQ(won, assets::BtfStore::Outcome::kOk) << error_a;
+  EXPECT_EQ(SourceOnDisk("disk_race"), "a");
+  ASSERT_TRUE(models::btf::Assets::Global().FindName("disk_race"));
+  EXPECT_EQ(models::btf::Assets::Global().FindName("disk_race")->source, "a");
+  // Nothing of B's write is left behind.
+  for (const auto& entry : std::filesystem::directory_iterator(dir_ / "btf"))
+    if (entry.is_symlink()) {
+      EXPECT_EQ(entry.path().filename(), "disk_race");
+    }
+  size_t versions = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir_ / "btf"))
+    versions += entry.path().filename().string().rfind(".v-", 0) == 0;
+  EXPECT_EQ(versions, 1u);
+}
+
+// Two stores on one directory create the same names at once: each name is stored once, by the store that says
+// so, and holds that store's bytes.
+TEST_F(BtfStoreOnDisk, TwoStoresCreatingTheSameNamesAtOnceStoreEachOnce) {
+  auto a = Open(), b = Open();
+  ASSERT_TRUE(a && b);
+  constexpr int kNames = 20;
+  std::vector<assets::BtfStore::Outcome> outcome[2];
+  std::vector<std::shared_ptr<models::btf::BtfAsset>> made[2];
+  for (int k = 0; k < 2; ++k)
+    for (int i = 0; i < kNames; ++i) made[k].push_back(Small("disk_" + std::to_string(i), k == 0 ? "a" : "b"));
+  std::thread threads[2];
+  for (int k = 0; k < 2; ++k)
+    threads[k] = std::thread([&, k] {
+      for (int i = 0; i < kNames; ++i) {
+        std::string error;
+        outcome[k].push_back((k == 0 ? *a : *b).Put(made[k][i], false, &error));
+      }
+    });
+  for (auto& t : threads) t.join();
+  for (int i = 0; i < kNames; ++i) {
+    const bool a_won = outcome[0][i] == assets::BtfStore::Outcome::kOk;
+    const bool b_won = outcome[1][i] == assets::BtfStore::Outcome::kOk;
+    EXPECT_NE(a_won, b_won) << i;
+    EXPECT_EQ(outcome[a_won ? 1 : 0][i], assets::BtfStore::Outcome::kExists) << i;
+    EXPECT_EQ(SourceOnDisk("disk_" + std::to_string(i)), a_won ? "a" : "b") << i;
+  }
+}
+
+// Replacing an asset over and over while another thread reads the directory as a replica's Sync does: the name
+// always holds a whole asset, the old or the new (the old store renamed the old directory away and then the
+// new one into place: between the two, nothing).
+TEST_F(BtfStoreOnDisk, ReplaceLeavesTheOldOrTheNewAssetNeverNothing) {
+  auto a = Open();
+  ASSERT_TRUE(a);
+  std::string error;
+  ASSERT_EQ(a->Put(Small("disk_replaced", "0"), false, &error), assets::BtfStore::Outcome::kOk) << error;
+  std::atomic<bool> done{false};
+  std::atomic<int> reads{0}, missing{0};
+  std::thread reader([&] {
+    while (!done) {
+      if (SourceOnDisk("disk_replaced").empty()) ++missing;
+      ++reads;
+    }
+  });
+  // At the moment of publishing, the old asset is still whole.
+  std::string at_publish;
+  a->set_before_publish_for_test([&] { at_publish = SourceOnDisk("disk_replaced"); });
+  for (int i = 1; i <= 200; ++i) {
+    ASSERT_EQ(a->Put(Small("disk_replaced", std::to_string(i)), true, &error), assets::BtfStore::Outcome::kOk) << error;
+    ASSERT_EQ(at_publish, std::to_string(i - 1));
+  }
+  while (reads < 100) std::this_thread::yield();  // the reader looked often enough to be a check at all
+  done = true;
+  reader.join();
+  EXPECT_EQ(missing, 0) << "of " << reads << " reads";
+  EXPECT_EQ(SourceOnDisk("disk_replaced"), "200");
+  // Each replacement removed the version it replaced.
+  size_t entries = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir_ / "btf")) ++entries, (void)entry;
+  EXPECT_EQ(entries, 2u);  // the link and its version
+}
+
+// A write that fails (the file size limit here: permissions do not stop root) is reported with the system's
+// reason, and nothing is published or left behind.
+TEST_F(BtfStoreOnDisk, AWriteErrorIsReportedAndPublishesNothing) {
+  auto a = Open();
+  ASSERT_TRUE(a);
+  struct rlimit saved {};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &saved), 0);
+  const auto previous = ::signal(SIGXFSZ, SIG_IGN);  // write(2) fails with EFBIG instead of killing the process
+  struct rlimit small = saved;
+  small.rlim_cur = 1000;  // the tables are larger
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &small), 0);
+  std::string error;
+  const auto outcome = a->Put(Small("disk_unwritten", "a"), false, &error);
+  ::setrlimit(RLIMIT_FSIZE, &saved);
+  ::signal(SIGXFSZ, previous);
+  EXPECT_EQ(outcome, assets::BtfStore::Outcome::kFailed);
+  EXPECT_NE(error.find("tables.f32"), std::string::npos) << error;
+  EXPECT_NE(error.find(std::strerror(EFBIG)), std::string::npos) << error;
+  EXPECT_FALSE(a->Exists("disk_unwritten"));
+  EXPECT_TRUE(std::filesystem::is_empty(dir_ / "btf"));
+}
+
+// An asset another server is still writing (a plain directory whose tables are half there) does not load, and
+// Sync loads it once it is whole (it used to try each manifest once, and the manifest did not change).
+TEST_F(BtfStoreOnDisk, SyncRetriesAnAssetThatWasHalfWrittenAndLoadsItWhole) {
+  auto a = Open();
+  ASSERT_TRUE(a);
+  // The asset's files, as a store elsewhere writes them.
+  const auto elsewhere = dir_ / "elsewhere";
+  std::string error;
+  auto other = assets::BtfStore::Open(elsewhere.string(), uint64_t{1} << 30, &error);
+  ASSERT_TRUE(other) << error;
+  auto asset = Small("disk_half", "other");
+  ASSERT_EQ(other->Put(asset, false, &error), assets::BtfStore::Outcome::kOk) << error;
+  models::btf::Assets::Global().Remove(asset->id);  // registered by the other store only
+  std::string tables;
+  {
+    std::ifstream in(elsewhere / "btf" / "disk_half" / "tables.f32", std::ios::binary);
+    tables.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_GT(tables.size(), 100u);
+  const auto half = dir_ / "btf" / "disk_half";
+  std::filesystem::create_directory(half);
+  std::filesystem::copy_file(elsewhere / "btf" / "disk_half" / "manifest.pb", half / "manifest.pb");
+  {
+    std::ofstream out(half / "tables.f32", std::ios::binary);
+    out.write(tables.data(), std::streamsize(tables.size() / 2));
+  }
+  std::vector<std::string> log;
+  const auto say = [&log](const std::string& line) { log.push_back(line); };
+  EXPECT_EQ(a->Sync(say), 0);
+  EXPECT_FALSE(models::btf::Assets::Global().FindName("disk_half"));
+  ASSERT_EQ(log.size(), 1u);
+  EXPECT_NE(log[0].find("not loaded"), std::string::npos) << log[0];
+  EXPECT_EQ(a->Sync(say), 0);  // unchanged: not logged again
+  EXPECT_EQ(log.size(), 1u);
+  {
+    std::ofstream out(half / "tables.f32", std::ios::binary | std::ios::app);
+    out.write(tables.data() + tables.size() / 2, std::streamsize(tables.size() - tables.size() / 2));
+  }
+  EXPECT_EQ(a->Sync(say), 1);
+  auto loaded = models::btf::Assets::Global().FindName("disk_half");
+  ASSERT_TRUE(loaded);
+  EXPECT_EQ(loaded->source, "other");
+  EXPECT_EQ(loaded->tables->data32(), asset->tables->data32());
 }
 
 // ---- End to end ----

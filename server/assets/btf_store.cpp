@@ -1,5 +1,6 @@
 #include "server/assets/btf_store.h"
 
+#include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -7,10 +8,12 @@
 #include <cstdio>
 #include <cctype>
 #include <algorithm>
+#include <atomic>
 #include <cstdlib>
+#include <cerrno>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
+#include <set>
 
 namespace loomlight::assets {
 namespace fs = std::filesystem;
@@ -20,21 +23,71 @@ using models::btf::BtfAsset;
 namespace {
 constexpr uint64_t kMaxManifestBytes = 1 << 20;
 
-bool WriteFile(const fs::path& path, const void* data, size_t bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(static_cast<const char*>(data), std::streamsize(bytes));
-  out.flush();
-  return bool(out);
+// Why a system call failed, for the operator: what was done, to which file of the store, and errno's text.
+std::string Failure(const std::string& what, const fs::path& path) {
+  return what + " " + path.filename().string() + ": " + std::strerror(errno);
 }
 
-bool ReadFile(const fs::path& path, uint64_t max_bytes, std::string* out) {
+// Writes a new file and syncs it to the disk; "" or why not (a short write, ENOSPC, EFBIG, EIO, a failed fsync).
+std::string WriteFile(const fs::path& path, const void* data, size_t bytes) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (fd < 0) return Failure("cannot create", path);
+  const char* p = static_cast<const char*>(data);
+  std::string error;
+  while (bytes > 0 && error.empty()) {
+    const ssize_t n = ::write(fd, p, bytes);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      if (n == 0) errno = ENOSPC;  // no progress: the device takes no more
+      error = Failure("cannot write", path);
+    } else {
+      p += n, bytes -= size_t(n);
+    }
+  }
+  if (error.empty() && ::fsync(fd) != 0) error = Failure("cannot sync", path);
+  if (::close(fd) != 0 && error.empty()) error = Failure("cannot close", path);
+  return error;
+}
+
+// Syncs a directory's entries (a new file's or link's name survives a crash only once its directory is synced).
+std::string SyncDirectory(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return Failure("cannot open", path);
+  std::string error;
+  if (::fsync(fd) != 0 && errno != EINVAL) error = Failure("cannot sync", path);  // EINVAL: a fs without it
+  ::close(fd);
+  return error;
+}
+
+// Reads `name` within the directory `dir_fd` (at most max_bytes).
+bool ReadFileAt(int dir_fd, const char* name, uint64_t max_bytes, std::string* out) {
+  const int fd = ::openat(dir_fd, name, O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return false;
+  struct stat st {};
+  bool ok = ::fstat(fd, &st) == 0 && uint64_t(st.st_size) <= max_bytes;
+  if (ok) out->resize(size_t(st.st_size));
+  for (size_t done = 0; ok && done < out->size();) {
+    const ssize_t n = ::read(fd, out->data() + done, out->size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) ok = false;  // an error, or the file shrank while read
+    else done += size_t(n);
+  }
+  ::close(fd);
+  return ok;
+}
+
+// The version directory a link of the store names, or "" when `path` is not such a link (a plain directory of
+// an older server, nothing, or a link somewhere else: never followed out of the store to delete).
+std::string VersionOf(const fs::path& path) {
   std::error_code ec;
-  const uintmax_t size = fs::file_size(path, ec);
-  if (ec || size > max_bytes) return false;
-  std::ifstream in(path, std::ios::binary);
-  out->resize(size);
-  in.read(out->data(), std::streamsize(size));
-  return bool(in);
+  const fs::path target = fs::read_symlink(path, ec);
+  if (ec || target.has_parent_path() || target.string().rfind(".v-", 0) != 0) return "";
+  return target.string();
+}
+
+bool OnDisk(const fs::path& path) {  // a link counts even when it dangles
+  std::error_code ec;
+  return fs::exists(fs::symlink_status(path, ec));
 }
 }  // namespace
 
@@ -108,8 +161,12 @@ std::unique_ptr<BtfStore> BtfStore::Open(const std::string& data_dir, uint64_t m
   }
   std::unique_ptr<BtfStore> store(new BtfStore(dir.string(), max_bytes));
   uint64_t total = 0;
+  std::set<std::string> published;  // the version directories the store's links name: never swept
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir, ec))
+    if (std::string v = VersionOf(entry.path()); !v.empty()) published.insert(v);
   for (const fs::directory_entry& entry : fs::directory_iterator(dir, ec)) {
     const std::string name = entry.path().filename().string();
+    if (published.count(name)) continue;
     if (name.rfind(".", 0) == 0) {  // what a crash left of a write or a delete, or another server's write in flight
       const auto age = fs::file_time_type::clock::now() - fs::last_write_time(entry.path(), ec);
       if (!ec && age > std::chrono::hours(1)) fs::remove_all(entry.path(), ec);
@@ -121,6 +178,7 @@ std::unique_ptr<BtfStore> BtfStore::Open(const std::string& data_dir, uint64_t m
     if (why.empty() && total + asset->bytes() > max_bytes) why = "over the store's bound (--btf-store-mb)";
     if (!why.empty()) {
       std::fprintf(stderr, "loomlight-server: BTF asset '%s' not loaded: %s\n", name.c_str(), why.c_str());
+      store->failed_[name] = {store->StampOf(name), why, std::chrono::steady_clock::now(), std::chrono::seconds(0)};
       continue;
     }
     total += asset->bytes();
@@ -133,10 +191,17 @@ std::unique_ptr<BtfStore> BtfStore::Open(const std::string& data_dir, uint64_t m
 }
 
 std::string BtfStore::StampOf(const std::string& name) const {
-  struct stat st {};
-  if (::stat((fs::path(dir_) / name / "manifest.pb").c_str(), &st) != 0) return "";
-  return std::to_string(st.st_ino) + ":" + std::to_string(st.st_size) + ":" + std::to_string(st.st_mtim.tv_sec) + "." +
-         std::to_string(st.st_mtim.tv_nsec);
+  std::string stamp;
+  for (const char* file : {"manifest.pb", "tables.f32"}) {
+    struct stat st {};
+    if (::stat((fs::path(dir_) / name / file).c_str(), &st) != 0) {
+      if (stamp.empty()) return "";  // no manifest
+      continue;
+    }
+    stamp += std::to_string(st.st_ino) + ":" + std::to_string(st.st_size) + ":" + std::to_string(st.st_mtim.tv_sec) +
+             "." + std::to_string(st.st_mtim.tv_nsec) + ";";
+  }
+  return stamp;
 }
 
 std::string BtfStore::UniqueTag() {
@@ -144,7 +209,8 @@ std::string BtfStore::UniqueTag() {
   if (::gethostname(host, sizeof host - 1) != 0) host[0] = 0;
   std::string h;
   for (const char* c = host; *c && h.size() < 64; ++c) h += std::isalnum(static_cast<unsigned char>(*c)) ? *c : '_';
-  return h + "-" + std::to_string(::getpid()) + "-" + std::to_string(++counter_);
+  static std::atomic<uint64_t> counter{0};  // per process: two stores in one process share the directory too
+  return h + "-" + std::to_string(::getpid()) + "-" + std::to_string(++counter);
 }
 
 int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
@@ -170,20 +236,32 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
   }
   uint64_t total = 0;
   for (const auto& a : Assets::Global().List()) total += a->bytes();
+  const auto now = std::chrono::steady_clock::now();
+  for (auto it = failed_.begin(); it != failed_.end();)  // gone from the directory: nothing to retry
+    it = on_disk.count(it->first) ? std::next(it) : failed_.erase(it);
   for (const auto& [name, stamp] : on_disk) {
     if (stamp.empty()) continue;  // no manifest yet
     const auto known = stamps_.find(name);
     if (known != stamps_.end() && known->second == stamp) continue;
+    const auto failed = failed_.find(name);
+    if (failed != failed_.end() && failed->second.stamp == stamp && now < failed->second.retry) continue;
     std::shared_ptr<BtfAsset> asset;
     std::string why = Load(name, &asset);
     auto old = Assets::Global().FindName(name);
     if (why.empty() && total - (old ? old->bytes() : 0) + asset->bytes() > max_bytes_)
       why = "over the store's bound (--btf-store-mb)";
-    stamps_[name] = stamp;  // tried once per version, loaded or not
-    if (!why.empty()) {
-      say("BTF asset '" + name + "' not loaded: " + why);
+    if (!why.empty()) {  // tried again: at once when its files change, else after a delay that doubles
+      Failed& f = failed_[name];
+      if (f.stamp != stamp || f.why != why) say("BTF asset '" + name + "' not loaded (tried again later): " + why);
+      using std::chrono::seconds;
+      f.delay = f.stamp == stamp ? std::clamp(2 * f.delay, seconds(10), seconds(320)) : seconds(10);
+      f.stamp = stamp;
+      f.why = why;
+      f.retry = now + f.delay;
       continue;
     }
+    failed_.erase(name);
+    stamps_[name] = stamp;
     total += asset->bytes() - (old ? old->bytes() : 0);
     Assets::Global().Add(asset);
     if (old) Assets::Global().Remove(old->id);
@@ -194,11 +272,15 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
 }
 
 std::string BtfStore::Load(const std::string& name, std::shared_ptr<BtfAsset>* out) const {
-  const fs::path dir = fs::path(dir_) / name;
-  std::string bytes;
+  // Both files from one version: the link is followed once (a replacement may flip it meanwhile).
+  const int dir_fd = ::open((fs::path(dir_) / name).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir_fd < 0) return std::string("cannot open its directory: ") + std::strerror(errno);
+  std::string bytes, data;
+  const bool manifest_read = ReadFileAt(dir_fd, "manifest.pb", kMaxManifestBytes, &bytes);
+  const bool tables_read = manifest_read && ReadFileAt(dir_fd, "tables.f32", max_bytes_, &data);
+  ::close(dir_fd);
   v1::BtfAssetInfo info;
-  if (!ReadFile(dir / "manifest.pb", kMaxManifestBytes, &bytes) || !info.ParseFromString(bytes))
-    return "manifest.pb missing or unreadable";
+  if (!manifest_read || !info.ParseFromString(bytes)) return "manifest.pb missing or unreadable";
   auto asset = std::make_shared<BtfAsset>();
   asset->name = name;
   asset->source = info.source();
@@ -215,8 +297,7 @@ std::string BtfStore::Load(const std::string& name, std::shared_ptr<BtfAsset>* o
   for (const v1::BtfErrorRow& r : info.errors())
     asset->errors.push_back({int(r.components()), r.rmse(), r.psnr_db(), r.bytes()});
   if (asset->errors.size() != size_t(asset->components) + 1) return "manifest's error table does not match its components";
-  std::string data;
-  if (!ReadFile(dir / "tables.f32", max_bytes_, &data) || data.size() % sizeof(float) != 0)
+  if (!tables_read || data.size() % sizeof(float) != 0)
     return "tables.f32 missing, unreadable or too large";
   std::vector<float> tables(data.size() / sizeof(float));
   std::memcpy(tables.data(), data.data(), data.size());
@@ -232,10 +313,10 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
   }
   std::lock_guard<std::mutex> lock(mutex_);
   auto old = Assets::Global().FindName(asset->name);
-  const fs::path final_dir = fs::path(dir_) / asset->name;
-  std::error_code exists_error;
-  if ((old || fs::exists(final_dir, exists_error)) && !replace) {  // on disk only: another server's
-    *error = "an asset of that name exists (set replace)";
+  const fs::path final_path = fs::path(dir_) / asset->name;
+  const std::string exists = "an asset of that name exists (set replace)";
+  if ((old || OnDisk(final_path)) && !replace) {  // early, before writing; publishing checks again, atomically
+    *error = exists;
     return Outcome::kExists;
   }
   uint64_t total = asset->bytes();
@@ -246,31 +327,62 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
              std::to_string(max_bytes_ >> 20) + " MiB (--btf-store-mb); delete assets first";
     return Outcome::kFull;
   }
-  const std::string tag = UniqueTag();
-  const fs::path incoming = fs::path(dir_) / (".incoming-" + tag), trash = fs::path(dir_) / (".trash-" + tag);
+  // The version, written whole and synced before anything names it.
+  const std::string tag = UniqueTag(), version = ".v-" + tag;
+  const fs::path version_dir = fs::path(dir_) / version, link = fs::path(dir_) / (".l-" + tag);
   v1::BtfAssetInfo info;
   DescribeAsset(*asset, &info);
   const std::string manifest = info.SerializeAsString();
-  std::error_code ec;
-  fs::create_directories(incoming, ec);
   const std::vector<float>& tables = asset->tables->data32();
-  if (ec || !WriteFile(incoming / "tables.f32", tables.data(), tables.size() * sizeof(float)) ||
-      !WriteFile(incoming / "manifest.pb", manifest.data(), manifest.size())) {
-    fs::remove_all(incoming, ec);
-    *error = "cannot write the asset under the data directory";
+  std::string why;
+  if (::mkdir(version_dir.c_str(), 0755) != 0) why = Failure("cannot make", version_dir);
+  if (why.empty()) why = WriteFile(version_dir / "tables.f32", tables.data(), tables.size() * sizeof(float));
+  if (why.empty()) why = WriteFile(version_dir / "manifest.pb", manifest.data(), manifest.size());
+  if (why.empty()) why = SyncDirectory(version_dir);
+  if (why.empty()) why = SyncDirectory(dir_);
+  std::error_code ec;
+  const auto fail = [&](const std::string& what) {
+    fs::remove_all(version_dir, ec);
+    fs::remove(link, ec);
+    *error = "cannot store the asset under the data directory: " + what;
     return Outcome::kFailed;
+  };
+  if (!why.empty()) return fail(why);
+  if (before_publish_for_test_) before_publish_for_test_();
+  // Published in one atomic step. A new name: symlink(2) fails when the name exists (another server's asset
+  // published since the check above is never moved away). A replacement: a new link renamed over the old one.
+  std::string retired;  // what the replaced asset's files are now under, removed once the new one is in place
+  if (!replace) {
+    if (::symlink(version.c_str(), final_path.c_str()) != 0) {
+      if (errno != EEXIST) return fail(Failure("cannot link", final_path));
+      fail("");
+      *error = exists + "; another server stored it first";
+      return Outcome::kExists;
+    }
+  } else {
+    const std::string previous = VersionOf(final_path);
+    if (::symlink(version.c_str(), link.c_str()) != 0) return fail(Failure("cannot link", link));
+    if (::rename(link.c_str(), final_path.c_str()) == 0) {
+      retired = previous;
+    } else if (errno == EISDIR || errno == ENOTEMPTY || errno == EEXIST) {
+      // An older server's plain directory: swapped with the link in one step (Linux's renameat2), then removed.
+      if (::renameat2(AT_FDCWD, link.c_str(), AT_FDCWD, final_path.c_str(), RENAME_EXCHANGE) != 0)
+        return fail(Failure("cannot replace (an older server's directory; delete it first)", final_path));
+      retired = link.filename().string();
+    } else {
+      return fail(Failure("cannot rename a link over", final_path));
+    }
   }
-  if (fs::exists(final_dir)) fs::rename(final_dir, trash, ec);
-  if (!ec) fs::rename(incoming, final_dir, ec);
-  if (ec) {
-    fs::remove_all(incoming, ec);
-    *error = "cannot move the asset into place";
-    return Outcome::kFailed;
-  }
-  fs::remove_all(trash, ec);
+  why = SyncDirectory(dir_);
+  if (!retired.empty()) fs::remove_all(fs::path(dir_) / retired, ec);
   Assets::Global().Add(asset);
   if (old) Assets::Global().Remove(old->id);
   stamps_[asset->name] = StampOf(asset->name);
+  failed_.erase(asset->name);
+  if (!why.empty()) {  // published (and registered: the directory names it) but maybe not durable
+    *error = "the asset is in place but may not survive a crash: " + why;
+    return Outcome::kFailed;
+  }
   return Outcome::kOk;
 }
 
@@ -278,21 +390,27 @@ bool BtfStore::Delete(const std::string& name) {
   if (!ValidateAssetName(name).empty()) return false;
   std::lock_guard<std::mutex> lock(mutex_);
   auto asset = Assets::Global().FindName(name);
-  std::error_code exists_error;
-  if (!asset && !fs::exists(fs::path(dir_) / name, exists_error)) return false;  // on disk only: another server's
-  const fs::path trash = fs::path(dir_) / (".trash-" + UniqueTag());
-  std::error_code ec;
-  fs::rename(fs::path(dir_) / name, trash, ec);
-  fs::remove_all(trash, ec);
+  const fs::path path = fs::path(dir_) / name, trash = fs::path(dir_) / (".trash-" + UniqueTag());
+  // The name goes in one step (the link, or an older server's directory, renamed away); then its files.
+  const std::string version = VersionOf(path);
+  const bool removed = ::rename(path.c_str(), trash.c_str()) == 0;
+  if (!asset && !removed) return false;  // neither registered nor on disk (another server's, deleted already)
+  if (removed) {
+    (void)SyncDirectory(dir_);
+    std::error_code ec;
+    if (!version.empty()) fs::remove_all(fs::path(dir_) / version, ec);
+    fs::remove_all(trash, ec);
+  }
   if (asset) Assets::Global().Remove(asset->id);
   stamps_.erase(name);
+  failed_.erase(name);
   return true;
 }
 
 bool BtfStore::Exists(const std::string& name) const {
-  std::error_code ec;  // on disk only: another server sharing the directory wrote it
+  // on disk only: another server sharing the directory wrote it
   return Assets::Global().FindName(name) != nullptr ||
-         (ValidateAssetName(name).empty() && fs::exists(fs::path(dir_) / name, ec));
+         (ValidateAssetName(name).empty() && OnDisk(fs::path(dir_) / name));
 }
 
 std::vector<std::shared_ptr<const BtfAsset>> BtfStore::List() const { return Assets::Global().List(); }

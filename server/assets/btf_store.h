@@ -1,16 +1,22 @@
 // BTF assets on disk, by name, under the operator's data directory (README "BTF assets"):
-//   DATA_DIR/btf/NAME/manifest.pb   the asset's BtfAssetInfo (binary protobuf: grid, tile, components, errors)
-//   DATA_DIR/btf/NAME/tables.f32    its compressed tables, float32 little-endian (kernels/models/btf.h's layout)
-// An asset is written into a hidden directory and renamed into place, so a crash leaves the old asset or the
-// new one, never half of one. Names are checked before any path is made from them; nothing a client sends
-// becomes a path otherwise. Loaded assets are registered with models::btf::Assets (what the `btf` model reads).
+//   DATA_DIR/btf/NAME               a symbolic link to the asset's version directory, .v-TAG
+//   DATA_DIR/btf/.v-TAG/manifest.pb  the asset's BtfAssetInfo (binary protobuf: grid, tile, components, errors)
+//   DATA_DIR/btf/.v-TAG/tables.f32   its compressed tables, float32 little-endian (kernels/models/btf.h's layout)
+// (NAME may also be a plain directory holding the two files, as servers before the links wrote it.) A version is
+// written whole and synced before one atomic step publishes it: symlink(2), which fails when NAME exists, for a
+// new asset, and rename(2) of a new link over NAME for a replacement, so a crash or a second writer leaves the
+// old asset or the new one, never half of one, nothing, or the loser's bytes under the winner's name. Links and
+// renames are atomic on every POSIX filesystem, NFS included. Names are checked before any path is made from
+// them; nothing a client sends becomes a path otherwise. Loaded assets are registered with models::btf::Assets
+// (what the `btf` model reads).
 //
 // Several servers may share one data directory (replicas on a shared volume): each writes under names unique to
-// its host and process, refuses to overwrite an asset another wrote unless asked to replace it, and Sync brings
+// its host and process, cannot overwrite an asset another wrote unless asked to replace it, and Sync brings
 // its registry up to date with the directory (assets another added, replaced or deleted), keyed by each asset's
-// manifest file (inode, size, modification time): a replaced asset is a new directory renamed into place.
+// files (inode, size, modification time); an asset that does not load is tried again later.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <map>
@@ -43,7 +49,8 @@ class BtfStore {
 
   enum class Outcome { kOk, kExists, kFull, kFailed };
   // Writes the asset under its name and registers it (replacing one of that name if `replace`); *error says why
-  // not.
+  // not: kExists when the name is taken, also by another server that published it first; kFailed with the
+  // system's reason when a write, sync or rename fails (nothing is published then).
   Outcome Put(const std::shared_ptr<models::btf::BtfAsset>& asset, bool replace, std::string* error);
   // Removes the asset; false when there is none of that name.
   bool Delete(const std::string& name);
@@ -56,13 +63,15 @@ class BtfStore {
   uint64_t bytes() const;
   uint64_t max_bytes() const { return max_bytes_; }
   const std::string& directory() const { return dir_; }
+  // Tests only: runs just before Put publishes a written version (where another writer may get in first).
+  void set_before_publish_for_test(std::function<void()> f) { before_publish_for_test_ = std::move(f); }
 
  private:
   BtfStore(std::string dir, uint64_t max_bytes) : dir_(std::move(dir)), max_bytes_(max_bytes) {}
   // Reads DATA_DIR/btf/NAME into *asset; "" or why not.
   std::string Load(const std::string& name, std::shared_ptr<models::btf::BtfAsset>* asset) const;
-  // Which version of NAME's files the directory holds (its manifest's inode, size and modification time; empty
-  // when there is none).
+  // Which version of NAME's files the directory holds (inode, size and modification time of its manifest and
+  // tables; empty when there is no manifest).
   std::string StampOf(const std::string& name) const;
   // A name for a hidden directory no other server sharing the directory uses (host, process, counter).
   std::string UniqueTag();
@@ -70,8 +79,17 @@ class BtfStore {
   const std::string dir_;  // DATA_DIR/btf
   const uint64_t max_bytes_;
   mutable std::mutex mutex_;  // one writer at a time; names -> ids live in models::btf::Assets
-  uint64_t counter_ = 0;
   std::map<std::string, std::string> stamps_;  // per registered asset: StampOf when it was loaded or written
+  // Per asset on disk that did not load: its stamp and reason then, and when Sync tries it again (at once when
+  // its files change; else after a delay that doubles, for a reason that is not in the files: a read error, the
+  // store's bound).
+  struct Failed {
+    std::string stamp, why;
+    std::chrono::steady_clock::time_point retry;
+    std::chrono::seconds delay{0};
+  };
+  std::map<std::string, Failed> failed_;
+  std::function<void()> before_publish_for_test_;
 };
 
 }  // namespace loomlight::assets

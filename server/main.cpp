@@ -59,6 +59,8 @@ void Usage() {
                "  --fiber-cache-mb N         fiber scenes (fibers' BVH, tubes, openness) kept across calls, in MiB\n"
                "                             (default 256)\n"
                "  --upload-idle-seconds N    an UploadBtf that sends nothing for N s is cancelled (default 60)\n"
+               "  --max-upload-seconds N     an UploadBtf still sending N s after it started is cancelled\n"
+               "                             (default 1800)\n"
                "  --environment-cache-mb N   decoded environment maps kept, in MiB (default 256)\n"
                "  --grpc-memory-mb N         gRPC's own buffers, in MiB (default 512)\n"
                "  --stall-seconds N          health NOT_SERVING while one task runs longer (default 20)\n"
@@ -199,6 +201,7 @@ int main(int argc, char** argv) {
     else if (arg == "--fold-cache-mb") options.limits.fold_cache_bytes = mebibytes();
     else if (arg == "--fiber-cache-mb") options.limits.fiber_cache_bytes = mebibytes();
     else if (arg == "--upload-idle-seconds") options.limits.upload_idle_timeout = std::chrono::seconds(positive());
+    else if (arg == "--max-upload-seconds") options.limits.upload_max_duration = std::chrono::seconds(positive());
     else if (arg == "--environment-cache-mb") options.environment_cache_bytes = mebibytes();
     else if (arg == "--grpc-memory-mb") options.grpc_memory_bytes = mebibytes();
     else if (arg == "--stall-seconds") options.stall_limit = std::chrono::seconds(positive());

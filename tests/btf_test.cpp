@@ -14,11 +14,14 @@
 #include <fstream>
 #include <functional>
 #include <random>
+#include <sstream>
 #include <thread>
 
 #include "server/assets/btf_store.h"
 #include "server/models/btf/btf_asset.h"
 #include "tests/testing.h"
+
+#include <OpenImageIO/imageio.h>  // after protobuf's headers (its byte-swap macros clash with OpenImageIO's)
 
 namespace loomlight {
 namespace {
@@ -1176,5 +1179,153 @@ TEST_F(BtfRpcTest, AnUploadThatStopsSendingIsCancelledAndFreesItsSlot) {
   EXPECT_EQ(writer->Finish().error_code(), grpc::StatusCode::CANCELLED);  // the server cancelled it
 }
 
+
+// An OpenEXR image of `channels` channels, every value `value`, as any client can make one.
+std::string ExrOfChannels(int width, int height, int channels, float value = 0) {
+  const auto path = std::filesystem::temp_directory_path() / ("loomlight-channels-" + std::to_string(::getpid()) + ".exr");
+  auto out = OIIO::ImageOutput::create(path.string());
+  EXPECT_TRUE(out);
+  if (!out) return "";
+  OIIO::ImageSpec spec(width, height, channels, OIIO::TypeDesc::HALF);
+  spec.attribute("compression", "zip");
+  const std::vector<float> values(size_t(width) * height * channels, value);
+  EXPECT_TRUE(out->open(path.string(), spec) && out->write_image(OIIO::TypeDesc::FLOAT, values.data()) &&
+              out->close());
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), {});
+  std::filesystem::remove(path);
+  return bytes;
+}
+
+// An uploaded image is bounded by its header before it is decoded: more than 4 channels is refused naming the
+// image (64 used to be decoded, every channel a float per pixel, then all but three dropped), and an image
+// whose decoding the memory budget cannot hold is refused before it is decoded (the budget was charged only
+// for the image kept, after decoding). Hostile uploads are decoded on the asset loader, in their client's turn:
+// another client's calls meanwhile complete.
+TEST_F(BtfRpcTest, UploadedImagesAreBoundedByTheirHeaderBeforeDecoding) {
+  api::ServerOptions options;
+  options.data_dir = DataDir();
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  const DirectionGrid one{{{0, 1}}};
+  v1::UploadBtfHeader header = UploadHeader("bounded", 16);
+  header.mutable_grid()->clear_rings();
+  header.mutable_grid()->add_rings()->set_count(1);
+  std::vector<v1::BtfImage> images = SliceImages(*stub, one, 16);
+  ASSERT_EQ(images.size(), 1u);
+  v1::BtfAssetInfo out;
+  images[0].set_data(ExrOfChannels(16, 16, 64));
+  grpc::Status s = Upload(*stub, &header, images, &out);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_EQ(s.error_message().rfind("images[0].data: 64 channels", 0), 0u) << s.error_message();
+  images[0].set_data(ExrOfChannels(16, 16, 4, 0.25f));  // RGBA is read
+  s = Upload(*stub, &header, images, &out);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+
+  // Hostile clients send 64-channel images over and over while another client's small calls go on.
+  std::atomic<bool> stop{false};
+  std::atomic<int> refused{0}, wrong{0};
+  std::vector<std::thread> hostile;
+  images[0].set_data(ExrOfChannels(16, 16, 64));
+  header.set_name("bounded_again");
+  for (int k = 0; k < 4; ++k)
+    hostile.emplace_back([&] {
+      auto own = testing::Connect(server->port());
+      while (!stop) {
+        const grpc::Status st = Upload(*own, &header, images, &out);
+        (st.error_code() == grpc::StatusCode::INVALID_ARGUMENT ? refused : wrong)++;
+      }
+    });
+  for (int i = 0; i < 20; ++i) {
+    grpc::ClientContext ctx;
+    v1::ListBtfsResponse list;
+    EXPECT_TRUE(stub->ListBtfs(&ctx, {}, &list).ok());
+    v1::EvaluateResponse f;
+    grpc::ClientContext ectx;
+    v1::EvaluateRequest e = BtfEvaluate("bounded", 0);
+    e.add_wi(0), e.add_wi(0), e.add_wi(1), e.add_wo(0), e.add_wo(0), e.add_wo(1), e.add_uv(0.5f), e.add_uv(0.5f);
+    EXPECT_TRUE(stub->Evaluate(&ectx, e, &f).ok());
+  }
+  while (refused < 8) std::this_thread::yield();  // the hostile uploads were running meanwhile
+  stop = true;
+  for (auto& t : hostile) t.join();
+  EXPECT_EQ(wrong, 0);
+}
+
+// The bytes decoding takes are charged before decoding: a 128 x 128 RGBA image decodes into 128 x 128 x (4 + 3)
+// floats (448 KiB) of which the call keeps 128 x 128 x 3 (192 KiB); a budget of 400 KiB refuses it
+// RESOURCE_EXHAUSTED naming the image (it used to decode it and then charge the 192 KiB kept, which fit).
+TEST_F(BtfRpcTest, AnImageWhoseDecodingTheBudgetCannotHoldIsRefusedBeforeDecoding) {
+  api::ServerOptions options;
+  options.data_dir = DataDir();
+  options.limits.memory_budget_bytes = size_t{400} << 10;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  v1::UploadBtfHeader header = UploadHeader("budget", 128);
+  header.mutable_grid()->clear_rings();
+  header.mutable_grid()->add_rings()->set_count(1);
+  v1::BtfImage image;
+  for (int c = 0; c < 3; ++c) image.add_view(c == 2 ? 1.0f : 0.0f), image.add_light(c == 2 ? 1.0f : 0.0f);
+  image.set_data(ExrOfChannels(128, 128, 4));
+  v1::BtfAssetInfo out;
+  const grpc::Status s = Upload(*stub, &header, {image}, &out);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
+  EXPECT_EQ(s.error_message().rfind("images[0].data: ", 0), 0u) << s.error_message();
+}
+
+// A client that trickles images just under the idle limit (one every 250 ms, the limit 1 s) is cancelled at the
+// upload's whole-duration bound (2 s), and not before it; the server counts it DEADLINE_EXCEEDED.
+TEST_F(BtfRpcTest, AnUploadTricklingUnderTheIdleLimitIsCancelledAtItsWholeDurationBound) {
+  api::ServerOptions options;
+  options.data_dir = DataDir();
+  options.metrics_address = "127.0.0.1:0";
+  options.limits.upload_idle_timeout = std::chrono::seconds(1);
+  options.limits.upload_max_duration = std::chrono::seconds(2);
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  v1::UploadBtfHeader header = UploadHeader("trickled", 8);
+  header.mutable_grid()->clear_rings();
+  for (auto [theta, count] : {std::pair{0.0, 1u}, {45.0, 6u}}) {
+    v1::BtfRing* ring = header.mutable_grid()->add_rings();
+    ring->set_theta(theta);
+    ring->set_count(count);
+  }
+  DirectionGrid grid;
+  ASSERT_EQ(assets::GridOf(header.grid(), "grid", &grid), "");
+  const std::vector<v1::BtfImage> images = SliceImages(*stub, grid, 8);  // 49 pairs: 12 s of trickling
+  const auto started = std::chrono::steady_clock::now();
+  grpc::ClientContext ctx;
+  v1::BtfAssetInfo out;
+  auto writer = stub->UploadBtf(&ctx, &out);
+  v1::UploadBtfMessage m;
+  *m.mutable_header() = header;
+  ASSERT_TRUE(writer->Write(m));
+  std::chrono::duration<double> refused_at{0};
+  size_t sent = 0;
+  for (; sent < images.size(); ++sent) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(250));
+    *m.mutable_image() = images[sent];
+    if (!writer->Write(m)) {
+      refused_at = std::chrono::steady_clock::now() - started;
+      break;
+    }
+  }
+  ASSERT_LT(sent, images.size()) << "the upload was never cut off";
+  EXPECT_EQ(writer->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  // Not before the bound: the server's call began after `started`, and a write fails only once the client
+  // has learnt that the server cancelled it.
+  EXPECT_GE(refused_at.count(), 2.0);
+  // By the bound, not the idle limit.
+  const std::string text = testing::HttpGet(server->metrics_port(), "/metrics");
+  bool counted = false;
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);)
+    counted |= line.rfind("loomlight_calls_total{", 0) == 0 && line.find("rpc=\"UploadBtf\"") != std::string::npos &&
+               line.find("DEADLINE_EXCEEDED") != std::string::npos;
+  EXPECT_TRUE(counted) << text;
+}
 }  // namespace
 }  // namespace loomlight

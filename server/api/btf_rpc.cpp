@@ -1,8 +1,12 @@
 #include "server/api/btf_rpc.h"
 
+#include <grpcpp/alarm.h>
+
 #include <algorithm>
+#include <mutex>
 #include <thread>
 
+#include "server/api/access.h"
 #include "server/api/job_status.h"
 #include "server/api/render_rpc.h"
 #include "server/api/stream_call.h"
@@ -415,31 +419,77 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   v1::CreateBtfProgress message_;
 };
 
-// One UploadBtf call: the header takes a long-call slot; each image is checked and decoded on gRPC's thread as
-// it arrives (one read at a time: a 128 x 128 image decodes in well under a millisecond) and its bytes are
-// charged to the memory budget then, so a client that stalls holds only what it sent, never what its header
-// promised. When the client closes the stream with every pair sent, the call is charged for the compression
-// (BuildBytes), the images are gathered into one buffer, compressed and stored on the geometry worker, and the
-// call answers the stored asset. An error ends the call at once.
+// One UploadBtf call: the header takes a long-call slot (on gRPC's thread: a few checks). Each image is checked
+// and decoded on the asset loader (the client's turn among clients; one read at a time): its header is read
+// first, refused beyond 4 channels or another size than the upload's, and the bytes its decoding holds are
+// charged to the memory budget before they are allocated; the decoded image's bytes stay charged, so a client
+// that stalls holds only what it sent, never what its header promised. When the client closes the stream with
+// every pair sent, the call is charged for the compression (BuildBytes), the images are gathered into one buffer,
+// compressed and stored on the geometry worker, and the call answers the stored asset. An error ends the call at
+// once. A client that sends nothing for --upload-idle-seconds is cut off (IdleStreams), and so is one still
+// sending --max-upload-seconds after the call began (an alarm), however steadily it trickles.
 class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage> {
  public:
   UploadBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, v1::BtfAssetInfo* response)
       : deps_(deps), context_(context), response_(response), received_(Clock::now()),
-        deadline_(CallDeadline(context, received_)), idle_(deps.idle_uploads->Watch(context)) {
+        deadline_(CallDeadline(context, received_)), idle_(deps.idle_uploads->Watch(context)),
+        client_(FairShareKey(*context, *deps.trusted_proxies)), bound_(std::make_shared<DurationBound>()) {
+    bound_->context = context;
+    if (deps_.max_upload_duration.count() > 0) {
+      // The alarm holds the shared state only: it may fire after this call is gone, and then does nothing.
+      alarm_.Set(std::chrono::system_clock::now() + deps_.max_upload_duration, [bound = bound_](bool fired) {
+        std::lock_guard<std::mutex> lock(bound->mutex);
+        if (!fired || !bound->context) return;
+        bound->expired = true;
+        bound->context->TryCancel();  // the pending read ends; the call finishes from there
+      });
+      alarm_set_ = true;
+    }
     StartRead(&message_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) return EndOfStream();
     idle_->Touch();
-    const grpc::Status s = images_seen_ < 0 ? Header() : Image();
-    if (!s.ok()) return Finish(s);
-    message_.Clear();
-    StartRead(&message_);
+    if (images_seen_ < 0) return Next(Header());
+    deps_.loader->Post(
+        [this] {
+          const grpc::Status s = Image();
+          idle_->Touch();  // a wait for the loader is not the client's silence
+          Next(s);
+        },
+        client_);
   }
   void OnDone() override { delete this; }
 
  private:
+  // The whole-duration bound's state, shared with its alarm.
+  struct DurationBound {
+    std::mutex mutex;
+    grpc::CallbackServerContext* context = nullptr;  // null once the call stops receiving
+    bool expired = false;
+  };
+
+  // The next read, or the end of the call with an error.
+  void Next(const grpc::Status& s) {
+    if (!s.ok()) return Finish(s);
+    message_.Clear();
+    StartRead(&message_);
+  }
+
+  // Nothing more is received: the alarm lets go of the context. True when it had fired.
+  bool StopReceiving() {
+    bool expired;
+    {
+      std::lock_guard<std::mutex> lock(bound_->mutex);
+      bound_->context = nullptr;
+      expired = bound_->expired;
+    }
+    if (alarm_set_) alarm_.Cancel();
+    alarm_set_ = false;
+    return expired;
+  }
+
   grpc::Status Header() {
     if (!message_.has_header()) return Invalid("the first message must be a header");
     const v1::UploadBtfHeader& h = message_.header();
@@ -489,15 +539,25 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
     if (!pairs_[pair].empty())
       return Invalid(field + ": view " + std::to_string(slot[0]) + " and light " + std::to_string(slot[1]) +
                      " were sent before");
+    // From the image's header, before its pixels are decoded: its size, and the bytes decoding it takes charged
+    // (released with `decoded`, declared after it) along with the bytes the call keeps of it.
+    batching::Budget::Reservation decoding;
+    bool over_budget = false;
+    const auto admit = [&](int width, int height, int channels) -> std::string {
+      if (width != job_.width || height != job_.height)
+        return std::to_string(width) + " x " + std::to_string(height) + " pixels, the header says " +
+               std::to_string(job_.width) + " x " + std::to_string(job_.height);
+      if (deps_.memory->TryReserve(imaging::DecodeBytes(width, height, channels), &decoding) &&
+          admission_.bytes.Grow(images_.image_values() * sizeof(float)))
+        return "";
+      over_budget = true;
+      return "the server's memory budget holds no more images now; retry later";
+    };
     imaging::LinearRgbImage decoded;
-    if (std::string e = imaging::DecodeImage(image.data(), size_t(kMaxBtfTexels) * kMaxBtfTexels, &decoded); !e.empty())
-      return Invalid(field + ".data: " + e);
-    if (decoded.width != job_.width || decoded.height != job_.height)
-      return Invalid(field + ".data: " + std::to_string(decoded.width) + " x " + std::to_string(decoded.height) +
-                     " pixels, the header says " + std::to_string(job_.width) + " x " + std::to_string(job_.height));
-    if (!admission_.bytes.Grow(images_.image_values() * sizeof(float)))
-      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
-              field + ": the server's memory budget holds no more images now; retry later"};
+    if (std::string e = imaging::DecodeImage(image.data(), size_t(kMaxBtfTexels) * kMaxBtfTexels, &decoded, admit);
+        !e.empty())
+      return {over_budget ? grpc::StatusCode::RESOURCE_EXHAUSTED : grpc::StatusCode::INVALID_ARGUMENT,
+              field + ".data: " + e};
     // The file's top row is v = 1; the images' row iv = 0 is v = 0.
     std::vector<float>& out = pairs_[pair];
     out.resize(images_.image_values());
@@ -516,6 +576,12 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   // The client closed its side (or went away): everything arrived, or the call fails saying what is missing.
   void EndOfStream() {
     deps_.idle_uploads->Forget(idle_);  // nothing more to receive: compressing is not idling
+    if (StopReceiving())
+      return Finish({grpc::StatusCode::DEADLINE_EXCEEDED,
+                     "the upload was still sending after " +
+                         std::to_string(std::chrono::duration_cast<std::chrono::seconds>(
+                                            deps_.max_upload_duration).count()) +
+                         " s (--max-upload-seconds): cancelled"});
     if (idle_->cut_off())
       return Finish({grpc::StatusCode::DEADLINE_EXCEEDED,
                      "the client sent nothing for " +
@@ -554,6 +620,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
 
   void Finish(const grpc::Status& s) {
     deps_.idle_uploads->Forget(idle_);  // an error before the end of the stream
+    StopReceiving();
     deps_.metrics->Call(kUploadRpc, s.error_code(), SecondsSince(received_));
     admission_.EndSlots();
     grpc::ServerReadReactor<v1::UploadBtfMessage>::Finish(s);
@@ -564,6 +631,10 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   v1::BtfAssetInfo* const response_;
   const Clock::time_point received_, deadline_;
   const std::shared_ptr<IdleStreams::Stream> idle_;
+  const std::string client_;  // FairShareKey: its images take their turn on the loader
+  const std::shared_ptr<DurationBound> bound_;
+  grpc::Alarm alarm_;
+  bool alarm_set_ = false;
   Admission admission_;
   BtfJob job_;
   double scale_ = 1, threads_per_tile_ = 1;

@@ -91,6 +91,7 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
   deps_.folds = &folds_;
   deps_.fiber_scenes = fiber_scenes_.get();
   deps_.idle_uploads = &idle_uploads_;
+  deps_.max_upload_duration = limits.upload_max_duration;
   deps_.client_long_calls = &client_long_calls_;
   deps_.worker = &worker_;
   deps_.loader = &loader_;

@@ -48,6 +48,8 @@ struct ServiceLimits {
   size_t fiber_cache_bytes = size_t{256} << 20;  // fiber scenes (BVH, tubes, openness) kept across calls
   // A client-streaming call (UploadBtf) that sends nothing for this long is cancelled (server/api/idle_streams.h).
   std::chrono::milliseconds upload_idle_timeout{60000};
+  // And one still sending after this long from its start (a client trickling just under the idle limit).
+  std::chrono::milliseconds upload_max_duration{1800000};
 };
 
 // What the streaming and long-running RPC handlers (TextureSlice, Tabulate, Render) need from the service;
@@ -71,6 +73,7 @@ struct ServiceDeps {
   assets::EnvironmentMaps* environments = nullptr;
   assets::BtfStore* btf_store = nullptr;  // null: the server keeps no BTF assets
   IdleStreams* idle_uploads = nullptr;     // UploadBtf calls, cut off when they stop sending
+  std::chrono::milliseconds max_upload_duration{0};  // and when they are still sending after this (0: never)
   // Server-streaming calls, cut off when their client reads nothing (server/api/stream_call.h; null: never).
   IdleStreams* stalled_writes = nullptr;
   CallCaps call_caps;  // how long a call may run when its client set no shorter deadline

@@ -120,7 +120,8 @@ std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double 
   return "unknown image format";
 }
 
-std::string DecodeImage(const std::string& bytes, size_t max_pixels, LinearRgbImage* image) {
+std::string DecodeImage(const std::string& bytes, size_t max_pixels, LinearRgbImage* image,
+                        const std::function<std::string(int, int, int)>& admit) {
   // The reader is chosen by the bytes' signature; OpenImageIO picks a reader by the name's extension.
   const char* name = nullptr;
   if (bytes.rfind("\x89PNG\r\n\x1a\n", 0) == 0) name = "image.png";
@@ -137,7 +138,10 @@ std::string DecodeImage(const std::string& bytes, size_t max_pixels, LinearRgbIm
   const int channels = spec.nchannels;
   if (spec.width < 1 || spec.height < 1 || uint64_t(spec.width) * uint64_t(spec.height) > max_pixels)
     return "its " + std::to_string(spec.width) + " x " + std::to_string(spec.height) + " pixels are out of range";
-  if (channels != 1 && channels < 3) return std::to_string(channels) + " channels (1, 3 or 4 are read)";
+  if (channels != 1 && channels != 3 && channels != 4)
+    return std::to_string(channels) + " channels (1, 3 or 4 are read)";
+  if (admit)
+    if (std::string e = admit(spec.width, spec.height, channels); !e.empty()) return e;
   std::vector<float> pixels(size_t(spec.width) * spec.height * channels);
   if (!in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, pixels.data())) {
     (void)in->geterror();

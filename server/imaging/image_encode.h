@@ -3,6 +3,8 @@
 // with OpenImageIO for its users.
 #pragma once
 
+#include <cstddef>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -30,10 +32,18 @@ double AutomaticExposure(const LinearRgbImage& image);
 // Returns "" on success, else the reason (an OpenImageIO error: the caller reports it as internal).
 std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double exposure, std::string* bytes);
 
+// Bytes DecodeImage holds while decoding an image of this header: its pixels in float as stored, and as RGB.
+inline size_t DecodeBytes(int width, int height, int channels) {
+  return size_t(width) * size_t(height) * (size_t(channels) + 3) * sizeof(float);
+}
+
 // Decodes PNG, JPEG or OpenEXR bytes (recognised by their first bytes, never by a name a client gives) into linear
 // RGB, top row first: 8-bit PNG and JPEG through the inverse sRGB transfer function, EXR as stored; one channel
-// is grey, more than three keep the first three. At most max_pixels pixels (checked from the header, before
-// anything is decoded). Returns "" or why not ("not a PNG, JPEG or OpenEXR image", "2 channels", ...).
-std::string DecodeImage(const std::string& bytes, size_t max_pixels, LinearRgbImage* image);
+// is grey, a fourth (alpha) is dropped. At most max_pixels pixels and 4 channels, checked from the header before
+// anything is decoded; then `admit` (when given) is asked with the header's width, height and channels and may
+// refuse (its "" or reason is returned) before the DecodeBytes are allocated. Returns "" or why not ("not a PNG,
+// JPEG or OpenEXR image", "2 channels", ...).
+std::string DecodeImage(const std::string& bytes, size_t max_pixels, LinearRgbImage* image,
+                        const std::function<std::string(int width, int height, int channels)>& admit = nullptr);
 
 }  // namespace loomlight::imaging

@@ -48,6 +48,7 @@ void Usage() {
                "  --data-dir DIR             BTF assets live under DIR/btf (default $XDG_STATE_HOME/loomlight,\n"
                "                             else ~/.local/state/loomlight)\n"
                "  --btf-store-mb N           all BTF assets together, in MiB (default 2048)\n"
+               "  --btf-client-quota-mb N    one client's BTF assets, in MiB (default 1024; 0: the store's bound)\n"
                "  --btf-sync-seconds N       look for assets other replicas sharing --data-dir added, replaced or\n"
                "                             deleted every N s (default 5; 0: only at start and on SIGHUP)\n"
                "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
@@ -193,6 +194,7 @@ int main(int argc, char** argv) {
     else if (arg == "--environment-dir") options.environment_dir = value();
     else if (arg == "--data-dir") options.data_dir = value();
     else if (arg == "--btf-store-mb") options.btf_store_bytes = mebibytes();
+    else if (arg == "--btf-client-quota-mb") options.btf_client_quota_bytes = std::min(number(), 1ULL << 24) << 20;
     else if (arg == "--btf-sync-seconds") options.btf_sync_period = std::chrono::seconds(std::min(number(), 86400ULL));
     else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
     else if (arg == "--max-long-calls") options.limits.max_long_running_calls = positive();

@@ -539,6 +539,93 @@ TEST_F(BtfStoreOnDisk, SyncRetriesAnAssetThatWasHalfWrittenAndLoadsItWhole) {
   EXPECT_EQ(loaded->tables->data32(), asset->tables->data32());
 }
 
+// An asset belongs to the client that stored it: another client can neither replace nor delete it, whether the
+// store has loaded it or only finds it on disk (another replica's); a token with the admin right can, and the
+// asset stays its owner's.
+TEST_F(BtfStoreOnDisk, OnlyTheOwnerOrAnAdminReplacesOrDeletesAnAsset) {
+  auto a = Open(), b = Open();
+  ASSERT_TRUE(a && b);
+  using Outcome = assets::BtfStore::Outcome;
+  using Removal = assets::BtfStore::Removal;
+  const auto by = [](const std::string& owner, const std::string& source) {
+    auto asset = Small("disk_owned", source);
+    asset->owner = owner;
+    return asset;
+  };
+  std::string error;
+  ASSERT_EQ(a->Put(by("host:alice", "alice"), false, &error), Outcome::kOk) << error;
+  EXPECT_EQ(b->Put(by("host:bob", "bob"), true, &error), Outcome::kDenied);
+  // On disk only (B has not loaded it): the owner is read from the directory.
+  auto loaded = models::btf::Assets::Global().FindName("disk_owned");
+  ASSERT_TRUE(loaded);
+  models::btf::Assets::Global().Remove(loaded->id);
+  EXPECT_EQ(b->Put(by("host:bob", "bob"), true, &error), Outcome::kDenied);
+  EXPECT_EQ(b->Delete("disk_owned", "host:bob", false), Removal::kDenied);
+  EXPECT_EQ(SourceOnDisk("disk_owned"), "alice");
+  // An admin replaces it; it is still Alice's.
+  ASSERT_EQ(b->Put(by("client:operator", "admin"), true, &error, true), Outcome::kOk) << error;
+  EXPECT_EQ(SourceOnDisk("disk_owned"), "admin");
+  ASSERT_TRUE(models::btf::Assets::Global().FindName("disk_owned"));
+  EXPECT_EQ(models::btf::Assets::Global().FindName("disk_owned")->owner, "host:alice");
+  EXPECT_EQ(a->Delete("disk_owned", "host:bob", false), Removal::kDenied);
+  EXPECT_EQ(a->Delete("disk_owned", "host:alice", false), Removal::kRemoved);
+  EXPECT_FALSE(a->Exists("disk_owned"));
+  EXPECT_EQ(a->Delete("disk_owned", "host:alice", false), Removal::kNotFound);
+}
+
+// One client's assets together are bounded by its quota; another client's are not counted against it, and a
+// replacement counts once.
+TEST_F(BtfStoreOnDisk, AClientsAssetsAreBoundedByItsQuota) {
+  auto a = Open();
+  ASSERT_TRUE(a);
+  const uint64_t one = Small("x", "x")->bytes();
+  a->set_client_quota(2 * one + one / 2);
+  using Outcome = assets::BtfStore::Outcome;
+  std::string error;
+  const auto by = [](const std::string& owner, const std::string& name) {
+    auto asset = Small(name, owner);
+    asset->owner = owner;
+    return asset;
+  };
+  EXPECT_EQ(a->Put(by("host:alice", "disk_1"), false, &error), Outcome::kOk) << error;
+  EXPECT_EQ(a->Put(by("host:alice", "disk_2"), false, &error), Outcome::kOk) << error;
+  EXPECT_EQ(a->Put(by("host:alice", "disk_3"), false, &error), Outcome::kFull);
+  EXPECT_NE(error.find("--btf-client-quota-mb"), std::string::npos) << error;
+  EXPECT_EQ(a->Put(by("host:bob", "disk_3"), false, &error), Outcome::kOk) << error;
+  EXPECT_EQ(a->Put(by("host:alice", "disk_2"), true, &error), Outcome::kOk) << error;
+}
+
+// Names that differ only in case are one name: one link (the name in lower case) however a client spells it, so
+// two spellings cannot be two assets (on a case-insensitive volume they would be one file), nor can a second
+// replica create the other spelling; the asset keeps the spelling it was created with.
+TEST_F(BtfStoreOnDisk, NamesThatDifferOnlyInCaseAreOneName) {
+  auto a = Open(), b = Open();
+  ASSERT_TRUE(a && b);
+  using Outcome = assets::BtfStore::Outcome;
+  std::string error;
+  ASSERT_EQ(a->Put(Small("disk_Case", "first"), false, &error), Outcome::kOk) << error;
+  EXPECT_TRUE(std::filesystem::is_symlink(dir_ / "btf" / "disk_case"));
+  EXPECT_EQ(a->Put(Small("DISK_CASE", "second"), false, &error), Outcome::kExists);
+  // B's check before writing passes (the name unregistered), its publishing does not.
+  auto loaded = models::btf::Assets::Global().FindName("DISK_case");
+  ASSERT_TRUE(loaded);
+  EXPECT_EQ(loaded->name, "disk_Case");
+  models::btf::Assets::Global().Remove(loaded->id);
+  EXPECT_TRUE(b->Exists("disk_CASE"));
+  EXPECT_EQ(b->Put(Small("Disk_Case", "second"), false, &error), Outcome::kExists);
+  EXPECT_EQ(b->Sync(), 1);
+  ASSERT_TRUE(models::btf::Assets::Global().FindName("disk_case"));
+  EXPECT_EQ(models::btf::Assets::Global().FindName("disk_case")->name, "disk_Case");  // from the manifest
+  EXPECT_EQ(b->Put(Small("DISK_case", "replaced"), true, &error), Outcome::kOk) << error;
+  EXPECT_EQ(SourceOnDisk("disk_case"), "replaced");
+  EXPECT_EQ(b->Delete("disk_CASE", "", false), assets::BtfStore::Removal::kRemoved);
+  EXPECT_TRUE(std::filesystem::is_empty(dir_ / "btf"));
+  // An older server's plain directory spelled otherwise is the same name.
+  std::filesystem::create_directories(dir_ / "btf" / "disk_Legacy");
+  EXPECT_TRUE(a->Exists("DISK_LEGACY"));
+  EXPECT_EQ(a->Put(Small("disk_legacy", "new"), false, &error), Outcome::kExists);
+}
+
 // ---- End to end ----
 
 class BtfRpcTest : public ::testing::Test {
@@ -1326,6 +1413,61 @@ TEST_F(BtfRpcTest, AnUploadTricklingUnderTheIdleLimitIsCancelledAtItsWholeDurati
     counted |= line.rfind("loomlight_calls_total{", 0) == 0 && line.find("rpc=\"UploadBtf\"") != std::string::npos &&
                line.find("DEADLINE_EXCEEDED") != std::string::npos;
   EXPECT_TRUE(counted) << text;
+}
+
+// Through a trusted proxy, two clients (their forwarded addresses): the second can neither replace nor delete the
+// first's asset, and the refusal does not name the first; the first deletes it.
+TEST_F(BtfRpcTest, AnotherClientCannotReplaceOrDeleteAnAsset) {
+  api::ServerOptions options;
+  options.data_dir = DataDir();
+  ASSERT_EQ(options.access.trusted_proxies.Add("127.0.0.1"), "");
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  const auto from = [](grpc::ClientContext* ctx, const char* address) { ctx->AddMetadata("x-forwarded-for", address); };
+  v1::CreateBtfRequest create = TwillRequest("owned_Twill");
+  create.set_resolution(8);
+  v1::BtfAssetInfo info;
+  grpc::Status s;
+  {
+    grpc::ClientContext ctx;
+    from(&ctx, "10.0.0.1");
+    auto reader = stub->CreateBtf(&ctx, create);
+    v1::CreateBtfProgress p;
+    while (reader->Read(&p)) {
+    }
+    s = reader->Finish();
+    ASSERT_TRUE(s.ok()) << s.error_message();
+  }
+  create.set_replace(true);
+  create.set_name("OWNED_twill");  // the same name
+  {
+    grpc::ClientContext ctx;
+    from(&ctx, "10.0.0.2");
+    auto reader = stub->CreateBtf(&ctx, create);
+    v1::CreateBtfProgress p;
+    while (reader->Read(&p)) {
+    }
+    s = reader->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::PERMISSION_DENIED) << s.error_message();
+    EXPECT_EQ(s.error_message().find("10.0.0.1"), std::string::npos) << s.error_message();
+  }
+  v1::DeleteBtfRequest del;
+  del.set_name("owned_twill");
+  v1::DeleteBtfResponse out;
+  {
+    grpc::ClientContext ctx;
+    from(&ctx, "10.0.0.2");
+    s = stub->DeleteBtf(&ctx, del, &out);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::PERMISSION_DENIED) << s.error_message();
+    EXPECT_EQ(s.error_message().find("10.0.0.1"), std::string::npos) << s.error_message();
+  }
+  {
+    grpc::ClientContext ctx;
+    from(&ctx, "10.0.0.1");
+    s = stub->DeleteBtf(&ctx, del, &out);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+  }
 }
 }  // namespace
 }  // namespace loomlight

@@ -365,6 +365,18 @@ std::string ClientName(const grpc::ServerContextBase& context) {
   return "anonymous";
 }
 
+bool TokenListsRight(const grpc::ServerContextBase& context, const std::string& right) {
+  const auto header = context.client_metadata().find("authorization");
+  if (header == context.client_metadata().end()) return false;
+  const std::string token(BearerToken(std::string_view(header->second.data(), header->second.size())));
+  if (token.empty()) return false;
+  Processors& processors = LiveProcessors();
+  std::lock_guard<std::mutex> lock(processors.mutex);
+  for (const TokenAuthProcessor* processor : processors.live)
+    if (const TokenTable::Entry* entry = processor->table()->Find(token)) return entry->calls.count(right) > 0;
+  return false;
+}
+
 std::string FairShareKey(const grpc::ServerContextBase& context, const TrustedProxies& proxies) {
   std::string name = ClientName(context);
   if (name != "anonymous") return "client:" + name;

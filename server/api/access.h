@@ -125,6 +125,10 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
 // its certificate's common name, else "anonymous".
 std::string ClientName(const grpc::ServerContextBase& context);
 
+// Whether the caller's bearer token lists `right` itself (`*` does not include it), e.g. `admin`: replacing and
+// deleting other clients' BTF assets. Without a token, false.
+bool TokenListsRight(const grpc::ServerContextBase& context, const std::string& right);
+
 // Whom fair share and per-client limits count a call against: its client's name when the caller is known
 // (token or certificate); else, for a call from a trusted proxy, the client address in the last entry of its
 // X-Forwarded-For (the one the proxy appended); else its connection (peer address and port). Computed once per

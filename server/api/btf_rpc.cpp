@@ -49,10 +49,39 @@ std::string CheckAssetRequest(const std::string& prefix, const std::string& name
   return "";
 }
 
-// ALREADY_EXISTS early, before any work, when the name is taken and the job does not replace it (the store
-// checks again when it writes: another call may take the name meanwhile).
+// Who owns the assets a call stores: its client's name (token or certificate), else the address a trusted
+// proxy forwarded, else its host (not its connection: a client that reconnects still owns its assets).
+std::string AssetOwner(const grpc::ServerContextBase& context, const TrustedProxies& proxies) {
+  const std::string key = FairShareKey(context, proxies);
+  if (key.rfind("peer:", 0) != 0) return key;
+  const std::string peer = context.peer();  // "ipv4:10.0.0.7:41234", "ipv6:[::1]:41234"
+  const size_t port = peer.rfind(':');
+  if ((peer.rfind("ipv4:", 0) == 0 || peer.rfind("ipv6:", 0) == 0) && port > 5) return "host:" + peer.substr(5, port - 5);
+  return key;
+}
+
+// The caller's part of a job: who it is and whether its token lists `admin`.
+void SetCaller(const ServiceDeps& deps, const grpc::ServerContextBase& context, BtfJob* job) {
+  job->owner = AssetOwner(context, *deps.trusted_proxies);
+  job->admin = TokenListsRight(context, "admin");
+}
+
+grpc::Status NotOwner(const std::string& prefix, const std::string& name) {
+  return {grpc::StatusCode::PERMISSION_DENIED, prefix + "name: the asset " + models::Quote(name) +
+                                                   " belongs to another client (its owner, or a token with the "
+                                                   "admin right, may replace or delete it)"};
+}
+
+// Early, before any work: ALREADY_EXISTS when the name is taken (in any case) and the job does not replace it;
+// PERMISSION_DENIED when it replaces another client's asset. The store checks again when it writes: another
+// call may take the name meanwhile.
 grpc::Status CheckNameFree(const ServiceDeps& deps, const BtfJob& job, const std::string& prefix) {
-  if (job.replace || !deps.btf_store->Exists(job.name)) return grpc::Status::OK;
+  if (job.replace) {
+    const auto old = models::btf::Assets::Global().FindName(job.name);
+    if (old && !old->owner.empty() && old->owner != job.owner && !job.admin) return NotOwner(prefix, job.name);
+    return grpc::Status::OK;
+  }
+  if (!deps.btf_store->Exists(job.name)) return grpc::Status::OK;
   return {grpc::StatusCode::ALREADY_EXISTS,
           prefix + "name: an asset named " + models::Quote(job.name) + " exists (set replace, or delete it first)"};
 }
@@ -88,8 +117,9 @@ grpc::Status CompressAndStore(const ServiceDeps& deps, const models::btf::BtfIma
   asset->source = origin.source;
   asset->synthesis_seconds = origin.synthesis_seconds;
   asset->threads_per_tile = origin.threads_per_tile;
+  asset->owner = job.owner;
   std::string error;
-  switch (deps.btf_store->Put(asset, job.replace, &error)) {
+  switch (deps.btf_store->Put(asset, job.replace, &error, job.admin)) {
     case assets::BtfStore::Outcome::kOk:
       deps.materials->Clear();  // a material naming this name must not find a replaced asset's packing
       if (deps.folds) deps.folds->Clear();  // nor its folds (they keep the old tables alive)
@@ -97,6 +127,7 @@ grpc::Status CompressAndStore(const ServiceDeps& deps, const models::btf::BtfIma
       return grpc::Status::OK;
     case assets::BtfStore::Outcome::kExists: return {grpc::StatusCode::ALREADY_EXISTS, "name: " + error};
     case assets::BtfStore::Outcome::kFull: return {grpc::StatusCode::RESOURCE_EXHAUSTED, error};
+    case assets::BtfStore::Outcome::kDenied: return NotOwner("", job.name);
     case assets::BtfStore::Outcome::kFailed: break;
   }
   return {grpc::StatusCode::INTERNAL, error};
@@ -504,6 +535,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
     if (!(h.threads_per_tile() == 0 || (h.threads_per_tile() >= 1 && h.threads_per_tile() <= 1024)))
       return Invalid("header.threads_per_tile: must be in [1, 1024] (0 = 1)");
     threads_per_tile_ = h.threads_per_tile() == 0 ? 1.0 : h.threads_per_tile();
+    SetCaller(deps_, *context_, &job_);
     if (grpc::Status s = CheckNameFree(deps_, job_, "header."); !s.ok()) return s;
     if (grpc::Status s = AdmitLongCall(deps_, *context_, 0, &admission_); !s.ok()) return s;
     const size_t n = job_.grid.size();
@@ -683,6 +715,7 @@ grpc::ServerWriteReactor<v1::CreateBtfProgress>* HandleCreateBtf(const ServiceDe
   std::unique_ptr<FiberSource> fibers;
   size_t bytes = 0;
   if (grpc::Status s = CheckCreateBtfRequest(*deps.registry, *request, &job, &fibers, &bytes); !s.ok()) return reject(s);
+  SetCaller(deps, *context, &job);
   if (grpc::Status s = CheckNameFree(deps, job, ""); !s.ok()) return reject(s);
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> cached;
@@ -709,11 +742,17 @@ grpc::Status HandleListBtfs(const ServiceDeps& deps, v1::ListBtfsResponse* respo
   return grpc::Status::OK;
 }
 
-grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const v1::DeleteBtfRequest& request) {
+grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const grpc::ServerContextBase& context,
+                             const v1::DeleteBtfRequest& request) {
   if (!deps.btf_store) return NoStore();
   if (std::string e = assets::ValidateAssetName(request.name()); !e.empty()) return Invalid("name: " + e);
-  if (!deps.btf_store->Delete(request.name()))
-    return {grpc::StatusCode::NOT_FOUND, "name: no BTF asset named " + models::Quote(request.name())};
+  switch (deps.btf_store->Delete(request.name(), AssetOwner(context, *deps.trusted_proxies),
+                                 TokenListsRight(context, "admin"))) {
+    case assets::BtfStore::Removal::kNotFound:
+      return {grpc::StatusCode::NOT_FOUND, "name: no BTF asset named " + models::Quote(request.name())};
+    case assets::BtfStore::Removal::kDenied: return NotOwner("", request.name());
+    case assets::BtfStore::Removal::kRemoved: break;
+  }
   deps.materials->Clear();
   if (deps.folds) deps.folds->Clear();
   return grpc::Status::OK;

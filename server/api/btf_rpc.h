@@ -26,6 +26,8 @@ struct BtfJob {
   int width = 0, height = 0;  // texels of the tile
   models::btf::CompressionOptions compression;
   bool replace = false;
+  std::string owner;   // the client storing it (AssetOwner)
+  bool admin = false;  // its token lists `admin`: it may replace another client's asset
 };
 
 // A CreateBtf fiber source (README "BTF assets: from fibers"): the patch's yarn and layout, rays per texel.
@@ -48,7 +50,9 @@ grpc::ServerReadReactor<v1::UploadBtfMessage>* HandleUploadBtf(const ServiceDeps
                                                                v1::BtfAssetInfo* response,
                                                                grpc::Status serving);  // not OK: refused with it
 grpc::Status HandleListBtfs(const ServiceDeps& deps, v1::ListBtfsResponse* response);
-grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const v1::DeleteBtfRequest& request);
+// Deletes the caller's asset (another client's: PERMISSION_DENIED, unless its token lists `admin`).
+grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const grpc::ServerContextBase& context,
+                             const v1::DeleteBtfRequest& request);
 
 // The compression options of a request; "" or "compression.field: reason".
 std::string CompressionOf(const v1::BtfCompression& c, models::btf::CompressionOptions* out);

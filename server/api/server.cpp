@@ -33,6 +33,7 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   if (!options.data_dir.empty()) {
     s->btf_store_ = assets::BtfStore::Open(options.data_dir, options.btf_store_bytes, error);
     if (!s->btf_store_) return nullptr;
+    s->btf_store_->set_client_quota(options.btf_client_quota_bytes);
   }
   s->batcher_ = std::make_unique<batching::Batcher>(s->runtime_.get(), options.batcher);
   ServiceDeps deps;

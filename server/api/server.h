@@ -29,6 +29,7 @@ struct ServerOptions {
   std::string environment_dir;                 // maps clients may name ("" = none)
   std::string data_dir;                        // BTF assets live under DATA_DIR/btf ("" = none: no asset RPCs)
   uint64_t btf_store_bytes = uint64_t{2} << 30;  // all BTF assets together (float32 tables)
+  uint64_t btf_client_quota_bytes = uint64_t{1} << 30;  // one client's BTF assets (0: only the store's bound)
   // How often the assets are brought up to date with the data directory (another replica sharing it may have
   // written or deleted one); 0 = only at start and on SyncBtfAssets (SIGHUP).
   std::chrono::seconds btf_sync_period{5};

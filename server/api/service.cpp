@@ -348,7 +348,7 @@ grpc::ServerUnaryReactor* LoomlightService::DeleteBtf(grpc::CallbackServerContex
                                                       const v1::DeleteBtfRequest* request, v1::DeleteBtfResponse*) {
   const auto received = batching::Clock::now();
   grpc::Status s = Serving();
-  if (s.ok()) s = HandleDeleteBtf(deps_, *request);
+  if (s.ok()) s = HandleDeleteBtf(deps_, *context, *request);
   return AnswerNow(deps_.metrics, context, "DeleteBtf", received, s);
 }
 

@@ -85,6 +85,24 @@ std::string VersionOf(const fs::path& path) {
   return target.string();
 }
 
+// Names that differ only in case are one name: this is the one (and its link's name).
+std::string Key(std::string name) {
+  for (char& c : name) c = char(std::tolower(static_cast<unsigned char>(c)));
+  return name;
+}
+
+// The owner file of the asset at `path` (a link or an older server's directory): true with *owner ("" when it
+// has none: stored before assets had owners), false when it cannot be read.
+bool ReadOwner(const fs::path& path, std::string* owner) {
+  owner->clear();
+  const int dir_fd = ::open(path.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir_fd < 0) return false;
+  const bool read = ReadFileAt(dir_fd, "owner", 1024, owner);
+  const bool none = !read && errno == ENOENT;
+  ::close(dir_fd);
+  return read || none;
+}
+
 bool OnDisk(const fs::path& path) {  // a link counts even when it dangles
   std::error_code ec;
   return fs::exists(fs::symlink_status(path, ec));
@@ -178,14 +196,20 @@ std::unique_ptr<BtfStore> BtfStore::Open(const std::string& data_dir, uint64_t m
     if (why.empty() && total + asset->bytes() > max_bytes) why = "over the store's bound (--btf-store-mb)";
     if (!why.empty()) {
       std::fprintf(stderr, "loomlight-server: BTF asset '%s' not loaded: %s\n", name.c_str(), why.c_str());
-      store->failed_[name] = {store->StampOf(name), why, std::chrono::steady_clock::now(), std::chrono::seconds(0)};
+      store->failed_[Key(name)] = {store->StampOf(name), why, std::chrono::steady_clock::now(),
+                                   std::chrono::seconds(0)};
+      continue;
+    }
+    auto previous = Assets::Global().FindName(name);  // a store opened again in this process, or one name twice
+    if (previous && store->stamps_.count(Key(name))) {  // (an older server's entries in two cases)
+      std::fprintf(stderr, "loomlight-server: BTF asset '%s' not loaded: its name is taken in another case\n",
+                   name.c_str());
       continue;
     }
     total += asset->bytes();
-    auto previous = Assets::Global().FindName(name);  // a store opened again in this process
     Assets::Global().Add(asset);
     if (previous) Assets::Global().Remove(previous->id);
-    store->stamps_[name] = store->StampOf(name);
+    store->stamps_[Key(name)] = store->StampOf(name);
   }
   return store;
 }
@@ -219,18 +243,22 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
     if (log) log(line);
   };
   int changes = 0;
-  std::map<std::string, std::string> on_disk;
+  struct Entry {
+    std::string name, stamp;
+  };
+  std::map<std::string, Entry> on_disk;  // by Key
   std::error_code ec;
   for (const fs::directory_entry& entry : fs::directory_iterator(dir_, ec)) {
     const std::string name = entry.path().filename().string();
     if (!ValidateAssetName(name).empty() || !entry.is_directory(ec)) continue;
-    on_disk[name] = StampOf(name);
+    on_disk.emplace(Key(name), Entry{name, StampOf(name)});  // one name in two cases (older servers): the first
   }
   if (ec) return 0;  // the directory unreadable for now: keep what is registered
   for (const auto& asset : Assets::Global().List()) {
-    if (on_disk.count(asset->name) || !stamps_.count(asset->name)) continue;  // not this store's (a test's) or kept
+    const std::string key = Key(asset->name);
+    if (on_disk.count(key) || !stamps_.count(key)) continue;  // not this store's (a test's) or kept
     Assets::Global().Remove(asset->id);
-    stamps_.erase(asset->name);
+    stamps_.erase(key);
     say("BTF asset '" + asset->name + "' deleted by another server: dropped");
     ++changes;
   }
@@ -239,11 +267,12 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
   const auto now = std::chrono::steady_clock::now();
   for (auto it = failed_.begin(); it != failed_.end();)  // gone from the directory: nothing to retry
     it = on_disk.count(it->first) ? std::next(it) : failed_.erase(it);
-  for (const auto& [name, stamp] : on_disk) {
+  for (const auto& [key, entry] : on_disk) {
+    const std::string &name = entry.name, &stamp = entry.stamp;
     if (stamp.empty()) continue;  // no manifest yet
-    const auto known = stamps_.find(name);
+    const auto known = stamps_.find(key);
     if (known != stamps_.end() && known->second == stamp) continue;
-    const auto failed = failed_.find(name);
+    const auto failed = failed_.find(key);
     if (failed != failed_.end() && failed->second.stamp == stamp && now < failed->second.retry) continue;
     std::shared_ptr<BtfAsset> asset;
     std::string why = Load(name, &asset);
@@ -251,7 +280,7 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
     if (why.empty() && total - (old ? old->bytes() : 0) + asset->bytes() > max_bytes_)
       why = "over the store's bound (--btf-store-mb)";
     if (!why.empty()) {  // tried again: at once when its files change, else after a delay that doubles
-      Failed& f = failed_[name];
+      Failed& f = failed_[key];
       if (f.stamp != stamp || f.why != why) say("BTF asset '" + name + "' not loaded (tried again later): " + why);
       using std::chrono::seconds;
       f.delay = f.stamp == stamp ? std::clamp(2 * f.delay, seconds(10), seconds(320)) : seconds(10);
@@ -260,8 +289,8 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
       f.retry = now + f.delay;
       continue;
     }
-    failed_.erase(name);
-    stamps_[name] = stamp;
+    failed_.erase(key);
+    stamps_[key] = stamp;
     total += asset->bytes() - (old ? old->bytes() : 0);
     Assets::Global().Add(asset);
     if (old) Assets::Global().Remove(old->id);
@@ -271,18 +300,21 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
   return changes;
 }
 
-std::string BtfStore::Load(const std::string& name, std::shared_ptr<BtfAsset>* out) const {
-  // Both files from one version: the link is followed once (a replacement may flip it meanwhile).
-  const int dir_fd = ::open((fs::path(dir_) / name).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+std::string BtfStore::Load(const std::string& entry, std::shared_ptr<BtfAsset>* out) const {
+  // Every file from one version: the link is followed once (a replacement may flip it meanwhile).
+  const int dir_fd = ::open((fs::path(dir_) / entry).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dir_fd < 0) return std::string("cannot open its directory: ") + std::strerror(errno);
-  std::string bytes, data;
+  std::string bytes, data, owner;
   const bool manifest_read = ReadFileAt(dir_fd, "manifest.pb", kMaxManifestBytes, &bytes);
   const bool tables_read = manifest_read && ReadFileAt(dir_fd, "tables.f32", max_bytes_, &data);
+  if (!ReadFileAt(dir_fd, "owner", 1024, &owner)) owner.clear();  // none: stored before assets had owners
   ::close(dir_fd);
   v1::BtfAssetInfo info;
   if (!manifest_read || !info.ParseFromString(bytes)) return "manifest.pb missing or unreadable";
   auto asset = std::make_shared<BtfAsset>();
-  asset->name = name;
+  // The name as its client gave it (the link is it in lower case).
+  asset->name = ValidateAssetName(info.name()).empty() && Key(info.name()) == Key(entry) ? info.name() : entry;
+  asset->owner = owner;
   asset->source = info.source();
   if (std::string e = GridOf(info.grid(), "grid", &asset->grid); !e.empty()) return e;
   asset->width = int(std::min<uint32_t>(info.width(), 1u << 16));
@@ -306,25 +338,42 @@ std::string BtfStore::Load(const std::string& name, std::shared_ptr<BtfAsset>* o
   return "";
 }
 
-BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool replace, std::string* error) {
+BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool replace, std::string* error,
+                                bool admin) {
   if (std::string e = ValidateAssetName(asset->name); !e.empty()) {
     *error = "name: " + e;
     return Outcome::kFailed;
   }
   std::lock_guard<std::mutex> lock(mutex_);
   auto old = Assets::Global().FindName(asset->name);
-  const fs::path final_path = fs::path(dir_) / asset->name;
+  const std::string entry = EntryOf(asset->name);
+  const fs::path final_path = fs::path(dir_) / (entry.empty() ? Key(asset->name) : entry);
   const std::string exists = "an asset of that name exists (set replace)";
-  if ((old || OnDisk(final_path)) && !replace) {  // early, before writing; publishing checks again, atomically
+  if ((old || !entry.empty()) && !replace) {  // early, before writing; publishing checks again, atomically
     *error = exists;
     return Outcome::kExists;
   }
-  uint64_t total = asset->bytes();
+  if (old || !entry.empty()) {  // on disk only: another server's, not loaded here yet
+    std::string owner;
+    if (old) owner = old->owner;
+    else if (!ReadOwner(final_path, &owner)) owner = "?";  // unreadable: only an admin replaces it
+    if (!owner.empty() && owner != asset->owner && !admin) {
+      *error = "the asset belongs to another client (its owner, or a token with the admin right, may replace it)";
+      return Outcome::kDenied;
+    }
+    if (!owner.empty()) asset->owner = owner;  // an admin's replacement is still its owner's asset
+  }
+  uint64_t total = asset->bytes(), owners = asset->bytes();
   for (const auto& a : Assets::Global().List())
-    if (a != old) total += a->bytes();
+    if (a != old) total += a->bytes(), owners += a->owner == asset->owner ? a->bytes() : 0;
   if (total > max_bytes_) {
     *error = "the asset store would hold " + std::to_string(total >> 20) + " MiB, over its bound of " +
              std::to_string(max_bytes_ >> 20) + " MiB (--btf-store-mb); delete assets first";
+    return Outcome::kFull;
+  }
+  if (client_quota_ > 0 && owners > client_quota_) {
+    *error = "the client's assets would hold " + std::to_string(owners >> 20) + " MiB, over its quota of " +
+             std::to_string(client_quota_ >> 20) + " MiB (--btf-client-quota-mb); delete some of them first";
     return Outcome::kFull;
   }
   // The version, written whole and synced before anything names it.
@@ -337,6 +386,7 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
   std::string why;
   if (::mkdir(version_dir.c_str(), 0755) != 0) why = Failure("cannot make", version_dir);
   if (why.empty()) why = WriteFile(version_dir / "tables.f32", tables.data(), tables.size() * sizeof(float));
+  if (why.empty()) why = WriteFile(version_dir / "owner", asset->owner.data(), asset->owner.size());
   if (why.empty()) why = WriteFile(version_dir / "manifest.pb", manifest.data(), manifest.size());
   if (why.empty()) why = SyncDirectory(version_dir);
   if (why.empty()) why = SyncDirectory(dir_);
@@ -377,8 +427,8 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
   if (!retired.empty()) fs::remove_all(fs::path(dir_) / retired, ec);
   Assets::Global().Add(asset);
   if (old) Assets::Global().Remove(old->id);
-  stamps_[asset->name] = StampOf(asset->name);
-  failed_.erase(asset->name);
+  stamps_[Key(asset->name)] = StampOf(final_path.filename().string());
+  failed_.erase(Key(asset->name));
   if (!why.empty()) {  // published (and registered: the directory names it) but maybe not durable
     *error = "the asset is in place but may not survive a crash: " + why;
     return Outcome::kFailed;
@@ -386,31 +436,46 @@ BtfStore::Outcome BtfStore::Put(const std::shared_ptr<BtfAsset>& asset, bool rep
   return Outcome::kOk;
 }
 
-bool BtfStore::Delete(const std::string& name) {
-  if (!ValidateAssetName(name).empty()) return false;
+BtfStore::Removal BtfStore::Delete(const std::string& name, const std::string& owner, bool admin) {
+  if (!ValidateAssetName(name).empty()) return Removal::kNotFound;
   std::lock_guard<std::mutex> lock(mutex_);
   auto asset = Assets::Global().FindName(name);
-  const fs::path path = fs::path(dir_) / name, trash = fs::path(dir_) / (".trash-" + UniqueTag());
+  const std::string entry = EntryOf(name);
+  if (!asset && entry.empty()) return Removal::kNotFound;  // neither registered nor on disk
+  const fs::path path = fs::path(dir_) / (entry.empty() ? Key(name) : entry),
+                 trash = fs::path(dir_) / (".trash-" + UniqueTag());
+  std::string holder;
+  if (asset) holder = asset->owner;
+  else if (!ReadOwner(path, &holder)) holder = "?";  // unreadable: only an admin deletes it
+  if (!holder.empty() && holder != owner && !admin) return Removal::kDenied;
   // The name goes in one step (the link, or an older server's directory, renamed away); then its files.
   const std::string version = VersionOf(path);
-  const bool removed = ::rename(path.c_str(), trash.c_str()) == 0;
-  if (!asset && !removed) return false;  // neither registered nor on disk (another server's, deleted already)
-  if (removed) {
+  if (!entry.empty() && ::rename(path.c_str(), trash.c_str()) == 0) {
     (void)SyncDirectory(dir_);
     std::error_code ec;
     if (!version.empty()) fs::remove_all(fs::path(dir_) / version, ec);
     fs::remove_all(trash, ec);
   }
   if (asset) Assets::Global().Remove(asset->id);
-  stamps_.erase(name);
-  failed_.erase(name);
-  return true;
+  stamps_.erase(Key(name));
+  failed_.erase(Key(name));
+  return Removal::kRemoved;
+}
+
+std::string BtfStore::EntryOf(const std::string& name) const {
+  const std::string key = Key(name);
+  if (OnDisk(fs::path(dir_) / key)) return key;
+  std::error_code ec;  // an older server wrote names as given
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir_, ec)) {
+    const std::string n = entry.path().filename().string();
+    if (n[0] != '.' && Key(n) == key) return n;
+  }
+  return "";
 }
 
 bool BtfStore::Exists(const std::string& name) const {
   // on disk only: another server sharing the directory wrote it
-  return Assets::Global().FindName(name) != nullptr ||
-         (ValidateAssetName(name).empty() && OnDisk(fs::path(dir_) / name));
+  return Assets::Global().FindName(name) != nullptr || (ValidateAssetName(name).empty() && !EntryOf(name).empty());
 }
 
 std::vector<std::shared_ptr<const BtfAsset>> BtfStore::List() const { return Assets::Global().List(); }

@@ -1,7 +1,9 @@
 // BTF assets on disk, by name, under the operator's data directory (README "BTF assets"):
-//   DATA_DIR/btf/NAME               a symbolic link to the asset's version directory, .v-TAG
-//   DATA_DIR/btf/.v-TAG/manifest.pb  the asset's BtfAssetInfo (binary protobuf: grid, tile, components, errors)
+//   DATA_DIR/btf/name               a symbolic link to the asset's version directory, .v-TAG; the name in lower
+//                                   case (names that differ only in case are one name, on every volume)
+//   DATA_DIR/btf/.v-TAG/manifest.pb  the asset's BtfAssetInfo (binary protobuf: name as given, grid, tile, ...)
 //   DATA_DIR/btf/.v-TAG/tables.f32   its compressed tables, float32 little-endian (kernels/models/btf.h's layout)
+//   DATA_DIR/btf/.v-TAG/owner        the client that stored it (BtfAsset::owner); absent: stored before owners
 // (NAME may also be a plain directory holding the two files, as servers before the links wrote it.) A version is
 // written whole and synced before one atomic step publishes it: symlink(2), which fails when NAME exists, for a
 // new asset, and rename(2) of a new link over NAME for a replacement, so a crash or a second writer leaves the
@@ -47,13 +49,19 @@ class BtfStore {
   // The default data directory: $XDG_STATE_HOME/loomlight, else ~/.local/state/loomlight.
   static std::string DefaultDataDir();
 
-  enum class Outcome { kOk, kExists, kFull, kFailed };
-  // Writes the asset under its name and registers it (replacing one of that name if `replace`); *error says why
-  // not: kExists when the name is taken, also by another server that published it first; kFailed with the
-  // system's reason when a write, sync or rename fails (nothing is published then).
-  Outcome Put(const std::shared_ptr<models::btf::BtfAsset>& asset, bool replace, std::string* error);
-  // Removes the asset; false when there is none of that name.
-  bool Delete(const std::string& name);
+  enum class Outcome { kOk, kExists, kFull, kDenied, kFailed };
+  // Writes the asset under its name and registers it (replacing one of that name if `replace`); asset->owner is
+  // the client writing it. *error says why not: kExists when the name is taken, also by another server that
+  // published it first; kDenied when `replace` names another client's asset and the writer is not `admin`;
+  // kFull over the store's bound or the writer's quota; kFailed with the system's reason when a write, sync or
+  // rename fails (nothing is published then). A replacement keeps the asset's owner (an admin's too).
+  Outcome Put(const std::shared_ptr<models::btf::BtfAsset>& asset, bool replace, std::string* error,
+              bool admin = false);
+  enum class Removal { kRemoved, kNotFound, kDenied };
+  // Removes the asset when `owner` owns it or is `admin` (an asset without an owner: anyone).
+  Removal Delete(const std::string& name, const std::string& owner, bool admin);
+  // The most bytes of assets one owner may hold (0: only the store's bound).
+  void set_client_quota(uint64_t bytes) { client_quota_ = bytes; }
   // Registers what the directory holds and this store has not seen (another server's writes): new and replaced
   // assets loaded, deleted ones dropped. Returns how many assets changed (callers then empty the caches that
   // hold assets' tables); `log` gets a line per change or asset that could not be loaded.
@@ -68,8 +76,11 @@ class BtfStore {
 
  private:
   BtfStore(std::string dir, uint64_t max_bytes) : dir_(std::move(dir)), max_bytes_(max_bytes) {}
-  // Reads DATA_DIR/btf/NAME into *asset; "" or why not.
-  std::string Load(const std::string& name, std::shared_ptr<models::btf::BtfAsset>* asset) const;
+  // Reads the directory entry DATA_DIR/btf/ENTRY into *asset; "" or why not.
+  std::string Load(const std::string& entry, std::shared_ptr<models::btf::BtfAsset>* asset) const;
+  // The directory entry holding `name` in any case: the lower-case link, else an older server's entry spelled
+  // otherwise; "" when there is none.
+  std::string EntryOf(const std::string& name) const;
   // Which version of NAME's files the directory holds (inode, size and modification time of its manifest and
   // tables; empty when there is no manifest).
   std::string StampOf(const std::string& name) const;
@@ -79,6 +90,8 @@ class BtfStore {
   const std::string dir_;  // DATA_DIR/btf
   const uint64_t max_bytes_;
   mutable std::mutex mutex_;  // one writer at a time; names -> ids live in models::btf::Assets
+  uint64_t client_quota_ = 0;
+  // Keyed by the name in lower case:
   std::map<std::string, std::string> stamps_;  // per registered asset: StampOf when it was loaded or written
   // Per asset on disk that did not load: its stamp and reason then, and when Sync tries it again (at once when
   // its files change; else after a delay that doubles, for a reason that is not in the files: a read error, the

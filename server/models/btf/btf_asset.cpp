@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cctype>
 #include <cmath>
 #include <thread>
 
@@ -291,8 +292,12 @@ std::shared_ptr<const BtfAsset> Assets::Find(uint64_t id) const {
 
 std::shared_ptr<const BtfAsset> Assets::FindName(const std::string& name) const {
   std::lock_guard<std::mutex> lock(mutex_);
-  for (const auto& [id, asset] : by_id_)
-    if (id != 0 && asset->name == name) return asset;
+  for (const auto& [id, asset] : by_id_)  // names differing only in case are one name
+    if (id != 0 && asset->name.size() == name.size() &&
+        std::equal(name.begin(), name.end(), asset->name.begin(),
+                   [](char a, char b) { return std::tolower(static_cast<unsigned char>(a)) ==
+                                               std::tolower(static_cast<unsigned char>(b)); }))
+      return asset;
   return nullptr;
 }
 

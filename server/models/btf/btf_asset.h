@@ -73,6 +73,7 @@ struct ErrorRow {
 // A compressed BTF: immutable once made; shared by the store, the materials naming it and launches.
 struct BtfAsset {
   std::string name, source;
+  std::string owner;  // the client that stored it (server/api/btf_rpc.cpp AssetOwner); "" before owners
   DirectionGrid grid;
   int width = 0, height = 0;
   int components = 0;  // kept per view slot (K)
@@ -111,6 +112,7 @@ class Assets {
   uint64_t Add(const std::shared_ptr<BtfAsset>& asset);
   void Remove(uint64_t id);
   std::shared_ptr<const BtfAsset> Find(uint64_t id) const;
+  // The asset of that name, in any case ("Twill" finds "twill": names differing only in case are one name).
   std::shared_ptr<const BtfAsset> FindName(const std::string& name) const;
   std::vector<std::shared_ptr<const BtfAsset>> List() const;
 

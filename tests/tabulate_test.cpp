@@ -187,6 +187,7 @@ class TabulateTest : public ::testing::Test {
   static void SetUpTestSuite() {
     api::ServerOptions options;
     options.address = "127.0.0.1:0";
+    options.metrics_address = "127.0.0.1:0";  // DeadlineStopsTabulation reads how calls ended
     std::string error;
     server_ = api::LoomlightServer::Start(options, &error).release();
     ASSERT_NE(server_, nullptr) << error;
@@ -383,11 +384,24 @@ TEST_F(TabulateTest, ProgressIsMonotoneChunksAreBoundedAndTheLastReportsTheTotal
   EXPECT_EQ(t.file.size(), 40 + 12 * total);
 }
 
-// A tabulation of 23 batcher jobs, cancelled as soon as the first cells arrive: the server stops.
+// Velvet at its most tangent samples: 23 M queries of its costliest setting, a table no CPU finishes before a
+// cancel or a 300 ms deadline reaches the server.
+v1::Material SlowMaterial() {
+  v1::Material velvet;
+  velvet.set_preset("velvet");
+  v1::Param* samples = velvet.add_params();
+  samples->set_name("tangent_samples");
+  samples->add_values(256);
+  return velvet;
+}
+
+// A tabulation cancelled as soon as the first cells arrive: the server stops. What the mechanism guarantees,
+// whatever the machine's speed: the server ends the call only when its chunks in flight are back and encodes
+// nothing after it noticed the cancel, so once the call is counted CANCELLED the cell count never grows again.
 TEST_F(TabulateTest, CancelledTabulationStopsEarly) {
-  const v1::ModelInfo& model = models_.models(0);
-  v1::TabulateRequest r = Request(MaterialOf(model), v1::TABLE_FORMAT_MERL);
+  v1::TabulateRequest r = Request(SlowMaterial(), v1::TABLE_FORMAT_MERL);
   r.mutable_merl()->set_phi_h_samples(16);
+  const double calls_before = testing::CallsEnded(server_->metrics_port(), "Tabulate", "CANCELLED");
   const uint64_t before = server_->metrics().tabulated_cells();
   const Table t = Tabulate(*stub_, r, std::chrono::seconds(120), [](grpc::ClientContext& ctx, const v1::TabulateChunk& c) {
     if (c.cells_done() == 0) return false;
@@ -397,31 +411,37 @@ TEST_F(TabulateTest, CancelledTabulationStopsEarly) {
   EXPECT_EQ(t.status.error_code(), grpc::StatusCode::CANCELLED) << t.status.error_message();
   ASSERT_FALSE(t.chunks.empty());
   EXPECT_EQ(t.chunks.front().queries_per_cell(), 16u);
-  // The server finishes the call once the job in flight returns; give it a moment to count.
-  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  ASSERT_TRUE(testing::WaitForCallsEnded(server_->metrics_port(), "Tabulate", "CANCELLED", calls_before + 1))
+      << "the server never ended the call";
   const uint64_t done = server_->metrics().tabulated_cells() - before;
   const uint64_t total = 90 * 90 * 180;
-  std::printf("cancelled MERL tabulation (16 phi_h samples, %s): %llu of %llu cells evaluated (%.1f%%)\n",
-              model.name().c_str(), (unsigned long long)done, (unsigned long long)total, 100.0 * done / total);
+  std::printf("cancelled MERL tabulation (velvet, 16 phi_h samples): %llu of %llu cells evaluated (%.1f%%)\n",
+              (unsigned long long)done, (unsigned long long)total, 100.0 * done / total);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  EXPECT_EQ(server_->metrics().tabulated_cells() - before, done) << "cells encoded after the call ended";
   EXPECT_GT(done, 0u);
-  EXPECT_LE(done, total / 4);
+  EXPECT_LT(done, total);
 }
 
+// What the mechanism guarantees, whatever the machine's speed (issue 44: a bound of a quarter of the table failed
+// on a faster machine): a call stopped by its deadline encodes nothing more once the server noticed it, and the
+// server ends it only when its chunks in flight are back, so once the call is counted DEADLINE_EXCEEDED the cell
+// count never grows again.
 TEST_F(TabulateTest, DeadlineStopsTabulation) {
-  v1::TabulateRequest r = Request(MaterialOf(models_.models(0)), v1::TABLE_FORMAT_MERL);
+  v1::TabulateRequest r = Request(SlowMaterial(), v1::TABLE_FORMAT_MERL);
   r.mutable_merl()->set_phi_h_samples(16);
+  const double calls_before = testing::CallsEnded(server_->metrics_port(), "Tabulate", "DEADLINE_EXCEEDED");
   const uint64_t before = server_->metrics().tabulated_cells();
   const Table t = Tabulate(*stub_, r, std::chrono::milliseconds(300));
   EXPECT_EQ(t.status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << t.status.error_message();
-  std::this_thread::sleep_for(std::chrono::milliseconds(800));
-  EXPECT_LT(server_->metrics().tabulated_cells() - before, uint64_t{90 * 90 * 180} / 4);
+  ASSERT_TRUE(testing::WaitForCallsEnded(server_->metrics_port(), "Tabulate", "DEADLINE_EXCEEDED", calls_before + 1))
+      << "the server never ended the call";
+  const uint64_t at_end = server_->metrics().tabulated_cells();
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  EXPECT_EQ(server_->metrics().tabulated_cells(), at_end) << "cells encoded after the call ended";
+  EXPECT_LT(at_end - before, uint64_t{90 * 90 * 180}) << "the whole table within the deadline";
 }
 
-// A metric's value in Prometheus' text format; NAN when absent.
-double MetricValue(const std::string& text, const std::string& name) {
-  const size_t at = text.find("\n" + name + " ");
-  return at == std::string::npos ? NAN : std::stod(text.substr(at + name.size() + 2));
-}
 
 // Issue 15: a table keeps its next chunk queued while one runs, or it misses every launch that starts while its
 // next chunk is on its way, however fair the batcher is. Here the bulk queue holds a launch until two chunks
@@ -446,8 +466,8 @@ TEST(TabulateChunks, TwoChunksOfOneTableAreQueuedAtOnce) {
   ASSERT_TRUE(t.status.ok()) << t.status.error_message();
   // Each chunk's job records the launch it rode in before the table's last bytes are sent.
   const std::string text = testing::HttpGet(server->metrics_port(), "/metrics");
-  EXPECT_EQ(MetricValue(text, "loomlight_launch_requests_count"), 2.0) << text;
-  EXPECT_EQ(MetricValue(text, "loomlight_launch_requests_sum"), 4.0) << "each chunk launched alone";
+  EXPECT_EQ(testing::MetricValue(text, "loomlight_launch_requests_count"), 2.0) << text;
+  EXPECT_EQ(testing::MetricValue(text, "loomlight_launch_requests_sum"), 4.0) << "each chunk launched alone";
   // Encoded in query order, as Evaluate answers.
   const Queries q = InPlaneQueries(theta_i, theta_o_count, 0, false);
   ASSERT_EQ(t.file.size(), api::kRawHeaderBytes + 4 * 3 * q.size());

@@ -114,6 +114,26 @@ std::string HttpGet(int port, const std::string& path, const std::string& header
   return body == std::string::npos ? "" : response.substr(body + 4);
 }
 
+double MetricValue(const std::string& text, const std::string& name) {
+  const size_t at = text.find("\n" + name + " ");
+  return at == std::string::npos ? NAN : std::stod(text.substr(at + name.size() + 2));
+}
+
+double CallsEnded(int metrics_port, const std::string& rpc, const std::string& code) {
+  const double n = MetricValue(HttpGet(metrics_port, "/metrics"),
+                               "loomlight_calls_total{code=\"" + code + "\",rpc=\"" + rpc + "\"}");
+  return std::isnan(n) ? 0 : n;
+}
+
+bool WaitForCallsEnded(int metrics_port, const std::string& rpc, const std::string& code, double count) {
+  const auto guard = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (CallsEnded(metrics_port, rpc, code) < count) {
+    if (std::chrono::steady_clock::now() > guard) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return true;
+}
+
 std::unique_ptr<api::LoomlightServer> StartInProcessServer(api::ServerOptions options) {
   options.address = "127.0.0.1:0";
   std::string error;

@@ -42,6 +42,17 @@ int RunClient(int port, const std::string& args, std::string* output);  // 127.0
 // the body, or "" on failure.
 std::string HttpGet(int port, const std::string& path, const std::string& headers = "");
 
+// A metric's value in Prometheus' text format, `name` with its labels as printed ("x_total{code=\"OK\"}"); NAN
+// when absent.
+double MetricValue(const std::string& text, const std::string& name);
+
+// Waits until the server whose metrics listen on `metrics_port` has ended `count` calls of `rpc` with `code`
+// (loomlight_calls_total, counted once a call's work is all back): what a test waits for before it reads what the
+// call did, instead of sleeping a time a slow machine may overrun. The wait's 60 s guard is against a hang, not a
+// bound; false when it passes.
+bool WaitForCallsEnded(int metrics_port, const std::string& rpc, const std::string& code, double count);
+double CallsEnded(int metrics_port, const std::string& rpc, const std::string& code);  // 0 when none yet
+
 // An image decoded with OpenImageIO: channels as float, whatever the file's type (8-bit PNG: 0..1).
 struct DecodedImage {
   int width = 0, height = 0, channels = 0;

@@ -194,7 +194,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
                 std::unique_ptr<FiberSource> fibers, Admission admission, Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), job_(std::move(job)),
         material_(std::move(material)), fibers_(std::move(fibers)) {
-    deps_.geometry->Post([this] { Prepare(); });
+    deps_.geometry->Post([this] { Prepare(); }, client_);
   }
 
  private:
@@ -356,7 +356,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     const size_t texels = size_t(job_.width) * job_.height;
     const size_t begin = piece_begin_, end = std::min(texels, begin + piece_texels_);
     deps_.geometry->Post([this, begin, end] {
-      const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
+      const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
       capture_->TraceView(next_view_, begin, end, int(kTraceThreads), stop, &bucket_);
       Post([this, end] {
         tracing_ = false;
@@ -374,7 +374,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
                      Post([this, k, result = std::move(result)] { OnViewDone(k, result); });
                    });
       });
-    });
+    }, client_);
   }
 
   // On the geometry worker: the PCA of every view, then the asset written to the store.
@@ -393,7 +393,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
       grpc::Status s = CompressAndStore(
           deps_, images_, job_, {Describe(), synthesis_seconds_, ThreadsPerTile()},
           [this](size_t done) { Post([this, done] { compressed_ = done; Pump(); }); },
-          [this] { return StopStatus(context_, deadline_); }, &asset);
+          ReportingProgress([this] { return StopStatus(context_, deadline_); }), &asset);
       images_.f = {};  // the call's biggest buffer, not needed to answer
       Post([this, s, asset] {
         compressing_ = false;
@@ -405,7 +405,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
         }
         Pump();
       });
-    });
+    }, client_);
   }
 
   std::string Describe() const {
@@ -643,11 +643,11 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
       }
       std::shared_ptr<models::btf::BtfAsset> asset;
       grpc::Status s = CompressAndStore(deps_, images_, job_, {"upload", 0, threads_per_tile_}, nullptr,
-                                        [this] { return StopStatus(context_, deadline_); }, &asset);
+                                        ReportingProgress([this] { return StopStatus(context_, deadline_); }), &asset);
       images_.f = {};
       if (s.ok()) assets::DescribeAsset(*asset, response_);
       Finish(s);
-    });
+    }, client_);
   }
 
   void Finish(const grpc::Status& s) {

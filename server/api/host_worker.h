@@ -14,11 +14,14 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 
 namespace loomlight::api {
 
 class HostWorker {
  public:
+  using TimePoint = std::chrono::steady_clock::time_point;
+
   HostWorker() : thread_([this] { Run(); }) {}
   HostWorker(const HostWorker&) = delete;
   HostWorker& operator=(const HostWorker&) = delete;
@@ -27,19 +30,42 @@ class HostWorker {
   // Queues a task for `client` (server/api/access.h FairShareKey). One call's tasks must all name the same
   // client: their order is kept only within a client.
   void Post(std::function<void()> task, const std::string& client = "");
-  // When the task running now started; max when idle (the health watchdog reads it).
-  std::chrono::steady_clock::time_point busy_since() const { return busy_since_.load(); }
+  // The running task reached the end of one bounded step: the health watchdog counts a task as stuck only after
+  // --stall-seconds without progress, however long a task making progress runs. Any thread may call it (a task's
+  // helper threads too); while the worker is idle it does nothing.
+  void Progress();
+  // The worker whose task is running on this thread; null on any other thread.
+  static HostWorker* Current();
+  // When the task running now started; max when idle.
+  TimePoint busy_since() const { return busy_since_.load(); }
+  // When the task running now last made progress (its start if it has not reported any); max when idle.
+  TimePoint last_progress() const { return last_progress_.load(); }
+  // Tasks waiting to run (not the running one), every client's together.
+  size_t queued() const;
 
  private:
   void Run();
 
-  std::mutex mutex_;
+  mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::map<std::string, std::deque<std::function<void()>>> tasks_;  // by client; none empty
   std::deque<std::string> turn_;  // the clients with tasks, next first
+  std::string last_served_;       // the client whose task ran last
+  size_t queued_ = 0;
   bool stopping_ = false;
-  std::atomic<std::chrono::steady_clock::time_point> busy_since_{std::chrono::steady_clock::time_point::max()};
+  std::atomic<TimePoint> busy_since_{TimePoint::max()};
+  std::atomic<TimePoint> last_progress_{TimePoint::max()};
   std::thread thread_;  // declared last: starts after the rest is constructed
 };
+
+// `stop` (a long task's poll of whether to end early, made between bounded steps) that also reports progress to
+// the worker running the task: make it on the worker's thread; the task's helper threads may call it.
+template <class Stop>
+auto ReportingProgress(Stop stop) {
+  return [worker = HostWorker::Current(), stop = std::move(stop)] {
+    if (worker) worker->Progress();
+    return stop();
+  };
+}
 
 }  // namespace loomlight::api

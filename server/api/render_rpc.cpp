@@ -194,7 +194,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
           else if (status_.ok()) status_ = status;
           Pump();
         });
-      });
+      }, client_);
       return;
     }
     Post([this] {
@@ -222,7 +222,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // On the asset loader: the request's map (by name or from its bytes) into environment_, within the call's
   // deadline, while the client is there, and within the memory budget.
   grpc::Status LoadEnvironment() {
-    const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
+    const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
     bool refused = false;
     const auto admit = [this, &refused](size_t bytes) {
       refused = !admission_.bytes.Grow(bytes);
@@ -249,7 +249,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // client is there, and within the memory budget (the BVH's bytes, estimated before it is built, are
   // admitted first and bound the build).
   grpc::Status BuildFibers() {
-    const auto stop = [this] { return StopStatus(context_, deadline_); };
+    const auto stop = ReportingProgress([this] { return StopStatus(context_, deadline_); });
     const auto grow = [this](size_t bytes) { return admission_.bytes.Grow(bytes); };
     grpc::Status s = BuildFiberScene(fiber_job_.get(), stop, grow, &fibers_, &fiber_visibility_, deps_.fiber_scenes);
     if (s.ok() && full_fiber_job_)  // AUTO's thinning is checked against full detail (both kept in the cache)
@@ -372,7 +372,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
         }
         Pump();
       });
-    });
+    }, client_);
   }
 
   // Whether the environment light of the `btf` objects may be folded (btf_environment FOLDED, or AUTO where the
@@ -406,7 +406,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       const render::Evaluator& evaluator = plan_.evaluators[e];
       materials[o] = {evaluator.material->packed.tables, evaluator.material->packed.uniform, evaluator.with_uv};
     }
-    const auto stop = [this] { return !StopStatus(context_, deadline_).ok(); };
+    const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
     const auto admit = [this](uint64_t bytes) { return admission_.bytes.Grow(size_t(bytes)); };
     bool refused = false;
     const std::string e = render::FoldEnvironment(setup_, materials, deps_.folds, error_target_,

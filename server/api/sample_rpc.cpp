@@ -79,7 +79,7 @@ struct SampleCall : PlanCall<v1::SampleRequest, v1::SampleResponse> {
     }
     call->sampling_seconds += SecondsSince(started);
     if (end < call->n) {
-      call->deps->preparer->Post([call, end] { Draw(call, end); });
+      call->deps->preparer->Post([call, end] { Draw(call, end); }, call->client);
       return;
     }
     call->plan = std::make_unique<models::EvaluationPlan>(*call->material, call->response->wi().data(),
@@ -155,7 +155,7 @@ grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, grpc::CallbackSe
     return reject(s);
   call->n = n;
   // Resolving or packing the material, building its sampling table and drawing all go to the preparer.
-  deps.preparer->Post([call] { SampleCall::Start(call); });
+  deps.preparer->Post([call] { SampleCall::Start(call); }, call->client);
   return call->reactor;
 }
 

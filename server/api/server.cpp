@@ -132,16 +132,22 @@ void LoomlightServer::Watch() {
     stalled_writes_->CancelIdle();
     const auto now = batching::Clock::now();
     std::string reason;
-    const std::pair<const char*, batching::Clock::time_point> busy[] = {
-        {"host worker", service_->worker_busy_since()},
-        {"asset loader", service_->loader_busy_since()},
-        {"preparer", service_->preparer_busy_since()},
-        {"geometry worker", service_->geometry_busy_since()},
-        {"kernel launch", batcher_->busy_since()}};
-    for (const auto& [what, since] : busy)
-      if (since != batching::Clock::time_point::max() && now - since > options_.stall_limit)
-        reason = std::string(what) + " busy with one task for " +
-                 std::to_string(std::chrono::duration_cast<std::chrono::seconds>(now - since).count()) + " s";
+    const auto seconds = [&](batching::Clock::time_point since) {
+      return std::to_string(std::chrono::duration_cast<std::chrono::seconds>(now - since).count()) + " s";
+    };
+    // Stuck is no progress, not long: a worker's task reports progress as it ends each bounded step (yarn
+    // generation between fibers, a map's read and decode), so only a task silent for the limit counts. One
+    // kernel launch cannot report; it counts from its start.
+    for (const auto& [what, worker] : service_->workers()) {
+      const batching::Clock::time_point progress = worker->last_progress(), since = worker->busy_since();
+      if (progress != batching::Clock::time_point::max() && since != batching::Clock::time_point::max() &&
+          now - progress > options_.stall_limit)
+        reason = std::string(what) + " busy with one task for " + seconds(since) + ", no progress for " +
+                 seconds(progress);
+    }
+    if (const batching::Clock::time_point since = batcher_->busy_since();
+        since != batching::Clock::time_point::max() && now - since > options_.stall_limit)
+      reason = "kernel launch busy with one task for " + seconds(since);
     if (reason.empty() == !stuck_) continue;
     stuck_ = !reason.empty();
     std::fprintf(stderr, "loomlight-server: %s\n",

@@ -65,6 +65,7 @@ class LoomlightServer {
   // What calls hold now: bytes of the memory budget, and long-running call slots.
   size_t memory_in_use() const { return memory_->in_use(); }
   size_t long_calls_in_use() const { return long_calls_->in_use(); }
+  LoomlightService& service() { return *service_; }  // for tests: its workers
 
  private:
   LoomlightServer() = default;

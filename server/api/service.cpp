@@ -105,8 +105,10 @@ void LoomlightService::SyncBtfAssets() {
   if (!deps_.btf_store || sync_queued_.exchange(true)) return;
   loader_.Post([this] {
     sync_queued_ = false;
-    const int changes = deps_.btf_store->Sync(
-        [](const std::string& line) { std::fprintf(stderr, "loomlight-server: %s\n", line.c_str()); });
+    const int changes = deps_.btf_store->Sync([this](const std::string& line) {
+      loader_.Progress();  // a line per asset loaded, failed or removed: one bounded step each
+      std::fprintf(stderr, "loomlight-server: %s\n", line.c_str());
+    });
     if (changes == 0) return;
     materials_.Clear();  // no material may keep a replaced or deleted asset's packing
     folds_.Clear();
@@ -286,7 +288,7 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
       materials_.Find(request->material(), &call->material))
     EvaluateCall::Start(call);
   else
-    preparer_.Post([call] { EvaluateCall::Start(call); });
+    preparer_.Post([call] { EvaluateCall::Start(call); }, call->client);
   return call->reactor;
 }
 

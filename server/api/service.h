@@ -2,6 +2,7 @@
 // batcher. Nothing reaches a kernel unvalidated.
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <memory>
@@ -110,11 +111,15 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
 
   // Until set, every RPC is answered UNAVAILABLE (health reports NOT_SERVING meanwhile too).
   void SetServing(bool serving) { serving_ = serving; }
-  // The workers' current task start (max when idle), for the health watchdog.
-  batching::Clock::time_point worker_busy_since() const { return worker_.busy_since(); }
-  batching::Clock::time_point loader_busy_since() const { return loader_.busy_since(); }
-  batching::Clock::time_point preparer_busy_since() const { return preparer_.busy_since(); }
-  batching::Clock::time_point geometry_busy_since() const { return geometry_.busy_since(); }
+  // The service's single-thread workers, named: the health watchdog reads their progress (tests post to them).
+  struct NamedWorker {
+    const char* name;
+    HostWorker* worker;
+  };
+  std::array<NamedWorker, 4> workers() {
+    return {{{"host worker", &worker_}, {"asset loader", &loader_}, {"preparer", &preparer_},
+             {"geometry worker", &geometry_}}};
+  }
   const models::MaterialCache& materials() const { return materials_; }
   // Cancels the uploads that stopped sending (the watchdog's round).
   void CancelIdleUploads() { idle_uploads_.CancelIdle(); }

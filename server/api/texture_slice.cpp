@@ -127,6 +127,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   }
 
   grpc::ServerUnaryReactor* reactor() const { return reactor_; }
+  const std::string& client() const { return client_; }  // every task of the call takes this client's turn
 
   // On the host worker (never a gRPC callback thread: these are megabytes of work): the direction buffers,
   // the image, both chunk buffers, then the first chunk submitted (nothing else touches them yet).
@@ -198,7 +199,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
                batching::Priority::kInteractive, deadline_, context_, client_,
                [self = shared_from_this(), index](size_t, batching::JobResult result) {
                  self->deps_.worker->Post(
-                     [self, index, result = std::move(result)] { self->OnChunkDone(index, result); });
+                     [self, index, result = std::move(result)] { self->OnChunkDone(index, result); }, self->client_);
                });
     return true;
   }
@@ -374,7 +375,7 @@ grpc::ServerUnaryReactor* HandleTextureSlice(const TextureSliceDeps& deps, grpc:
   auto call = std::make_shared<SliceCall>(deps, context, *request, response, std::move(material),
                                           std::move(admission), received);
   grpc::ServerUnaryReactor* reactor = call->reactor();
-  deps.worker->Post([call] { call->Start(); });  // on failure it finishes the call itself
+  deps.worker->Post([call] { call->Start(); }, call->client());  // on failure it finishes the call itself
   return reactor;
 }
 

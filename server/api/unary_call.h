@@ -66,7 +66,7 @@ struct PlanCall {
                  if (call->outcome.result().status != batching::JobStatus::kOk)
                    return call->Finish(ToStatus(call->outcome.result()));
                  if (small) return ((*call).*last_step)();
-                 call->deps->preparer->Post([call, last_step] { ((*call).*last_step)(); });
+                 call->deps->preparer->Post([call, last_step] { ((*call).*last_step)(); }, call->client);
                });
   }
 

@@ -93,14 +93,15 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
   YarnGeometryCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, YarnJob job, Admission admission,
                    Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), job_(std::move(job)) {
-    deps_.geometry->Post([this] { Generate(); });
+    deps_.geometry->Post([this] { Generate(); }, client_);
   }
 
  private:
   // On the geometry worker: the whole geometry, or why not; then the host worker takes over.
   void Generate() {
     const auto started = Clock::now();
-    job_.detail.stop = [this] { return !StopStatus(context_, deadline_).ok(); };
+    // Polled between fibers: each poll is progress, so a long generation is not a stuck one.
+    job_.detail.stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
     auto geometry = std::make_shared<Geometry>();
     std::vector<LaidYarn> laid;
     std::string error = GenerateYarnJob(&job_, &geometry->yarns, &laid);

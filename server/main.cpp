@@ -54,7 +54,17 @@ void Usage() {
                "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
                "  --max-long-calls N         TextureSlice, Tabulate and Render calls at once (default 16)\n"
                "  --max-long-calls-per-client N  of them, one client's (its token's name, else the address a\n"
-               "                             --trusted-proxy forwarded, else its connection; default 8)\n"
+               "                             --trusted-proxy forwarded, else its address; default 8)\n"
+               "  --max-memory-per-client-mb N  of the memory budget, one client's calls together, in MiB\n"
+               "                             (default: a quarter of --memory-budget-mb)\n"
+               "  --max-streams-per-connection N  calls open at once on one connection (default 100)\n"
+               "  --keepalive-seconds N      ping a connection after N s without traffic (default 60) and close it\n"
+               "                             when the answer takes --keepalive-timeout-seconds (default 20)\n"
+               "  --max-connection-age-seconds N  a connection is told to reconnect after N s (default 3600); its\n"
+               "                             calls may finish within --max-connection-age-grace-seconds (default:\n"
+               "                             the bulk --max-call-seconds)\n"
+               "  --max-health-watches N     health Watch streams open at once (default 256)\n"
+               "  --max-health-watches-per-client N  of them, one client's (default 8)\n"
                "  --material-cache-mb N      packed materials kept, in MiB (default 64)\n"
                "  --fold-cache-mb N          BTF environment folds kept across renders, in MiB (default 128)\n"
                "  --fiber-cache-mb N         fiber scenes (fibers' BVH, tubes, openness) kept across calls, in MiB\n"
@@ -199,6 +209,19 @@ int main(int argc, char** argv) {
     else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
     else if (arg == "--max-long-calls") options.limits.max_long_running_calls = positive();
     else if (arg == "--max-long-calls-per-client") options.limits.max_long_calls_per_client = positive();
+    else if (arg == "--max-memory-per-client-mb") options.memory_per_client_bytes = mebibytes();
+    else if (arg == "--max-streams-per-connection")
+      options.max_streams_per_connection = static_cast<int>(std::min(positive(), 1ULL << 20));
+    else if (arg == "--keepalive-seconds")
+      options.keepalive_time = std::chrono::seconds(std::min(positive(), 86400ULL));
+    else if (arg == "--keepalive-timeout-seconds")
+      options.keepalive_timeout = std::chrono::seconds(std::min(positive(), 86400ULL));
+    else if (arg == "--max-connection-age-seconds")
+      options.max_connection_age = std::chrono::seconds(std::min(positive(), 31536000ULL));
+    else if (arg == "--max-connection-age-grace-seconds")
+      options.max_connection_age_grace = std::chrono::seconds(std::min(positive(), 31536000ULL));
+    else if (arg == "--max-health-watches") options.max_health_watches = positive();
+    else if (arg == "--max-health-watches-per-client") options.max_health_watches_per_client = positive();
     else if (arg == "--material-cache-mb") options.limits.material_cache_bytes = mebibytes();
     else if (arg == "--fold-cache-mb") options.limits.fold_cache_bytes = mebibytes();
     else if (arg == "--fiber-cache-mb") options.limits.fiber_cache_bytes = mebibytes();

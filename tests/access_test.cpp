@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <thread>
 #include <vector>
 
@@ -17,6 +18,8 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/access.h"
 #include "server/api/server.h"
+#include "server/api/tabulate.h"
+#include "server/models/registry.h"
 #include "tests/testing.h"
 
 namespace loomlight {
@@ -462,9 +465,7 @@ TEST(Access, ClientConnectsWithCaAndToken) {
 // only up to its first message (it is admitted), forwarded for `forwarded_for` when not empty. The call is
 // cancelled when the object goes.
 struct HeldTabulation {
-  HeldTabulation(v1::Loomlight::Stub& stub, const std::string& forwarded_for) {
-    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
-    if (!forwarded_for.empty()) context.AddMetadata("x-forwarded-for", forwarded_for);
+  static v1::TabulateRequest Request() {
     v1::TabulateRequest request;
     request.mutable_material()->set_preset("velvet");
     v1::AnisotropicGrid* grid = request.mutable_anisotropic();
@@ -473,7 +474,12 @@ struct HeldTabulation {
     grid->set_theta_o_count(64);
     grid->set_phi_o_count(64);  // 16.8 M cells: far more than the transport's windows hold unread
     request.set_format(v1::TABLE_FORMAT_RAW);
-    reader = stub.Tabulate(&context, request);
+    return request;
+  }
+  HeldTabulation(v1::Loomlight::Stub& stub, const std::string& forwarded_for) {
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    if (!forwarded_for.empty()) context.AddMetadata("x-forwarded-for", forwarded_for);
+    reader = stub.Tabulate(&context, Request());
     v1::TabulateChunk first;
     admitted = reader->Read(&first);
     if (!admitted) status = reader->Finish();
@@ -575,6 +581,210 @@ TEST(Access, ALongCallsSlotIsFreeWhenTheClientSeesItsEnd) {
     else EXPECT_TRUE(status.ok()) << status.error_message();
   }
   EXPECT_EQ(refused, 0);
+}
+
+// Its own TCP connection to 127.0.0.1:port (a local subchannel pool and a distinct argument, or gRPC would
+// share one): a second, third... connection from the same host.
+std::shared_ptr<grpc::Channel> OwnConnection(int port, int connection) {
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+  args.SetInt("loomlight.test.connection", connection);
+  return grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(), args);
+}
+
+// Without a token or certificate a client is its address, not its connection: four connections from 127.0.0.1
+// share one client's long-call limit (each was a client of its own, and had the limit to itself).
+TEST(OneClient, ConnectionsFromOneHostShareItsLongCallLimit) {
+  api::ServerOptions options;
+  options.limits.max_long_calls_per_client = 2;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  std::vector<std::unique_ptr<v1::Loomlight::Stub>> stubs;
+  std::vector<std::unique_ptr<HeldTabulation>> held;
+  int admitted = 0;
+  for (int c = 0; c < 4; ++c) {
+    stubs.push_back(v1::Loomlight::NewStub(OwnConnection(server->port(), c)));
+    held.push_back(std::make_unique<HeldTabulation>(*stubs.back(), ""));
+    if (held.back()->admitted) {
+      ++admitted;
+      continue;
+    }
+    EXPECT_EQ(held.back()->status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+    EXPECT_NE(held.back()->status.error_message().find("peer:::ffff:127.0.0.1)"), std::string::npos)
+        << held.back()->status.error_message();
+  }
+  EXPECT_EQ(admitted, 2);  // was 4
+  EXPECT_EQ(server->long_calls_in_use(), 2u);
+}
+
+// Each client has a share of the memory budget: a client holding one large call is refused a second that would
+// pass its share, though the budget has room, and another client's call still gets in.
+TEST(OneClient, AClientsShareOfTheMemoryBudgetLeavesRoomForOthers) {
+  const models::PresetSpec* preset = nullptr;
+  const models::Model* model = models::Registry::Global().FindPreset("velvet", &preset);
+  ASSERT_TRUE(model);
+  api::TabulationGrid grid;
+  ASSERT_EQ(api::TabulationGrid::Resolve(HeldTabulation::Request(), *model, &grid), "");
+  const size_t call = api::TabulateBytes(HeldTabulation::Request(), grid);
+  api::ServerOptions options;
+  options.limits.memory_budget_bytes = 4 * call;
+  options.memory_per_client_bytes = call + call / 2;  // one such call, not two
+  ASSERT_EQ(options.access.trusted_proxies.Add("127.0.0.0/8"), "");  // two clients behind a "proxy"
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  HeldTabulation first(*stub, "198.51.100.7");
+  ASSERT_TRUE(first.admitted) << first.status.error_message();
+  HeldTabulation second(*stub, "198.51.100.7");
+  EXPECT_FALSE(second.admitted);  // admitted before: the budget had room for three more
+  EXPECT_EQ(second.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(second.status.error_message().find("this client (forwarded:::ffff:198.51.100.7) holds its share"),
+            std::string::npos)
+      << second.status.error_message();
+  HeldTabulation other(*stub, "203.0.113.9");
+  EXPECT_TRUE(other.admitted) << other.status.error_message();
+}
+
+// The share in the budget itself: a client's reservations (and their growth) stop at its share, another client's
+// do not, and what one client gives back is its own again; more than a share is a permanent refusal.
+TEST(OneClient, TheBudgetHoldsEachClientToItsShare) {
+  batching::Budget memory(100, 40);
+  api::Admission a1, a2, b1, too_big;
+  ASSERT_TRUE(api::Admit(&memory, nullptr, 30, &a1, "a").ok());
+  const grpc::Status refused = api::Admit(&memory, nullptr, 20, &a2, "a");
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error_message();
+  EXPECT_NE(refused.error_message().find("its share of the memory budget (0 MiB"), std::string::npos)
+      << refused.error_message();
+  EXPECT_FALSE(a1.bytes.Grow(11));  // growing past the share mid-call
+  EXPECT_TRUE(a1.bytes.Grow(10));
+  ASSERT_TRUE(api::Admit(&memory, nullptr, 40, &b1, "b").ok());
+  EXPECT_EQ(memory.in_use(), 80u);
+  EXPECT_EQ(memory.client_in_use("a"), 40u);
+  a1.bytes.Release();
+  EXPECT_EQ(memory.client_in_use("a"), 0u);
+  EXPECT_TRUE(api::Admit(&memory, nullptr, 20, &a2, "a").ok());
+  const grpc::Status never = api::Admit(&memory, nullptr, 41, &too_big, "c");
+  EXPECT_EQ(never.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << never.error_message();
+  EXPECT_NE(never.error_message().find("more than one client's share"), std::string::npos) << never.error_message();
+  // The server's own reservations (caches) are bounded by the whole budget only.
+  batching::Budget::Reservation cache;
+  EXPECT_TRUE(memory.TryReserve(40, &cache));
+  EXPECT_EQ(memory.in_use(), 100u);
+}
+
+// A health Watch stream on `channel`, forwarded for `forwarded_for` when not empty: admitted when its first
+// message (the current status) came; else why not. Cancelled when the object goes.
+struct HeldWatch {
+  HeldWatch(const std::shared_ptr<grpc::Channel>& channel, const std::string& forwarded_for) {
+    if (!forwarded_for.empty()) context.AddMetadata("x-forwarded-for", forwarded_for);
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    reader = grpc::health::v1::Health::NewStub(channel)->Watch(&context, grpc::health::v1::HealthCheckRequest());
+    admitted = reader->Read(&first);
+    if (!admitted) status = reader->Finish();
+  }
+  ~HeldWatch() {
+    if (!admitted) return;
+    context.TryCancel();
+    while (reader->Read(&first)) {
+    }
+    reader->Finish();
+  }
+  grpc::ClientContext context;
+  std::unique_ptr<grpc::ClientReader<grpc::health::v1::HealthCheckResponse>> reader;
+  grpc::health::v1::HealthCheckResponse first;
+  bool admitted = false;
+  grpc::Status status;
+};
+
+// Polls `done` for up to 30 s (waiting for an event, not timing it).
+bool Eventually(const std::function<bool()>& done) {
+  for (int i = 0; i < 3000; ++i) {
+    if (done()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return done();
+}
+
+// One connection holds at most --max-streams-per-connection calls open at once: its client's transport keeps
+// the others waiting (HTTP/2 SETTINGS_MAX_CONCURRENT_STREAMS), so the server never sees more of them; another
+// connection has its own.
+TEST(OneClient, AConnectionOpensAtMostItsBoundOfStreams) {
+  api::ServerOptions options;
+  options.max_streams_per_connection = 2;
+  options.max_health_watches_per_client = 100;
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  const std::shared_ptr<grpc::Channel> a = OwnConnection(server->port(), 1), b = OwnConnection(server->port(), 2);
+  ASSERT_EQ(Health(a), grpc::StatusCode::OK);  // connected: the server's SETTINGS are known to the client
+  ASSERT_EQ(Health(b), grpc::StatusCode::OK);
+  std::atomic<int> started{0};
+  std::vector<std::unique_ptr<HeldWatch>> watches(6);
+  std::vector<std::thread> threads;
+  // Four Watch streams on connection a, then two on b.
+  for (int i = 0; i < 6; ++i) {
+    if (i == 4) EXPECT_TRUE(Eventually([&] { return started == 2; })) << started;
+    threads.emplace_back([&, i] {
+      watches[static_cast<size_t>(i)] = std::make_unique<HeldWatch>(i < 4 ? a : b, "");
+      if (watches[static_cast<size_t>(i)]->admitted) ++started;
+    });
+  }
+  EXPECT_TRUE(Eventually([&] { return started == 4; })) << started;
+  // a's other two wait in its transport, and so does a call made on a now: its deadline passes unanswered.
+  {
+    grpc::ClientContext context;
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(2));
+    grpc::health::v1::HealthCheckResponse response;
+    EXPECT_EQ(grpc::health::v1::Health::NewStub(a)
+                  ->Check(&context, grpc::health::v1::HealthCheckRequest(), &response)
+                  .error_code(),
+              grpc::StatusCode::DEADLINE_EXCEEDED);
+  }
+  EXPECT_EQ(server->health_watches(), 4u);
+  EXPECT_EQ(server->health_watches_peak(), 4u);  // two per connection; six without the bound
+  // Ending everything: the waiting streams end too (cancelled before or after they start).
+  server->Shutdown();
+  for (auto& t : threads) t.join();
+}
+
+// Health needs no token, and a Watch stream stays open as long as its client likes: open Watch streams are
+// bounded per client and overall, and the extras refused RESOURCE_EXHAUSTED; an ended one makes room.
+TEST(OneClient, HealthWatchStreamsBeyondTheBoundAreRefused) {
+  api::ServerOptions options;
+  options.max_health_watches = 3;
+  options.max_health_watches_per_client = 2;
+  ASSERT_EQ(options.access.trusted_proxies.Add("127.0.0.0/8"), "");  // clients behind a "proxy"
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  const std::shared_ptr<grpc::Channel> channel = OwnConnection(server->port(), 1);
+  auto first = std::make_unique<HeldWatch>(channel, "198.51.100.7");
+  ASSERT_TRUE(first->admitted) << first->status.error_message();
+  EXPECT_EQ(first->first.status(), grpc::health::v1::HealthCheckResponse::SERVING);
+  HeldWatch second(channel, "198.51.100.7");
+  ASSERT_TRUE(second.admitted) << second.status.error_message();
+  HeldWatch third(channel, "198.51.100.7");  // the client's third
+  EXPECT_FALSE(third.admitted);
+  EXPECT_EQ(third.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(third.status.error_message().find("--max-health-watches-per-client"), std::string::npos)
+      << third.status.error_message();
+  HeldWatch other(channel, "203.0.113.9");
+  ASSERT_TRUE(other.admitted) << other.status.error_message();
+  HeldWatch fourth(channel, "192.0.2.1");  // a client with none, but the server has its three open
+  EXPECT_FALSE(fourth.admitted);
+  EXPECT_EQ(fourth.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(fourth.status.error_message().find("--max-health-watches)"), std::string::npos)
+      << fourth.status.error_message();
+  EXPECT_EQ(server->health_watches(), 3u);
+  // Check is not a Watch: still answered.
+  EXPECT_EQ(Health(channel), grpc::StatusCode::OK);
+  first.reset();  // cancelled: its place is free once the server sees it end
+  ASSERT_TRUE(Eventually([&] { return server->health_watches() == 2; }));
+  HeldWatch again(channel, "192.0.2.1");
+  EXPECT_TRUE(again.admitted) << again.status.error_message();
+  // Shutting down, the open ones are told NOT_SERVING, then end.
+  server->Shutdown();
+  grpc::health::v1::HealthCheckResponse update;
+  EXPECT_TRUE(again.reader->Read(&update));
+  EXPECT_EQ(update.status(), grpc::health::v1::HealthCheckResponse::NOT_SERVING);
 }
 
 }  // namespace

@@ -1204,6 +1204,7 @@ TEST_F(BtfRpcTest, StalledUploadsHoldOnlyWhatTheySent) {
   api::ServerOptions options;
   options.data_dir = DataDir();
   options.limits.memory_budget_bytes = size_t{300} << 20;
+  options.memory_per_client_bytes = options.limits.memory_budget_bytes;  // one client here: the whole budget
   auto server = testing::StartInProcessServer(options);
   ASSERT_TRUE(server);
   auto stub = testing::Connect(server->port());

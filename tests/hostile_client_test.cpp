@@ -414,7 +414,7 @@ std::pair<double, double> EvaluateLatency(v1::Loomlight::Stub& stub, int calls, 
 }
 
 TEST(BoundedMemory, UnreadStreamsAreAdmittedUpToTheLimitAndHoldLittle) {
-  testing::ServerProcess server;
+  testing::ServerProcess server({"--trusted-proxy", "127.0.0.1"});  // the clients' X-Forwarded-For, below
   auto stub = testing::Connect(server.port());
   const size_t before = server.RssBytes();
   struct Stream {
@@ -422,7 +422,8 @@ TEST(BoundedMemory, UnreadStreamsAreAdmittedUpToTheLimitAndHoldLittle) {
     std::unique_ptr<grpc::ClientReader<v1::TabulateChunk>> reader;
     int client = 0;
   };
-  // Three clients (each its own connection: without tokens a connection is a client), 40 streams each.
+  // Three clients, each its own connection, 40 streams each. A host is one client, so each names its own
+  // address as a trusted proxy would (X-Forwarded-For).
   std::vector<std::unique_ptr<v1::Loomlight::Stub>> clients;
   for (int c = 0; c < 3; ++c) {
     grpc::ChannelArguments args;
@@ -435,6 +436,7 @@ TEST(BoundedMemory, UnreadStreamsAreAdmittedUpToTheLimitAndHoldLittle) {
   for (int i = 0; i < 120; ++i) {
     auto s = std::make_unique<Stream>();
     s->client = i % 3;
+    s->context.AddMetadata("x-forwarded-for", "192.0.2." + std::to_string(s->client + 1));
     s->reader = clients[static_cast<size_t>(s->client)]->Tabulate(&s->context, BigTable());
     streams.push_back(std::move(s));
   }
@@ -777,14 +779,14 @@ TEST(StalledStreams, AStreamNobodyReadsIsCancelledAndItsSlotAndMemoryReleased) {
 TEST(PermanentRefusal, MoreThanTheWholeBudgetIsFailedPreconditionAndNotRetryLater) {
   batching::Budget memory(100), slots(1);
   api::Admission busy, a, b, c;
-  ASSERT_TRUE(api::Admit(&memory, &slots, 60, &busy).ok());  // the only slot and 60 of 100 bytes in use
-  const grpc::Status too_big = api::Admit(&memory, &slots, 101, &a);
+  ASSERT_TRUE(api::Admit(&memory, &slots, 60, &busy, "").ok());  // the only slot and 60 of 100 bytes in use
+  const grpc::Status too_big = api::Admit(&memory, &slots, 101, &a, "");
   EXPECT_EQ(too_big.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << too_big.error_message();
   EXPECT_EQ(too_big.error_message().find("retry"), std::string::npos) << too_big.error_message();
-  const grpc::Status later = api::Admit(&memory, nullptr, 50, &b);  // fits the budget, not what is free now
+  const grpc::Status later = api::Admit(&memory, nullptr, 50, &b, "");  // fits the budget, not what is free now
   EXPECT_EQ(later.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << later.error_message();
   EXPECT_NE(later.error_message().find("retry later"), std::string::npos) << later.error_message();
-  EXPECT_EQ(api::Admit(&memory, &slots, 10, &c).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);  // the slot
+  EXPECT_EQ(api::Admit(&memory, &slots, 10, &c, "").error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);  // the slot
   EXPECT_EQ(memory.in_use(), 60u);
   EXPECT_EQ(slots.in_use(), 1u);
   // A call growing past the whole budget mid-way is told the same.

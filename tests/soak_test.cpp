@@ -84,7 +84,8 @@ class Tally {
   std::vector<std::string> examples_;
 };
 
-// Each client its own connection (a local subchannel pool), as 64 separate client processes would have.
+// Each client its own connection (a local subchannel pool), as 64 separate client processes would have. (The
+// server tells them apart by the address each one's calls name in X-Forwarded-For: a host is one client.)
 std::shared_ptr<grpc::Channel> OwnChannel(const std::string& address) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
@@ -152,7 +153,8 @@ class SoakClient {
         presets_(presets),
         queries_(queries),
         tally_(tally),
-        rng_(1000 + index) {}
+        rng_(1000 + index),
+        forwarded_for_("10.64.0." + std::to_string(index + 1)) {}
 
   // Connects before the load starts (at most 30 s), so the soak measures calls, not connection set-up.
   void Connect() { channel_->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(30)); }
@@ -217,7 +219,7 @@ class SoakClient {
     if (Chance(0.1)) r.set_precision(v1::PRECISION_FP64);
     if (!preset.model.accuracy_knob().param().empty() && Chance(0.1)) r.set_error_target(0.05);
     grpc::ClientContext context;
-    SetDeadline(&context, 60);
+    Prepare(&context, 60);
     v1::EvaluateResponse response;
     const grpc::Status status = stub_->Evaluate(&context, r, &response);
     std::string failure = status.ok() ? "" : Describe(status);
@@ -237,7 +239,7 @@ class SoakClient {
     if (preset.model.spatially_varying()) Queries::Take(queries_.uv, 2 * n, r.mutable_uv());
     r.set_seed(rng_());
     grpc::ClientContext context;
-    SetDeadline(&context, 60);
+    Prepare(&context, 60);
     v1::SampleResponse response;
     const grpc::Status status = stub_->Sample(&context, r, &response);
     std::string failure = status.ok() ? "" : Describe(status);
@@ -256,7 +258,7 @@ class SoakClient {
     r.set_samples_per_pixel(Chance(0.5) ? 1 : 4);
     r.set_format(Chance(0.5) ? v1::IMAGE_FORMAT_PNG : v1::IMAGE_FORMAT_RAW);
     grpc::ClientContext context;
-    SetDeadline(&context, 120);
+    Prepare(&context, 120);
     v1::TextureSliceResponse response;
     const grpc::Status status = stub_->TextureSlice(&context, r, &response);
     std::string failure = status.ok() ? "" : Describe(status);
@@ -280,7 +282,7 @@ class SoakClient {
       r.set_format(Chance(0.5) ? v1::TABLE_FORMAT_RAW : v1::TABLE_FORMAT_EXR);
     }
     grpc::ClientContext context;
-    SetDeadline(&context, 120);
+    Prepare(&context, 120);
     auto reader = stub_->Tabulate(&context, r);
     v1::TabulateChunk chunk;
     uint64_t done = 0, total = 0, bytes = 0;
@@ -308,7 +310,7 @@ class SoakClient {
     r.set_seed(rng_());
     r.set_format(Chance(0.5) ? v1::RENDER_FORMAT_PNG : v1::RENDER_FORMAT_EXR);
     grpc::ClientContext context;
-    SetDeadline(&context, 120);
+    Prepare(&context, 120);
     auto reader = stub_->Render(&context, r);
     v1::RenderUpdate update;
     bool image = false;
@@ -321,7 +323,7 @@ class SoakClient {
 
   void ListModels() {
     grpc::ClientContext context;
-    SetDeadline(&context, 30);
+    Prepare(&context, 30);
     v1::ListModelsResponse response;
     const grpc::Status status = stub_->ListModels(&context, {}, &response);
     std::string failure = status.ok() ? "" : Describe(status);
@@ -331,13 +333,20 @@ class SoakClient {
 
   void Health() {
     grpc::ClientContext context;
-    SetDeadline(&context, 30);
+    Prepare(&context, 30);
     grpc::health::v1::HealthCheckResponse response;
     const grpc::Status status = health_->Check(&context, {}, &response);
     std::string failure = status.ok() ? "" : Describe(status);
     if (status.ok() && response.status() != HealthCheckResponse::SERVING)
       failure = "health status " + std::to_string(response.status());
     tally_->Count(kHealth, failure);
+  }
+
+  // Every call's deadline (SetDeadline) and the address it comes from: 64 clients on loopback are one host, so
+  // each names its own address as a trusted proxy would (the server trusts 127.0.0.1), as 64 machines would be.
+  void Prepare(grpc::ClientContext* context, int seconds) {
+    SetDeadline(context, seconds);
+    context->AddMetadata("x-forwarded-for", forwarded_for_);
   }
 
   const int index_;
@@ -348,6 +357,7 @@ class SoakClient {
   const Queries& queries_;
   Tally* tally_;
   std::mt19937_64 rng_;
+  const std::string forwarded_for_;
 };
 
 std::vector<Preset> DiscoverPresets(v1::Loomlight::Stub& stub) {
@@ -368,7 +378,7 @@ std::vector<Preset> DiscoverPresets(v1::Loomlight::Stub& stub) {
 double Mib(size_t bytes) { return bytes / double(1 << 20); }
 
 TEST(Soak, MixedClientsSucceedAndMemoryLevelsOff) {
-  testing::ServerProcess server;
+  testing::ServerProcess server({"--trusted-proxy", "127.0.0.1"});  // the clients' X-Forwarded-For (SoakClient)
   ASSERT_GT(server.port(), 0) << "the server did not start";
   std::unique_ptr<v1::Loomlight::Stub> stub = testing::Connect(server.port());
   const std::vector<Preset> presets = DiscoverPresets(*stub);

@@ -72,6 +72,15 @@ std::string PeerHost(const std::string& peer) {
   return host;
 }
 
+// One spelling per address, however it was written or reached (IPv4 as IPv4-mapped IPv6: "::ffff:10.0.0.7"); ""
+// when `text` is not an address.
+std::string CanonicalAddress(const std::string& text) {
+  std::array<uint8_t, 16> address;
+  char canonical[INET6_ADDRSTRLEN];
+  if (!ParseAddress(text, &address) || !inet_ntop(AF_INET6, address.data(), canonical, sizeof canonical)) return "";
+  return canonical;
+}
+
 std::string Trim(std::string_view text) {
   const size_t first = text.find_first_not_of(" \t");
   if (first == std::string_view::npos) return "";
@@ -389,14 +398,15 @@ std::string FairShareKey(const grpc::ServerContextBase& context, const TrustedPr
     if (last) {
       const std::string_view value(last->data(), last->size());
       const size_t comma = value.rfind(',');
-      const std::string client = Trim(comma == std::string_view::npos ? value : value.substr(comma + 1));
-      std::array<uint8_t, 16> address;
-      char canonical[INET6_ADDRSTRLEN];  // one key per address, however the proxy spelled it
-      if (ParseAddress(client, &address) && inet_ntop(AF_INET6, address.data(), canonical, sizeof canonical))
-        return std::string("forwarded:") + canonical;
+      const std::string client =
+          CanonicalAddress(Trim(comma == std::string_view::npos ? value : value.substr(comma + 1)));
+      if (!client.empty()) return "forwarded:" + client;
     }
   }
-  return "peer:" + peer;
+  // A host is one client however many connections it opens (each has its own port): more connections must not
+  // buy more slots, queue share or memory. A socket with no address (unix:) is counted as its peer string.
+  const std::string host = CanonicalAddress(PeerHost(peer));
+  return "peer:" + (host.empty() ? peer : host);
 }
 
 }  // namespace loomlight::api

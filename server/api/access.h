@@ -131,7 +131,8 @@ bool TokenListsRight(const grpc::ServerContextBase& context, const std::string& 
 
 // Whom fair share and per-client limits count a call against: its client's name when the caller is known
 // (token or certificate); else, for a call from a trusted proxy, the client address in the last entry of its
-// X-Forwarded-For (the one the proxy appended); else its connection (peer address and port). Computed once per
+// X-Forwarded-For (the one the proxy appended); else its peer's address (not its port: a host is one client
+// however many connections it opens). Addresses are spelt one way (IPv4 as IPv4-mapped IPv6). Computed once per
 // call: it looks up the auth context and the metadata.
 std::string FairShareKey(const grpc::ServerContextBase& context, const TrustedProxies& proxies);
 

@@ -112,28 +112,42 @@ struct CallCaps {
   }
 };
 
-// Why `memory` does not hold `bytes` more for a call that already holds `held`: FAILED_PRECONDITION when they
-// are more than the whole budget, so no retry can succeed until the request shrinks or the operator raises
-// --memory-budget-mb (gRPC's guide: do not retry until the system's state is fixed; this server answers a
-// missing fp64 device the same way), else RESOURCE_EXHAUSTED, "retry later": the budget is in use now.
-inline grpc::Status MemoryRefusal(const batching::Budget& memory, size_t held, size_t bytes, const std::string& what) {
+// Why `memory` does not hold `bytes` more for a call of `client` ("" for none) that already holds `held`:
+// FAILED_PRECONDITION when they are more than the whole budget, or than one client's share of it, so no retry
+// can succeed until the request shrinks or the operator raises --memory-budget-mb (gRPC's guide: do not retry
+// until the system's state is fixed; this server answers a missing fp64 device the same way), else
+// RESOURCE_EXHAUSTED, "retry later": the client's share, or the budget, is in use now.
+inline grpc::Status MemoryRefusal(const batching::Budget& memory, size_t held, size_t bytes, const std::string& what,
+                                  const std::string& client = "") {
   const size_t mib = (held + bytes + (size_t{1} << 20) - 1) >> 20;
+  const std::string needs = what + " needs " + std::to_string(mib) + " MiB of buffers";
+  const std::string budget = std::to_string(memory.limit() >> 20) + " MiB";
+  const std::string share = std::to_string(memory.client_limit() >> 20) + " MiB, --max-memory-per-client-mb";
   if (bytes > memory.limit() || held > memory.limit() - bytes)
     return {grpc::StatusCode::FAILED_PRECONDITION,
-            what + " needs " + std::to_string(mib) + " MiB of buffers, more than the server's whole memory budget (" +
-                std::to_string(memory.limit() >> 20) + " MiB): ask for less (fewer queries, a smaller image or table)"};
-  return {grpc::StatusCode::RESOURCE_EXHAUSTED, what + " needs " + std::to_string(mib) +
-                                                    " MiB of buffers and the server's memory budget (" +
-                                                    std::to_string(memory.limit() >> 20) + " MiB) is in use; retry later"};
+            needs + ", more than the server's whole memory budget (" + budget +
+                "): ask for less (fewer queries, a smaller image or table)"};
+  if (!client.empty() && (bytes > memory.client_limit() || held > memory.client_limit() - bytes))
+    return {grpc::StatusCode::FAILED_PRECONDITION,
+            needs + ", more than one client's share of the server's memory budget (" + share +
+                "): ask for less (fewer queries, a smaller image or table)"};
+  if (!client.empty() && memory.client_in_use(client) + bytes > memory.client_limit())
+    return {grpc::StatusCode::RESOURCE_EXHAUSTED, needs + " and this client (" + client.substr(0, 80) +
+                                                      ") holds its share of the memory budget (" + share +
+                                                      ") in its other calls; retry when one ends"};
+  return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+          needs + " and the server's memory budget (" + budget + ") is in use; retry later"};
 }
 
-// Reserves `bytes` (and a slot from `slots` when not null). Returns OK, RESOURCE_EXHAUSTED saying which limit was
-// reached, or FAILED_PRECONDITION when the call needs more than the whole memory budget (MemoryRefusal).
-inline grpc::Status Admit(batching::Budget* memory, batching::Budget* slots, size_t bytes, Admission* out) {
+// Reserves `bytes` for `client` (FairShareKey; "" for none), and a slot from `slots` when not null. Returns OK,
+// RESOURCE_EXHAUSTED saying which limit was reached, or FAILED_PRECONDITION when the call needs more than the
+// whole memory budget or one client's share of it (MemoryRefusal).
+inline grpc::Status Admit(batching::Budget* memory, batching::Budget* slots, size_t bytes, Admission* out,
+                          const std::string& client) {
   // A call no budget could hold is refused before it takes a slot (and whatever is in use).
-  if (bytes > memory->limit()) {
+  if (bytes > memory->limit() || (!client.empty() && bytes > memory->client_limit())) {
     out->client_slot.Release();
-    return MemoryRefusal(*memory, 0, bytes, "the call");
+    return MemoryRefusal(*memory, 0, bytes, "the call", client);
   }
   if (slots && !slots->TryReserve(1, &out->slot)) {
     out->client_slot.Release();
@@ -141,10 +155,10 @@ inline grpc::Status Admit(batching::Budget* memory, batching::Budget* slots, siz
                                                       std::to_string(slots->limit()) +
                                                       " long-running calls (TextureSlice, Tabulate, Render, YarnGeometry); retry later"};
   }
-  if (!memory->TryReserve(bytes, &out->bytes)) {
+  if (!memory->TryReserveFor(client, bytes, &out->bytes)) {
     out->slot.Release();
     out->client_slot.Release();
-    return MemoryRefusal(*memory, 0, bytes, "the call");
+    return MemoryRefusal(*memory, 0, bytes, "the call", client);
   }
   return grpc::Status::OK;
 }

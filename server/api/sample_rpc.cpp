@@ -151,7 +151,7 @@ grpc::ServerUnaryReactor* HandleSample(const ServiceDeps& deps, grpc::CallbackSe
   const size_t n = request->wo_size() / 3;
   auto call = std::make_shared<SampleCall>(deps, "Sample", context, request, response, received,
                                            request->precision() == v1::PRECISION_FP64);
-  if (grpc::Status s = Admit(deps.memory, nullptr, n * kSampleBytesPerQuery, &call->admission); !s.ok())
+  if (grpc::Status s = Admit(deps.memory, nullptr, n * kSampleBytesPerQuery, &call->admission, call->client); !s.ok())
     return reject(s);
   call->n = n;
   // Resolving or packing the material, building its sampling table and drawing all go to the preparer.

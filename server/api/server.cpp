@@ -5,12 +5,163 @@
 #include <grpcpp/resource_quota.h>
 #include <absl/synchronization/mutex.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <limits>
+#include <map>
+#include <set>
+#include <unordered_map>
+
+#include "grpc/health/v1/health.grpc.pb.h"
 
 namespace loomlight::api {
 namespace {
 const char* kServiceName = "loomlight.v1.Loomlight";
+namespace health = grpc::health::v1;
+
+// A Watch refused before it started.
+class RefusedWatch final : public grpc::ServerWriteReactor<health::HealthCheckResponse> {
+ public:
+  explicit RefusedWatch(grpc::Status status) { Finish(std::move(status)); }
+  void OnDone() override { delete this; }
+};
 }  // namespace
+
+// grpc.health.v1.Health, served here rather than by gRPC's default service, which bounds nothing: Watch needs no
+// token (probes and load balancers carry none) and its stream stays open as long as its client likes, so open
+// Watch streams are bounded overall and per client (FairShareKey), and the extras are RESOURCE_EXHAUSTED.
+class HealthService final : public health::Health::CallbackService {
+ public:
+  HealthService(size_t max_watches, size_t max_per_client, const TrustedProxies* proxies)
+      : max_watches_(max_watches), max_per_client_(max_per_client), proxies_(proxies) {}
+
+  // Sets a service's status ("" is the server's) and tells its watchers.
+  void Set(const std::string& service, bool serving) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (shut_down_) return;
+    serving_[service] = serving;
+    for (Watcher* watcher : watchers_)
+      if (watcher->service == service) watcher->Send(Status(service));
+  }
+  // Every service NOT_SERVING from now on; each Watch is told so, then ends (it would hold the drain otherwise).
+  void Shutdown() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    shut_down_ = true;
+    for (auto& [name, serving] : serving_) serving = false;
+    for (Watcher* watcher : std::set<Watcher*>(watchers_)) {
+      watcher->Send(Status(watcher->service));
+      End(watcher, {grpc::StatusCode::UNAVAILABLE, "the server is shutting down"});
+    }
+  }
+  size_t watches() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return watchers_.size();
+  }
+  size_t peak_watches() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return peak_;
+  }
+
+  grpc::ServerUnaryReactor* Check(grpc::CallbackServerContext* context, const health::HealthCheckRequest* request,
+                                  health::HealthCheckResponse* response) override {
+    grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (serving_.count(request->service()) == 0) {
+      reactor->Finish({grpc::StatusCode::NOT_FOUND, "unknown service"});
+    } else {
+      response->set_status(Status(request->service()));
+      reactor->Finish(grpc::Status::OK);
+    }
+    return reactor;
+  }
+
+  grpc::ServerWriteReactor<health::HealthCheckResponse>* Watch(grpc::CallbackServerContext* context,
+                                                               const health::HealthCheckRequest* request) override {
+    const std::string client = FairShareKey(*context, *proxies_);
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (shut_down_) return new RefusedWatch({grpc::StatusCode::UNAVAILABLE, "the server is shutting down"});
+    if (watchers_.size() >= max_watches_)
+      return new RefusedWatch({grpc::StatusCode::RESOURCE_EXHAUSTED,
+                               "the server has its limit of " + std::to_string(max_watches_) +
+                                   " health Watch streams open (--max-health-watches); use Check, or retry later"});
+    size_t& own = per_client_[client];
+    if (own >= max_per_client_)
+      return new RefusedWatch({grpc::StatusCode::RESOURCE_EXHAUSTED,
+                               "this client (" + client.substr(0, 80) + ") has its limit of " +
+                                   std::to_string(max_per_client_) +
+                                   " health Watch streams open (--max-health-watches-per-client); end one first"});
+    ++own;
+    auto* watcher = new Watcher(this, client, request->service().substr(0, 256));
+    watchers_.insert(watcher);
+    peak_ = std::max(peak_, watchers_.size());
+    watcher->Send(Status(watcher->service));
+    return watcher;
+  }
+
+ private:
+  // One Watch stream: at most one write in flight; a change meanwhile is sent when it completes (the latest
+  // status only, so a client that reads nothing holds one small message).
+  class Watcher final : public grpc::ServerWriteReactor<health::HealthCheckResponse> {
+   public:
+    Watcher(HealthService* owner, std::string client, std::string service)
+        : client(std::move(client)), service(std::move(service)), owner_(owner) {}
+    // Under the owner's lock, as is every member below.
+    void Send(health::HealthCheckResponse::ServingStatus status) {
+      latest_ = status;
+      if (writing_ || ending_ || (sent_any_ && status == response_.status())) return;
+      writing_ = sent_any_ = true;
+      response_.set_status(status);
+      StartWrite(&response_);
+    }
+    void OnWriteDone(bool ok) override {
+      std::lock_guard<std::mutex> lock(owner_->mutex_);
+      writing_ = false;
+      if (ending_) Finish(end_status_);
+      else if (!ok) owner_->End(this, {grpc::StatusCode::CANCELLED, "the health Watch was cancelled"});
+      else Send(latest_);
+    }
+    void OnCancel() override {
+      std::lock_guard<std::mutex> lock(owner_->mutex_);
+      owner_->End(this, {grpc::StatusCode::CANCELLED, "the health Watch was cancelled"});
+    }
+    void OnDone() override { delete this; }
+
+    const std::string client, service;
+
+   private:
+    friend class HealthService;
+    HealthService* const owner_;
+    health::HealthCheckResponse response_;
+    health::HealthCheckResponse::ServingStatus latest_ = health::HealthCheckResponse::UNKNOWN;
+    bool writing_ = false, sent_any_ = false, ending_ = false;
+    grpc::Status end_status_;
+  };
+
+  health::HealthCheckResponse::ServingStatus Status(const std::string& service) const {
+    const auto it = serving_.find(service);
+    if (it == serving_.end()) return health::HealthCheckResponse::SERVICE_UNKNOWN;
+    return it->second ? health::HealthCheckResponse::SERVING : health::HealthCheckResponse::NOT_SERVING;
+  }
+  // Ends a watcher's stream (once its write in flight is done) and stops counting it. Under the lock.
+  void End(Watcher* watcher, grpc::Status status) {
+    if (watcher->ending_) return;
+    watcher->ending_ = true;
+    watchers_.erase(watcher);
+    if (auto it = per_client_.find(watcher->client); it != per_client_.end() && --it->second == 0)
+      per_client_.erase(it);
+    if (watcher->writing_) watcher->end_status_ = std::move(status);
+    else watcher->Finish(std::move(status));
+  }
+
+  const size_t max_watches_, max_per_client_;
+  const TrustedProxies* const proxies_;
+  mutable std::mutex mutex_;
+  std::map<std::string, bool> serving_;  // by service name
+  std::set<Watcher*> watchers_;          // open, not ending
+  std::unordered_map<std::string, size_t> per_client_;
+  size_t peak_ = 0;
+  bool shut_down_ = false;
+};
 
 std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& options, std::string* error) {
   auto s = std::unique_ptr<LoomlightServer>(new LoomlightServer);
@@ -25,7 +176,9 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   if (!s->runtime_->BuildPrograms(registry, error)) return nullptr;
 
   s->metrics_ = std::make_unique<Metrics>();
-  s->memory_ = std::make_unique<batching::Budget>(options.limits.memory_budget_bytes);
+  s->memory_ = std::make_unique<batching::Budget>(
+      options.limits.memory_budget_bytes,
+      options.memory_per_client_bytes ? options.memory_per_client_bytes : options.limits.memory_budget_bytes / 4);
   s->long_calls_ = std::make_unique<batching::Budget>(options.limits.max_long_running_calls);
   s->environments_ = assets::EnvironmentMaps::Open(options.environment_dir, options.environment_cache_bytes,
                                                    s->memory_.get(), error);
@@ -57,7 +210,9 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   // Debian builds Abseil without NDEBUG, which leaves its lock-order graph (a deadlock detector for debugging)
   // running on every gRPC mutex acquisition: measured at ~4% of the server's CPU on small calls.
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
-  grpc::EnableDefaultHealthCheckService(true);
+  grpc::EnableDefaultHealthCheckService(false);  // ours (HealthService) bounds its Watch streams
+  s->health_ = std::make_unique<HealthService>(options.max_health_watches, options.max_health_watches_per_client,
+                                               &s->options_.access.trusted_proxies);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
   builder.AddListeningPort(options.address, credentials, &s->port_);
@@ -65,8 +220,26 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   interceptors.push_back(s->metrics_->ClientCallCounter());
   builder.experimental().SetInterceptorCreators(std::move(interceptors));
   builder.RegisterService(s->service_.get());
+  builder.RegisterService(s->health_.get());
   builder.SetMaxReceiveMessageSize(kMaxMessageBytes);
   builder.SetMaxSendMessageSize(kMaxMessageBytes);
+  // Per connection: a bound on its streams (one connection cannot open thousands of calls), keepalive pings
+  // even while no call is open (without data too: gRPC stops after two otherwise), so a peer that vanished
+  // without closing is found and its connection's buffers freed, and a maximum age.
+  const auto ms = [](std::chrono::milliseconds d) {
+    return static_cast<int>(std::min<int64_t>(d.count(), std::numeric_limits<int>::max()));
+  };
+  builder.AddChannelArgument(GRPC_ARG_MAX_CONCURRENT_STREAMS, options.max_streams_per_connection);
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS, ms(options.keepalive_time));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIMEOUT_MS, ms(options.keepalive_timeout));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS, 1);
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MAX_PINGS_WITHOUT_DATA, 0);
+  builder.AddChannelArgument(GRPC_ARG_MAX_CONNECTION_AGE_MS, ms(options.max_connection_age));
+  const std::chrono::milliseconds grace =
+      options.max_connection_age_grace.count() > 0
+          ? options.max_connection_age_grace
+          : std::max(options.call_caps.bulk, options.call_caps.interactive);
+  builder.AddChannelArgument(GRPC_ARG_MAX_CONNECTION_AGE_GRACE_MS, ms(grace));
   // gRPC's own buffers (requests being received, replies being sent) are bounded too.
   grpc::ResourceQuota quota("loomlight");
   quota.Resize(options.grpc_memory_bytes);
@@ -109,10 +282,12 @@ void LoomlightServer::UpdateServing() {
   std::lock_guard<std::mutex> lock(mutex_);  // held throughout, so concurrent updates cannot end stale
   const bool serving = warm_ && !draining_ && !stuck_ && (!tokens_ || tokens_->failure().empty());
   service_->SetServing(serving);
-  grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService();
-  health->SetServingStatus("", serving);
-  health->SetServingStatus(kServiceName, serving);
+  health_->Set("", serving);
+  health_->Set(kServiceName, serving);
 }
+
+size_t LoomlightServer::health_watches() const { return health_->watches(); }
+size_t LoomlightServer::health_watches_peak() const { return health_->peak_watches(); }
 
 void LoomlightServer::Watch() {
   const auto period = std::min<std::chrono::milliseconds>(std::chrono::milliseconds(500), options_.stall_limit / 4);
@@ -169,6 +344,7 @@ void LoomlightServer::Shutdown() {
   if (watchdog_.joinable()) watchdog_.join();
   if (server_) {
     UpdateServing();
+    health_->Shutdown();
     // No new calls from here; in-flight ones may finish within the grace, then gRPC cancels them.
     server_->Shutdown(std::chrono::system_clock::now() + options_.shutdown_grace);
   }

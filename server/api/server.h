@@ -42,7 +42,21 @@ struct ServerOptions {
   CallCaps call_caps;  // a call's deadline is its client's, at most its priority's cap (--max-call-seconds)
   // A server-streaming call whose write waits this long on a client that reads nothing is cancelled.
   std::chrono::milliseconds stall_write_timeout{60000};
+  // One client's share of the memory budget (limits.memory_budget_bytes), its calls together; 0: a quarter.
+  size_t memory_per_client_bytes = 0;
+  // Per connection (HTTP/2): streams open at once (more wait in the client's transport); a keepalive ping after
+  // this long without traffic, the connection closed when its answer takes longer than the timeout (a peer that
+  // vanished is found even while idle); a maximum age, after which the client is told to reconnect (GOAWAY) and
+  // its calls have the grace to finish (0: the bulk call cap, so the age never cuts a call the caps allow).
+  int max_streams_per_connection = 100;
+  std::chrono::milliseconds keepalive_time{60000}, keepalive_timeout{20000};
+  std::chrono::milliseconds max_connection_age{3600000}, max_connection_age_grace{0};
+  // Health Watch streams (unauthenticated, held as long as the client likes) open at once, overall and per
+  // client (FairShareKey); more are RESOURCE_EXHAUSTED.
+  size_t max_health_watches = 256, max_health_watches_per_client = 8;
 };
+
+class HealthService;  // grpc.health.v1.Health (server.cpp)
 
 class LoomlightServer {
  public:
@@ -65,6 +79,9 @@ class LoomlightServer {
   // What calls hold now: bytes of the memory budget, and long-running call slots.
   size_t memory_in_use() const { return memory_->in_use(); }
   size_t long_calls_in_use() const { return long_calls_->in_use(); }
+  // Health Watch streams open now, and the most ever open at once.
+  size_t health_watches() const;
+  size_t health_watches_peak() const;
   LoomlightService& service() { return *service_; }  // for tests: its workers
 
  private:
@@ -82,6 +99,7 @@ class LoomlightServer {
   std::unique_ptr<assets::BtfStore> btf_store_;
   std::unique_ptr<IdleStreams> stalled_writes_;  // outlives the service and the gRPC server
   std::unique_ptr<LoomlightService> service_;
+  std::unique_ptr<HealthService> health_;
   std::unique_ptr<grpc::Server> server_;
   std::shared_ptr<TokenAuthProcessor> tokens_;  // null when tokens are off
   int port_ = 0;

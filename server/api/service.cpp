@@ -129,7 +129,7 @@ grpc::Status AdmitLongCall(const ServiceDeps& deps, const grpc::ServerContextBas
             "this client (" + client.substr(0, 80) + ") is running its limit of " +
                 std::to_string(deps.client_long_calls->per_client()) +
                 " long-running calls (TextureSlice, Tabulate, Render, YarnGeometry) at once; retry when one ends"};
-  return Admit(deps.memory, deps.long_calls, bytes, out);
+  return Admit(deps.memory, deps.long_calls, bytes, out, client);
 }
 
 grpc::Status PrepareMaterial(const ServiceDeps& deps, const v1::Material& material,
@@ -280,7 +280,8 @@ grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext
 
   auto call = std::make_shared<EvaluateCall>(deps_, "Evaluate", context, request, response, received,
                                              request->precision() == v1::PRECISION_FP64);
-  if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission); !s.ok())
+  if (grpc::Status s = Admit(deps_.memory, nullptr, n * kEvaluateBytesPerQuery, &call->admission, call->client);
+      !s.ok())
     return reject(s);
   // A small request of a cached material starts here; packing, knob errors and large requests' validation
   // and planning go to the preparer, off gRPC's threads.

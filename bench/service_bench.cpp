@@ -1,5 +1,6 @@
 // Section 3: the gRPC service in process on a loopback port, driven by concurrent synchronous clients,
-// each on its own channel (and TCP connection), with the batcher coalescing and not.
+// each on its own channel (and TCP connection) and its own address (X-Forwarded-For from a trusted loopback: a
+// host is one client), with the batcher coalescing and not.
 #include <grpcpp/grpcpp.h>
 
 #include <barrier>
@@ -20,6 +21,7 @@ using Stub = v1::Loomlight::Stub;
 std::unique_ptr<api::LoomlightServer> StartServer(bool coalesce) {
   api::ServerOptions options;
   options.batcher.coalesce = coalesce;
+  options.access.trusted_proxies.Add("127.0.0.1");  // the load's clients name their addresses (Call)
   return StartServer(options);
 }
 
@@ -65,9 +67,11 @@ struct CallResult {
   bool ok = false;
 };
 
-CallResult Call(Stub& stub, const v1::EvaluateRequest& request) {
+// One Evaluate; from `address` (X-Forwarded-For) when not empty, as one of many client machines.
+CallResult Call(Stub& stub, const v1::EvaluateRequest& request, const std::string& address = "") {
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+  if (!address.empty()) ctx.AddMetadata("x-forwarded-for", address);
   v1::EvaluateResponse response;
   const Clock::time_point start = Clock::now();
   const grpc::Status status = stub.Evaluate(&ctx, request, &response);
@@ -116,11 +120,12 @@ LoadResult RunLoad(int port, const LoadConfig& config, const Sizes& sizes) {
     threads.emplace_back([&, id] {
       const std::unique_ptr<Stub> stub = Connect(port, id);
       const v1::EvaluateRequest request = MakeEvaluateRequest(config.queries_per_call, id);
-      Call(*stub, request);
+      const std::string address = "10.77.0." + std::to_string(id + 1);
+      Call(*stub, request, address);
       ready.arrive_and_wait();
       std::vector<CallResult>& mine = results[static_cast<size_t>(id)];
       while (mine.size() < sizes.service_max_calls && SecondsSince(start) < sizes.service_seconds)
-        mine.push_back(Call(*stub, request));
+        mine.push_back(Call(*stub, request, address));
     });
   for (auto& t : threads) t.join();
   return Summarise(results, config.queries_per_call, SecondsSince(start));

@@ -1,7 +1,8 @@
 // Soak: a real server process under 64 concurrent clients of every kind (Evaluate of many sizes, models and
-// options, Sample, TextureSlice, Tabulate, small Renders, ListModels, health) for a while, its resident memory
-// sampled every second. Asserts that every call succeeds, that memory levels off after warm-up, and that the
-// server still answers at the end.
+// options, Sample, TextureSlice, Tabulate, small Renders, ListModels, health) and one hostile client cycling
+// through the attacks of issue 44 (tests/hostile_load.h) for a while, its resident memory sampled every second.
+// Asserts that every honest call succeeds, that every attack gets the refusal it deserves, that memory levels off
+// after warm-up, and that the server still answers at the end.
 //
 // Duration: LOOMLIGHT_SOAK_SECONDS (default 60, the short run ctest does: the server keeps freed buffers
 // (server/runtime/allocator.h), so its RSS climbs to its high-water mark for about 25 s before it levels off). The full
@@ -29,6 +30,7 @@
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/service.h"
+#include "tests/hostile_load.h"
 #include "tests/testing.h"
 
 namespace loomlight {
@@ -378,7 +380,8 @@ std::vector<Preset> DiscoverPresets(v1::Loomlight::Stub& stub) {
 double Mib(size_t bytes) { return bytes / double(1 << 20); }
 
 TEST(Soak, MixedClientsSucceedAndMemoryLevelsOff) {
-  testing::ServerProcess server({"--trusted-proxy", "127.0.0.1"});  // the clients' X-Forwarded-For (SoakClient)
+  // The clients' X-Forwarded-For (SoakClient); the hostile client's unread stream is cut after 8 s of waiting.
+  testing::ServerProcess server({"--trusted-proxy", "127.0.0.1", "--stall-write-seconds", "8"});
   ASSERT_GT(server.port(), 0) << "the server did not start";
   std::unique_ptr<v1::Loomlight::Stub> stub = testing::Connect(server.port());
   const std::vector<Preset> presets = DiscoverPresets(*stub);
@@ -409,6 +412,8 @@ TEST(Soak, MixedClientsSucceedAndMemoryLevelsOff) {
   std::vector<std::thread> threads;
   const auto started = Clock::now();
   for (auto& client : clients) threads.emplace_back([&client, &stop] { client->Run(stop); });
+  testing::HostileClient hostile(server.address(), "10.66.6.6");
+  threads.emplace_back([&hostile, &stop] { hostile.Run(stop); });
   std::this_thread::sleep_until(started + std::chrono::duration<double>(seconds));
   stop.store(true);
   for (std::thread& t : threads) t.join();  // each finishes the call it is in
@@ -427,7 +432,12 @@ TEST(Soak, MixedClientsSucceedAndMemoryLevelsOff) {
   std::printf("  server RSS each second (MiB): %s\n", samples.c_str());
   ::testing::Test::RecordProperty("rss_mib", samples);
 
+  std::printf("  hostile client: %ld attacks, %ld answered otherwise than deserved\n", hostile.attacks(),
+              hostile.unexpected());
+  ::testing::Test::RecordProperty("hostile_attacks", std::to_string(hostile.attacks()));
   EXPECT_EQ(tally.failures(), 0) << "first failures:" << tally.examples();
+  EXPECT_GT(hostile.attacks(), 0);
+  EXPECT_EQ(hostile.unexpected(), 0) << "first unexpected answers:" << hostile.examples();
   for (int k = 0; k < kKinds; ++k)
     EXPECT_GT(tally.calls(static_cast<Kind>(k)), 0) << kKindNames[k] << " never completed a call";
 

@@ -156,7 +156,7 @@ YarnOutcome FetchYarn(v1::Loomlight::Stub& stub, const std::string& forwarded_fo
 
 // Six calls of client A queued on the geometry worker, then one of B: B's generation runs after A's first, so
 // B's call completes while A's last four still wait (held there by a task in B's turn after B's call). With the
-// geometry worker first-come-first-served, B's call waited behind all six.
+// geometry worker first-come-first-served, B's call waited behind all six (that task ran with six queued).
 TEST(WorkerFairness, OneClientsQueuedYarnCallsDoNotHoldAnothersBehindThemAll) {
   api::ServerOptions options;
   ASSERT_EQ(options.access.trusted_proxies.Add("127.0.0.0/8"), "");  // clients named by X-Forwarded-For
@@ -179,12 +179,23 @@ TEST(WorkerFairness, OneClientsQueuedYarnCallsDoNotHoldAnothersBehindThemAll) {
   ASSERT_TRUE(Eventually([&] { return geometry.queued() == 6; }));
   b_call = std::async(std::launch::async, [&] { return FetchYarn(*stub, b); });
   ASSERT_TRUE(Eventually([&] { return geometry.queued() == 7; }));
-  geometry.Post([second] { second->Wait(); }, b_key);  // runs after B's generation and one more of A's
+  // In B's turn after B's generation: when it runs, the tasks before it have all been taken.
+  std::atomic<size_t> queued_behind_second{0};
+  std::atomic<bool> second_running{false};
+  geometry.Post(
+      [&, second] {
+        queued_behind_second = geometry.queued();
+        second_running = true;
+        second->Wait();
+      },
+      b_key);
   first->Open();
 
+  ASSERT_TRUE(Eventually([&] { return second_running.load(); }));
+  EXPECT_EQ(queued_behind_second.load(), 4u);  // A's last four: A's first two generations ran, B's between them
+  // B's generation ran before the task holding the worker: its call completes meanwhile.
   const bool b_done = b_call.wait_for(std::chrono::seconds(120)) == std::future_status::ready;
   EXPECT_TRUE(b_done) << "B's call waited behind A's";
-  EXPECT_EQ(geometry.queued(), 4u);  // A's last four: A's first two generations ran, and B's between them
   second->Open();
   if (b_done) {
     const YarnOutcome outcome = b_call.get();

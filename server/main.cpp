@@ -56,7 +56,7 @@ void Usage() {
                "  --max-long-calls-per-client N  of them, one client's (its token's name, else the address a\n"
                "                             --trusted-proxy forwarded, else its address; default 8)\n"
                "  --max-memory-per-client-mb N  of the memory budget, one client's calls together, in MiB\n"
-               "                             (default: a quarter of --memory-budget-mb)\n"
+               "                             (default: half of --memory-budget-mb)\n"
                "  --max-streams-per-connection N  calls open at once on one connection (default 100)\n"
                "  --keepalive-seconds N      ping a connection after N s without traffic (default 60) and close it\n"
                "                             when the answer takes --keepalive-timeout-seconds (default 20)\n"

@@ -1035,7 +1035,8 @@ TEST_F(BtfRpcTest, FiberSourceCapturesAWovenPatchOfFibers) {
     v1::CreateBtfProgress p;
     while (reader->Read(&p)) {
     }
-    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+    const grpc::Status status = reader->Finish();
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << status.error_message();
   }
   grpc::ClientContext list_ctx;
   v1::ListBtfsResponse listed;

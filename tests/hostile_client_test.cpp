@@ -382,17 +382,7 @@ TEST(BoundedMemory, MaterialCacheCountsSamplingTables) {
   EXPECT_LT(cache.entries(), 13u);
 }
 
-v1::TabulateRequest BigTable() {
-  v1::TabulateRequest r;
-  r.mutable_material()->set_preset("velvet");
-  v1::AnisotropicGrid* g = r.mutable_anisotropic();
-  g->set_theta_i_count(64);
-  g->set_phi_i_count(64);
-  g->set_theta_o_count(64);
-  g->set_phi_o_count(128);  // 33.5 M cells: 400 MB of RAW output
-  r.set_format(v1::TABLE_FORMAT_RAW);
-  return r;
-}
+using testing::BigTable;
 
 // p50 and p99 of sequential 64-query Evaluate calls while `keep_going`.
 std::pair<double, double> EvaluateLatency(v1::Loomlight::Stub& stub, int calls, int* failures) {

@@ -134,6 +134,18 @@ bool WaitForCallsEnded(int metrics_port, const std::string& rpc, const std::stri
   return true;
 }
 
+v1::TabulateRequest BigTable() {
+  v1::TabulateRequest r;
+  r.mutable_material()->set_preset("velvet");
+  v1::AnisotropicGrid* g = r.mutable_anisotropic();
+  g->set_theta_i_count(64);
+  g->set_phi_i_count(64);
+  g->set_theta_o_count(64);
+  g->set_phi_o_count(128);
+  r.set_format(v1::TABLE_FORMAT_RAW);
+  return r;
+}
+
 std::unique_ptr<api::LoomlightServer> StartInProcessServer(api::ServerOptions options) {
   options.address = "127.0.0.1:0";
   std::string error;

@@ -61,6 +61,9 @@ struct DecodedImage {
 // Decodes PNG, JPEG or EXR bytes in memory; `name` (e.g. "x.png") picks the reader. Failures are test failures.
 DecodedImage DecodeImage(const std::string& bytes, const char* name);
 
+// A velvet table of 33.5 M cells (400 MB of RAW output): seconds of work, for streams held unread or cut short.
+v1::TabulateRequest BigTable();
+
 // A server in this process on 127.0.0.1 with a free port (options.address is replaced); a test failure and
 // nullptr when it cannot start.
 std::unique_ptr<api::LoomlightServer> StartInProcessServer(api::ServerOptions options = {});

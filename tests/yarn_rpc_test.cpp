@@ -122,7 +122,11 @@ TEST(FiberSceneCache, FindsTheSameFibersOnlyAndBoundsItsBytes) {
 
 class YarnRpcTest : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() { server_ = testing::StartInProcessServer().release(); }
+  static void SetUpTestSuite() {
+    api::ServerOptions options;
+    options.metrics_address = "127.0.0.1:0";  // tests wait for calls to end (testing::WaitForCallsEnded)
+    server_ = testing::StartInProcessServer(options).release();
+  }
   static void TearDownTestSuite() { delete server_; }
   static std::unique_ptr<v1::Loomlight::Stub> Stub() { return testing::Connect(server_->port()); }
   static api::LoomlightServer* server_;
@@ -294,11 +298,15 @@ TEST_F(YarnRpcTest, DeadlineStopsAHugeYarnAndEvaluateIsStillServed) {
       EXPECT_TRUE(stub->Evaluate(&ctx, e, &r).ok());
     }
   });
+  const double ended = testing::CallsEnded(server_->metrics_port(), "YarnGeometry", "DEADLINE_EXCEEDED");
   for (int k = 0; k < 3; ++k) {
     const Streamed s = Fetch(*Stub(), request, 0.05);
     EXPECT_EQ(s.status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
   }
   evaluator.join();
+  // The client sees its deadline before the server has stopped the generation and given back its memory (this
+  // client's share): the next call waits for the server to end all three.
+  ASSERT_TRUE(testing::WaitForCallsEnded(server_->metrics_port(), "YarnGeometry", "DEADLINE_EXCEEDED", ended + 3));
   const Streamed small = Fetch(*Stub(), Straight("rayon2", 0.5));
   EXPECT_TRUE(small.status.ok()) << small.status.error_message();
 }

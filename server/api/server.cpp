@@ -178,7 +178,7 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   s->metrics_ = std::make_unique<Metrics>();
   s->memory_ = std::make_unique<batching::Budget>(
       options.limits.memory_budget_bytes,
-      options.memory_per_client_bytes ? options.memory_per_client_bytes : options.limits.memory_budget_bytes / 4);
+      options.memory_per_client_bytes ? options.memory_per_client_bytes : options.limits.memory_budget_bytes / 2);
   s->long_calls_ = std::make_unique<batching::Budget>(options.limits.max_long_running_calls);
   s->environments_ = assets::EnvironmentMaps::Open(options.environment_dir, options.environment_cache_bytes,
                                                    s->memory_.get(), error);

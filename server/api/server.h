@@ -42,7 +42,7 @@ struct ServerOptions {
   CallCaps call_caps;  // a call's deadline is its client's, at most its priority's cap (--max-call-seconds)
   // A server-streaming call whose write waits this long on a client that reads nothing is cancelled.
   std::chrono::milliseconds stall_write_timeout{60000};
-  // One client's share of the memory budget (limits.memory_budget_bytes), its calls together; 0: a quarter.
+  // One client's share of the memory budget (limits.memory_budget_bytes), its calls together; 0: half.
   size_t memory_per_client_bytes = 0;
   // Per connection (HTTP/2): streams open at once (more wait in the client's transport); a keepalive ping after
   // this long without traffic, the connection closed when its answer takes longer than the timeout (a peer that

@@ -67,6 +67,9 @@ declare -A replica_pid=() replica_port=() replica_metrics=()
 start_replica() {  # NAME [SERVER_ARGUMENTS...]
   local name=$1 log="$work/$1.log"
   shift
+  # The old log goes first, here: the background job's own truncation may come after read_replica_ports has
+  # read a restarted replica's previous ports.
+  rm -f "$log"
   "$server_binary" --address 127.0.0.1:0 --metrics-address 127.0.0.1:0 "$@" >"$log" 2>&1 &
   replica_pid[$name]=$!
   started_pids+=($!)
@@ -75,7 +78,7 @@ start_replica() {  # NAME [SERVER_ARGUMENTS...]
 read_replica_ports() {
   local name=$1 log="$work/$1.log"
   for ((i = 0; i < 1200; ++i)); do
-    if grep -q "metrics on port" "$log"; then
+    if grep -q "metrics on port" "$log" 2>/dev/null; then
       replica_port[$name]=$(sed -n 's/.*serving.* on port \([0-9]*\).*/\1/p' "$log" | head -n 1)
       replica_metrics[$name]=$(sed -n 's/.*metrics on port \([0-9]*\).*/\1/p' "$log" | head -n 1)
       [[ -n ${replica_port[$name]} ]] || fail "$name: no port in its log"

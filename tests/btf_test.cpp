@@ -1243,7 +1243,8 @@ TEST_F(BtfRpcTest, AnUploadThatStopsSendingIsCancelledAndFreesItsSlot) {
   api::ServerOptions options;
   options.data_dir = DataDir();
   options.limits.max_long_running_calls = 1;
-  options.limits.upload_idle_timeout = std::chrono::seconds(1);
+  options.limits.upload_idle_timeout = std::chrono::seconds(5);
+  options.metrics_address = "127.0.0.1:0";
   auto server = testing::StartInProcessServer(options);
   ASSERT_TRUE(server);
   auto stub = testing::Connect(server->port());
@@ -1253,12 +1254,17 @@ TEST_F(BtfRpcTest, AnUploadThatStopsSendingIsCancelledAndFreesItsSlot) {
   v1::UploadBtfMessage header;
   *header.mutable_header() = UploadHeader("stalled", 16);
   ASSERT_TRUE(writer->Write(header));
-  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the server admits the header
+  // Waits for the server to have admitted the upload (the slot in use, as the watchdog samples it every half
+  // second), not a time a slow machine may overrun; the idle limit (5 s) runs from the header.
+  const std::string in_use = "loomlight_resource{name=\"long_calls_in_use\"}";
+  for (int i = 0; i < 3000 && testing::MetricValue(testing::HttpGet(server->metrics_port(), "/metrics"), in_use) != 1;
+       ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
   const v1::CreateBtfRequest create = TwillRequest("behind");
   v1::BtfAssetInfo info;
   EXPECT_EQ(Create(*stub, create, &info).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);  // the slot is held
   grpc::Status created;
-  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(60);  // against a hang, not a bound
   while (std::chrono::steady_clock::now() < until) {
     created = Create(*stub, create, &info);
     if (created.error_code() != grpc::StatusCode::RESOURCE_EXHAUSTED) break;

@@ -1,6 +1,7 @@
 #include "server/api/access.h"
 
 #include <arpa/inet.h>
+#include <strings.h>
 #include <grpcpp/security/server_credentials.h>
 #include <netdb.h>
 
@@ -308,7 +309,9 @@ bool IsLoopbackAddress(const std::string& address) {
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
   addrinfo* found = nullptr;
-  if (getaddrinfo(host.c_str(), nullptr, &hints, &found) != 0) return false;
+  // "localhost" is loopback by definition (RFC 6761 section 6.3) even where nothing resolves it (a bare root
+  // without /etc/hosts); then gRPC cannot bind it either.
+  if (getaddrinfo(host.c_str(), nullptr, &hints, &found) != 0) return strcasecmp(host.c_str(), "localhost") == 0;
   bool loopback = found != nullptr;
   for (const addrinfo* a = found; a != nullptr; a = a->ai_next) {
     char text[INET6_ADDRSTRLEN] = "";

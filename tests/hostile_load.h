@@ -157,7 +157,7 @@ class HostileClient {
     r.set_width(16);
     r.set_height(16);
     r.set_samples_per_pixel(1);
-    r.mutable_environment()->set_data("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n");
+    r.mutable_environment()->set_data(HdrBomb(100000, 100000));
     grpc::ClientContext context;
     Prepare(&context, 60);
     auto reader = stub_->Render(&context, r);

@@ -134,6 +134,10 @@ bool WaitForCallsEnded(int metrics_port, const std::string& rpc, const std::stri
   return true;
 }
 
+std::string HdrBomb(int width, int height) {
+  return "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y " + std::to_string(height) + " +X " + std::to_string(width) + "\n";
+}
+
 v1::TabulateRequest BigTable() {
   v1::TabulateRequest r;
   r.mutable_material()->set_preset("velvet");

@@ -61,6 +61,10 @@ struct DecodedImage {
 // Decodes PNG, JPEG or EXR bytes in memory; `name` (e.g. "x.png") picks the reader. Failures are test failures.
 DecodedImage DecodeImage(const std::string& bytes, const char* name);
 
+// A Radiance HDR header declaring `width` x `height` pixels and no pixel data: a few dozen bytes that would decode
+// to width x height x 12 bytes.
+std::string HdrBomb(int width, int height);
+
 // A velvet table of 33.5 M cells (400 MB of RAW output): seconds of work, for streams held unread or cut short.
 v1::TabulateRequest BigTable();
 

@@ -1244,7 +1244,6 @@ TEST_F(BtfRpcTest, AnUploadThatStopsSendingIsCancelledAndFreesItsSlot) {
   options.data_dir = DataDir();
   options.limits.max_long_running_calls = 1;
   options.limits.upload_idle_timeout = std::chrono::seconds(5);
-  options.metrics_address = "127.0.0.1:0";
   auto server = testing::StartInProcessServer(options);
   ASSERT_TRUE(server);
   auto stub = testing::Connect(server->port());
@@ -1254,11 +1253,9 @@ TEST_F(BtfRpcTest, AnUploadThatStopsSendingIsCancelledAndFreesItsSlot) {
   v1::UploadBtfMessage header;
   *header.mutable_header() = UploadHeader("stalled", 16);
   ASSERT_TRUE(writer->Write(header));
-  // Waits for the server to have admitted the upload (the slot in use, as the watchdog samples it every half
-  // second), not a time a slow machine may overrun; the idle limit (5 s) runs from the header.
-  const std::string in_use = "loomlight_resource{name=\"long_calls_in_use\"}";
-  for (int i = 0; i < 3000 && testing::MetricValue(testing::HttpGet(server->metrics_port(), "/metrics"), in_use) != 1;
-       ++i)
+  // Waits for the server to have admitted the upload (its slot in use), not a time a slow machine may overrun;
+  // the idle limit (5 s) runs from the header.
+  for (int i = 0; i < 3000 && server->long_calls_in_use() != 1; ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   const v1::CreateBtfRequest create = TwillRequest("behind");
   v1::BtfAssetInfo info;

@@ -30,7 +30,7 @@ class HostileClient {
   // `count` is called once per attack: with "" when it got the refusal it deserves, else with what it got.
   HostileClient(const std::string& address, std::string forwarded_for, std::function<void(const std::string&)> count)
       : target_(address),
-        channel_(Channel(address)),
+        channel_(OwnChannel(address)),
         stub_(v1::Loomlight::NewStub(channel_)),
         forwarded_for_(std::move(forwarded_for)),
         count_(std::move(count)) {}
@@ -53,14 +53,6 @@ class HostileClient {
   }
 
  private:
-  static std::shared_ptr<grpc::Channel> Channel(const std::string& address) {
-    grpc::ChannelArguments args;
-    args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
-    args.SetMaxSendMessageSize(api::kMaxMessageBytes);
-    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-    return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
-  }
-
   void Prepare(grpc::ClientContext* context, int seconds) {
     if (seconds > 0) context->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(seconds));
     context->set_wait_for_ready(true);
@@ -178,7 +170,7 @@ class HostileClient {
     std::vector<grpc::Status> statuses(12);
     for (size_t i = 0; i < statuses.size(); ++i)
       calls.emplace_back([this, i, &statuses] {
-        auto stub = v1::Loomlight::NewStub(Channel(target_));
+        auto stub = v1::Loomlight::NewStub(OwnChannel(target_));
         v1::TabulateRequest r;  // a small in-plane table: the burst, not its size, is the attack
         r.mutable_material()->set_preset("linen_plain");
         for (double theta : {10.0, 40.0, 70.0}) r.mutable_in_plane()->add_theta_i_deg(theta);

@@ -87,15 +87,9 @@ class Tally {
   std::vector<std::string> examples_;
 };
 
-// Each client its own connection (a local subchannel pool), as 64 separate client processes would have. (The
-// server tells them apart by the address each one's calls name in X-Forwarded-For: a host is one client.)
-std::shared_ptr<grpc::Channel> OwnChannel(const std::string& address) {
-  grpc::ChannelArguments args;
-  args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
-  args.SetMaxSendMessageSize(api::kMaxMessageBytes);
-  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-  return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
-}
+// Each client its own connection (testing::OwnChannel), as 64 separate client processes would have. (The server
+// tells them apart by the address each one's calls name in X-Forwarded-For: a host is one client.)
+using testing::OwnChannel;
 
 // Every call waits for its connection within its deadline (wait_for_ready), as a real client would: one clean-root
 // CI run saw whole connections fail to establish ("failed to connect to all addresses") and the failing channel's

@@ -57,14 +57,25 @@ std::vector<double> RunKernel(const models::Model& model, const models::PackedMa
   return f;
 }
 
-std::unique_ptr<v1::Loomlight::Stub> Connect(const std::string& address) {
+// The API's message size limits, both ways.
+static grpc::ChannelArguments MessageLimits() {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(api::kMaxMessageBytes);
   args.SetMaxSendMessageSize(api::kMaxMessageBytes);
-  return v1::Loomlight::NewStub(grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args));
+  return args;
+}
+
+std::unique_ptr<v1::Loomlight::Stub> Connect(const std::string& address) {
+  return v1::Loomlight::NewStub(grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), MessageLimits()));
 }
 
 std::unique_ptr<v1::Loomlight::Stub> Connect(int port) { return Connect("127.0.0.1:" + std::to_string(port)); }
+
+std::shared_ptr<grpc::Channel> OwnChannel(const std::string& address) {
+  grpc::ChannelArguments args = MessageLimits();
+  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+  return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
+}
 
 int RunClient(const std::string& address, const std::string& args, std::string* output) {
   const std::string command = std::string(LOOMLIGHT_CLIENT_BINARY) + " --server " + address + " " + args + " 2>&1";

@@ -32,6 +32,9 @@ std::vector<double> RunLaunch(const runtime::LaunchArgs& args);
 // A stub for a Loomlight server, with the API's message size limits both ways (large requests and replies).
 std::unique_ptr<v1::Loomlight::Stub> Connect(const std::string& address);
 std::unique_ptr<v1::Loomlight::Stub> Connect(int port);  // 127.0.0.1:port
+// A channel to `address` with those limits and a connection of its own (a local subchannel pool), as a
+// separate client process would have.
+std::shared_ptr<grpc::Channel> OwnChannel(const std::string& address);
 
 // Runs the `loomlight` client binary against `address` with `args`; returns its exit code, with its stdout
 // and stderr in *output.

@@ -39,20 +39,24 @@ bool IsLoopback(const std::array<uint8_t, 16>& a) {
   return std::all_of(a.begin(), a.end() - 1, [](uint8_t b) { return b == 0; }) && a[15] == 1;
 }
 
+// An address as 16 bytes, IPv4 mapped into IPv6 (true, for the callers' convenience).
+bool AddressBytes(const in_addr& v4, std::array<uint8_t, 16>* out) {
+  out->fill(0);
+  (*out)[10] = (*out)[11] = 0xff;
+  std::memcpy(out->data() + 12, &v4, 4);
+  return true;
+}
+bool AddressBytes(const in6_addr& v6, std::array<uint8_t, 16>* out) {
+  std::memcpy(out->data(), &v6, 16);
+  return true;
+}
+
 // An IPv4 or IPv6 address as 16 bytes (IPv4 mapped into IPv6), or false.
 bool ParseAddress(const std::string& text, std::array<uint8_t, 16>* out) {
   in_addr v4;
-  if (inet_pton(AF_INET, text.c_str(), &v4) == 1) {
-    out->fill(0);
-    (*out)[10] = (*out)[11] = 0xff;
-    std::memcpy(out->data() + 12, &v4, 4);
-    return true;
-  }
+  if (inet_pton(AF_INET, text.c_str(), &v4) == 1) return AddressBytes(v4, out);
   in6_addr v6;
-  if (inet_pton(AF_INET6, text.c_str(), &v6) == 1) {
-    std::memcpy(out->data(), &v6, 16);
-    return true;
-  }
+  if (inet_pton(AF_INET6, text.c_str(), &v6) == 1) return AddressBytes(v6, out);
   return false;
 }
 
@@ -230,6 +234,26 @@ std::string_view BearerToken(std::string_view header) {
   return header.substr(0, bearer.size()) == bearer ? header.substr(bearer.size()) : std::string_view();
 }
 
+// The live token table's entry for the token a call carries (its table held, so a reload cannot free the entry
+// while it is read); entry null without a known token.
+struct CallerToken {
+  std::shared_ptr<const TokenTable> table;
+  const TokenTable::Entry* entry = nullptr;
+};
+CallerToken FindCallerToken(const grpc::ServerContextBase& context) {
+  const auto header = context.client_metadata().find("authorization");
+  if (header == context.client_metadata().end()) return {};
+  const std::string token(BearerToken(std::string_view(header->second.data(), header->second.size())));
+  if (token.empty()) return {};
+  Processors& processors = LiveProcessors();
+  std::lock_guard<std::mutex> lock(processors.mutex);
+  for (const TokenAuthProcessor* processor : processors.live) {
+    CallerToken found{processor->table(), nullptr};
+    if ((found.entry = found.table->Find(token))) return found;
+  }
+  return {};
+}
+
 }  // namespace
 
 TokenAuthProcessor::TokenAuthProcessor(std::shared_ptr<const TokenTable> table) : table_(std::move(table)) {
@@ -313,14 +337,12 @@ bool IsLoopbackAddress(const std::string& address) {
   // without /etc/hosts); then gRPC cannot bind it either.
   if (getaddrinfo(host.c_str(), nullptr, &hints, &found) != 0) return strcasecmp(host.c_str(), "localhost") == 0;
   bool loopback = found != nullptr;
-  for (const addrinfo* a = found; a != nullptr; a = a->ai_next) {
-    char text[INET6_ADDRSTRLEN] = "";
-    const void* raw = a->ai_family == AF_INET
-                          ? static_cast<const void*>(&reinterpret_cast<const sockaddr_in*>(a->ai_addr)->sin_addr)
-                          : static_cast<const void*>(&reinterpret_cast<const sockaddr_in6*>(a->ai_addr)->sin6_addr);
-    loopback = loopback && (a->ai_family == AF_INET || a->ai_family == AF_INET6) &&
-               inet_ntop(a->ai_family, raw, text, sizeof text) && ParseAddress(text, &bytes) && IsLoopback(bytes);
-  }
+  for (const addrinfo* a = found; a != nullptr && loopback; a = a->ai_next)
+    loopback = (a->ai_family == AF_INET
+                    ? AddressBytes(reinterpret_cast<const sockaddr_in*>(a->ai_addr)->sin_addr, &bytes)
+                    : a->ai_family == AF_INET6 &&
+                          AddressBytes(reinterpret_cast<const sockaddr_in6*>(a->ai_addr)->sin6_addr, &bytes)) &&
+               IsLoopback(bytes);
   freeaddrinfo(found);
   return loopback;
 }
@@ -361,15 +383,7 @@ std::string MakeServerCredentials(const AccessOptions& options, const std::strin
 }
 
 std::string ClientName(const grpc::ServerContextBase& context) {
-  if (auto header = context.client_metadata().find("authorization"); header != context.client_metadata().end()) {
-    const std::string token(BearerToken(std::string_view(header->second.data(), header->second.size())));
-    Processors& processors = LiveProcessors();
-    std::lock_guard<std::mutex> lock(processors.mutex);
-    for (const TokenAuthProcessor* processor : processors.live) {
-      const std::shared_ptr<const TokenTable> table = processor->table();
-      if (const TokenTable::Entry* entry = token.empty() ? nullptr : table->Find(token)) return entry->client;
-    }
-  }
+  if (const CallerToken caller = FindCallerToken(context); caller.entry) return caller.entry->client;
   const std::shared_ptr<const grpc::AuthContext> auth = context.auth_context();
   if (auth)
     for (const grpc::string_ref& value : auth->FindPropertyValues(GRPC_X509_CN_PROPERTY_NAME))
@@ -378,15 +392,8 @@ std::string ClientName(const grpc::ServerContextBase& context) {
 }
 
 bool TokenListsRight(const grpc::ServerContextBase& context, const std::string& right) {
-  const auto header = context.client_metadata().find("authorization");
-  if (header == context.client_metadata().end()) return false;
-  const std::string token(BearerToken(std::string_view(header->second.data(), header->second.size())));
-  if (token.empty()) return false;
-  Processors& processors = LiveProcessors();
-  std::lock_guard<std::mutex> lock(processors.mutex);
-  for (const TokenAuthProcessor* processor : processors.live)
-    if (const TokenTable::Entry* entry = processor->table()->Find(token)) return entry->calls.count(right) > 0;
-  return false;
+  const CallerToken caller = FindCallerToken(context);
+  return caller.entry && caller.entry->calls.count(right) > 0;
 }
 
 std::string FairShareKey(const grpc::ServerContextBase& context, const TrustedProxies& proxies) {

@@ -49,20 +49,11 @@ std::string CheckAssetRequest(const std::string& prefix, const std::string& name
   return "";
 }
 
-// Who owns the assets a call stores: its client's name (token or certificate), else the address a trusted
-// proxy forwarded, else its host (not its connection: a client that reconnects still owns its assets).
-std::string AssetOwner(const grpc::ServerContextBase& context, const TrustedProxies& proxies) {
-  const std::string key = FairShareKey(context, proxies);
-  if (key.rfind("peer:", 0) != 0) return key;
-  const std::string peer = context.peer();  // "ipv4:10.0.0.7:41234", "ipv6:[::1]:41234"
-  const size_t port = peer.rfind(':');
-  if ((peer.rfind("ipv4:", 0) == 0 || peer.rfind("ipv6:", 0) == 0) && port > 5) return "host:" + peer.substr(5, port - 5);
-  return key;
-}
-
-// The caller's part of a job: who it is and whether its token lists `admin`.
+// The caller's part of a job: who it is (its FairShareKey: its client's name, else the address a trusted proxy
+// forwarded, else its host, not its connection, so a client that reconnects still owns its assets) and whether
+// its token lists `admin`.
 void SetCaller(const ServiceDeps& deps, const grpc::ServerContextBase& context, BtfJob* job) {
-  job->owner = AssetOwner(context, *deps.trusted_proxies);
+  job->owner = FairShareKey(context, *deps.trusted_proxies);
   job->admin = TokenListsRight(context, "admin");
 }
 
@@ -746,7 +737,7 @@ grpc::Status HandleDeleteBtf(const ServiceDeps& deps, const grpc::ServerContextB
                              const v1::DeleteBtfRequest& request) {
   if (!deps.btf_store) return NoStore();
   if (std::string e = assets::ValidateAssetName(request.name()); !e.empty()) return Invalid("name: " + e);
-  switch (deps.btf_store->Delete(request.name(), AssetOwner(context, *deps.trusted_proxies),
+  switch (deps.btf_store->Delete(request.name(), FairShareKey(context, *deps.trusted_proxies),
                                  TokenListsRight(context, "admin"))) {
     case assets::BtfStore::Removal::kNotFound:
       return {grpc::StatusCode::NOT_FOUND, "name: no BTF asset named " + models::Quote(request.name())};

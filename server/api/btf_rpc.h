@@ -26,7 +26,7 @@ struct BtfJob {
   int width = 0, height = 0;  // texels of the tile
   models::btf::CompressionOptions compression;
   bool replace = false;
-  std::string owner;   // the client storing it (AssetOwner)
+  std::string owner;   // the client storing it (FairShareKey)
   bool admin = false;  // its token lists `admin`: it may replace another client's asset
 };
 

@@ -73,7 +73,7 @@ struct ErrorRow {
 // A compressed BTF: immutable once made; shared by the store, the materials naming it and launches.
 struct BtfAsset {
   std::string name, source;
-  std::string owner;  // the client that stored it (server/api/btf_rpc.cpp AssetOwner); "" before owners
+  std::string owner;  // the client that stored it (server/api/access.h FairShareKey); "" before owners
   DirectionGrid grid;
   int width = 0, height = 0;
   int components = 0;  // kept per view slot (K)

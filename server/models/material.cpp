@@ -8,9 +8,8 @@
 #include "server/models/quote.h"
 
 namespace loomlight::models {
-namespace {
 
-std::string CheckValues(const ParamSpec& spec, const std::vector<double>& values, const std::string& field) {
+std::string CheckParamValues(const ParamSpec& spec, const std::vector<double>& values, const std::string& field) {
   std::ostringstream err;
   if (values.size() < spec.min_count || values.size() > spec.max_count) {
     err << field << ": parameter '" << spec.name << "' takes ";
@@ -35,8 +34,6 @@ std::string CheckValues(const ParamSpec& spec, const std::vector<double>& values
   }
   return "";
 }
-
-}  // namespace
 
 size_t TextParseBytes(const v1::Material& material, const Registry& registry) {
   size_t bytes = 0;
@@ -93,7 +90,7 @@ std::string ResolveMaterial(const v1::Material& material, const Registry& regist
     if (!param.text().empty())
       return pfield + ".text: parameter '" + spec->name + "' takes values, not text";
     const std::vector<double> values(param.values().begin(), param.values().end());
-    std::string err = CheckValues(*spec, values, pfield + ".values");
+    std::string err = CheckParamValues(*spec, values, pfield + ".values");
     if (!err.empty()) return err;
     out->values[param.name()] = values;
   }

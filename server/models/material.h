@@ -19,6 +19,10 @@ struct ResolvedMaterial {
 std::string ResolveMaterial(const v1::Material& material, const Registry& registry, ResolvedMaterial* out,
                             const std::string& field = "material");
 
+// Values of one parameter checked against its schema: their count, each finite within [min, max], integers
+// integral. "" or "field[i]: reason" naming the parameter. Every material's and scene's parameter goes through it.
+std::string CheckParamValues(const ParamSpec& spec, const std::vector<double>& values, const std::string& field);
+
 // The most heap resolving `material` (its transmission layer too) holds for its text parameters' parses
 // (Model::TextParseBytes); 0 when it has no text. Names that do not resolve count nothing: resolving refuses them.
 size_t TextParseBytes(const v1::Material& material, const Registry& registry);

@@ -8,18 +8,22 @@
 
 namespace loomlight::models {
 
-const ParamSpec* Model::FindParam(const std::string& name) const {
-  for (const ParamSpec& p : params())
+const ParamSpec* FindParam(const std::vector<ParamSpec>& schema, const std::string& name) {
+  for (const ParamSpec& p : schema)
     if (p.name == name) return &p;
   return nullptr;
 }
 
-ParamValues Model::DefaultValues() const {
+ParamValues DefaultValues(const std::vector<ParamSpec>& schema) {
   ParamValues values;
-  for (const ParamSpec& p : params())
+  for (const ParamSpec& p : schema)
     if (p.type != ParamType::kText) values[p.name] = p.defaults;
   return values;
 }
+
+const ParamSpec* Model::FindParam(const std::string& name) const { return models::FindParam(params(), name); }
+
+ParamValues Model::DefaultValues() const { return models::DefaultValues(params()); }
 
 ParamValues Model::PresetValues(const PresetSpec& preset) const {
   ParamValues values = DefaultValues();

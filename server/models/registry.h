@@ -36,6 +36,10 @@ struct ParamSpec {
 // A fully resolved parameter set: every schema parameter has values.
 using ParamValues = std::map<std::string, std::vector<double>>;
 
+// A schema's parameter by name, or nullptr; its non-text parameters at their defaults (models' and scenes').
+const ParamSpec* FindParam(const std::vector<ParamSpec>& schema, const std::string& name);
+ParamValues DefaultValues(const std::vector<ParamSpec>& schema);
+
 struct PresetSpec {
   std::string name;
   std::string description;

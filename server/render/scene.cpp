@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "server/models/float_angles.h"
+#include "server/render/scene_registry.h"
 #include "server/yarn/fiber_scene.h"
 
 namespace loomlight::render {
@@ -102,16 +103,25 @@ bool IntersectShape(const Shape& shape, Vec3 o, Vec3 d, double lo, double hi, Hi
   return true;
 }
 
-Shape Cylinder(double x) {
+}  // namespace
+
+Shape SphereShape(Vec3 centre, double radius) {
   Shape s;
-  s.kind = Shape::Kind::kCylinder;
-  s.centre = {x, 0, 0};
-  s.radius = 0.4;
-  s.half_height = 0.8;
+  s.centre = centre;
+  s.radius = radius;
   return s;
 }
 
-Shape Quad(Vec3 centre, Vec3 axis_s, Vec3 axis_t, double half_width, double half_height) {
+Shape CylinderShape(Vec3 centre, double radius, double half_height) {
+  Shape s;
+  s.kind = Shape::Kind::kCylinder;
+  s.centre = centre;
+  s.radius = radius;
+  s.half_height = half_height;
+  return s;
+}
+
+Shape QuadShape(Vec3 centre, Vec3 axis_s, Vec3 axis_t, double half_width, double half_height) {
   Shape s;
   s.kind = Shape::Kind::kQuad;
   s.centre = centre;
@@ -121,8 +131,6 @@ Shape Quad(Vec3 centre, Vec3 axis_s, Vec3 axis_t, double half_width, double half
   s.half_height = half_height;
   return s;
 }
-
-}  // namespace
 
 Hit PointOnShape(const Shape& shape, double s, double t) {
   Vec3 position = shape.centre + s * shape.axis_s + t * shape.axis_t;  // a quad
@@ -311,67 +319,9 @@ bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance, double mi
          exhausted;
 }
 
-namespace {
-
-// A fiber scene: its one object is the caller's fibers, lit by one directional light and a dim ambient term
-// (no sky).
-void SetUpFiberScene(Scene* scene, std::string name, CameraSpec camera, Vec3 toward_light) {
-  scene->objects.push_back({std::move(name), Shape{}, 0, true});
-  scene->fiber_object = 0;
-  scene->default_camera = camera;
-  scene->default_lights.push_back({Light::Type::kDirectional, Normalize(toward_light), {}, {3, 3, 3}});
-  scene->default_environment = false;
-  scene->default_ambient = 0.25;
-}
-
-}  // namespace
-
 Scene MakeScene(SceneKind kind) {
-  Scene scene;
-  switch (kind) {
-    case SceneKind::kSphere:
-      scene.objects.push_back({"sphere", Shape{}, 0});
-      scene.default_camera = {{0, 0.5, 3.2}, {0, 0, 0}, {0, 1, 0}, 40};
-      scene.default_texture_scale = 8;
-      break;
-    case SceneKind::kCylinders:
-      // Sadeghi et al. Fig. 12: the same cloth wrapped three ways. The camera stays between the cylinders'
-      // ends, so their open ends never show their inside.
-      scene.objects.push_back({"cylinder 1 (threads vertical)", Cylinder(-1.1), 90});
-      scene.objects.push_back({"cylinder 2 (threads horizontal)", Cylinder(0), 0});
-      scene.objects.push_back({"cylinder 3 (threads diagonal)", Cylinder(1.1), 45});
-      scene.default_camera = {{0, 0.25, 5}, {0, 0, 0}, {0, 1, 0}, 36};
-      scene.default_texture_scale = 10;
-      break;
-    case SceneKind::kSwatch: {
-      // A 1 x 1 swatch whose normal leans 50 degrees from +y toward the camera.
-      const double a = 50 * kDegree;
-      scene.objects.push_back({"swatch", Quad({0, 0, 0}, {1, 0, 0}, {0, std::sin(a), -std::cos(a)}, 0.5, 0.5), 0});
-      scene.default_camera = {{0, 1.4, 1.6}, {0, 0, 0}, {0, 1, 0}, 40};
-      scene.default_texture_scale = 8;
-      break;
-    }
-    case SceneKind::kCurtain:
-      // A 2 x 2.4 curtain in the plane z = 0 facing the camera, and a low sun behind it ("window light").
-      scene.objects.push_back({"curtain", Quad({0, 0, 0}, {1, 0, 0}, {0, 1, 0}, 1.0, 1.2), 90});
-      scene.default_camera = {{0, 0, 3.6}, {0, 0, 0}, {0, 1, 0}, 42};
-      scene.default_texture_scale = 8;
-      scene.default_lights.push_back({Light::Type::kDirectional, Normalize({0.3, 0.35, -1}), {}, {4, 3.8, 3.4}});
-      scene.default_environment_intensity = 0.4;
-      break;
-    case SceneKind::kYarn:
-      // Wu and Yuksel Fig. 7: a straight yarn along +z (the caller's fibers, length 1), seen from the side at
-      // about three yarn widths across, lit from the upper left front.
-      SetUpFiberScene(&scene, "yarn (fibers)", {{0.35, 0.02, 0.5}, {0, 0, 0.5}, {0, 1, 0}, 32}, {0.8, 0.7, 0.4});
-      break;
-    case SceneKind::kWovenPatch:
-      // A close-up of a woven patch (the caller's layout, in the xy plane, normal +z, about 1 x 1): looking
-      // down at 35 degrees from the normal at a part a few yarns wide.
-      SetUpFiberScene(&scene, "woven patch (fibers)", {{0.5, 0.1, 0.65}, {0.5, 0.5, 0}, {0, 1, 0}, 30},
-                      {-0.5, 0.4, 0.8});
-      break;
-  }
-  return scene;
+  const SceneSpec& spec = *SceneRegistry::Global().FindPreset(static_cast<int>(kind));
+  return spec.build(models::DefaultValues(spec.params));
 }
 
 }  // namespace loomlight::render

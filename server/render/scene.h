@@ -18,6 +18,8 @@ class YarnVisibility;
 
 namespace loomlight::render {
 
+// The registered scenes (server/render/scene_registry.h) by their ScenePreset value (the same order), for
+// callers that name one in code.
 // kYarn and kWovenPatch are fiber scenes: their one object is fiber curves (Scene::fibers, which the caller
 // generates and builds: server/api/render_rpc.cpp), shaded one fiber at a time.
 enum class SceneKind { kSphere, kCylinders, kSwatch, kCurtain, kYarn, kWovenPatch };
@@ -89,6 +91,12 @@ struct Hit {
   double fiber_core_fiber_width = 0;
 };
 
+// The shapes scenes are built of (server/render/scenes/): a sphere; a cylinder along +y, open at its ends; a quad
+// whose axes are normalised here.
+Shape SphereShape(Vec3 centre, double radius);
+Shape CylinderShape(Vec3 centre, double radius, double half_height);
+Shape QuadShape(Vec3 centre, Vec3 axis_s, Vec3 axis_t, double half_width, double half_height);
+
 // The surface point of a (non-fiber) shape at surface coordinates (s, t), as a hit there would report it
 // (distance 0, object -1): s around the axis and t along it on spheres (latitude) and cylinders, along the
 // axes on quads.
@@ -132,6 +140,7 @@ struct Scene {
   bool IntersectShapes(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;
 };
 
+// The registered scene of that kind at its parameters' defaults (SceneRegistry::Global()).
 Scene MakeScene(SceneKind kind);
 
 }  // namespace loomlight::render

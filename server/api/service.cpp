@@ -17,6 +17,7 @@
 #include "server/api/yarn_rpc.h"
 #include "server/models/material.h"
 #include "server/models/material_plan.h"
+#include "server/render/scene_registry.h"
 
 namespace loomlight::api {
 namespace {
@@ -30,6 +31,61 @@ v1::ParamSchema::Type ToProto(models::ParamType t) {
     case models::ParamType::kText: return v1::ParamSchema::TYPE_TEXT;
   }
   return v1::ParamSchema::TYPE_UNSPECIFIED;
+}
+
+void AddSchema(const std::vector<models::ParamSpec>& params, google::protobuf::RepeatedPtrField<v1::ParamSchema>* out) {
+  for (const models::ParamSpec& p : params) {
+    v1::ParamSchema* s = out->Add();
+    s->set_name(p.name);
+    s->set_type(ToProto(p.type));
+    s->set_unit(p.unit);
+    s->set_min(p.min);
+    s->set_max(p.max);
+    s->mutable_default_values()->Add(p.defaults.begin(), p.defaults.end());
+    s->set_description(p.description);
+    s->set_min_count(p.min_count);
+    s->set_max_count(p.max_count);
+  }
+}
+
+void SetTriple(render::Vec3 v, google::protobuf::RepeatedField<double>* out) {
+  out->Clear();
+  out->Add(v.x);
+  out->Add(v.y);
+  out->Add(v.z);
+}
+
+// A registered scene as ListScenes describes it: its declarations, and its camera and lighting at its defaults.
+void DescribeScene(const render::SceneSpec& spec, v1::SceneInfo* info) {
+  const render::Scene scene = spec.build(models::DefaultValues(spec.params));
+  info->set_name(spec.name);
+  // A scene without a ScenePreset value leaves it unset (the proto's 0 is SCENE_SPHERE: such a scene is named by
+  // scene_name only).
+  if (spec.preset != render::SceneSpec::kNoPreset) info->set_preset(static_cast<v1::ScenePreset>(spec.preset));
+  info->set_description(spec.description);
+  AddSchema(spec.params, info->mutable_params());
+  v1::RenderCamera* camera = info->mutable_default_camera();
+  SetTriple(scene.default_camera.position, camera->mutable_position());
+  SetTriple(scene.default_camera.look_at, camera->mutable_look_at());
+  SetTriple(scene.default_camera.up, camera->mutable_up());
+  camera->set_fov_deg(scene.default_camera.fov_deg);
+  for (const render::Light& l : scene.default_lights) {
+    v1::RenderLight* light = info->add_default_lights();
+    if (l.type == render::Light::Type::kPoint) {
+      light->set_type(v1::RenderLight::TYPE_POINT);
+      SetTriple(l.position, light->mutable_position());
+    } else {
+      light->set_type(v1::RenderLight::TYPE_DIRECTIONAL);
+      SetTriple(l.direction, light->mutable_direction());
+    }
+    SetTriple(l.rgb, light->mutable_rgb());
+  }
+  info->set_default_environment(scene.default_environment);
+  info->set_default_texture_scale(scene.default_texture_scale);
+  for (const render::SceneObject& object : scene.objects) info->add_objects(object.name);
+  info->set_needs_uv(spec.needs.uv);
+  info->set_shows_transmission(spec.needs.transmission);
+  info->set_fibers(spec.needs.fibers);
 }
 
 void AddParams(const models::ParamValues& values, google::protobuf::RepeatedPtrField<v1::Param>* out) {
@@ -241,18 +297,7 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
       info->mutable_accuracy_knob()->mutable_settings()->Add(knob.settings.begin(), knob.settings.end());
       info->mutable_accuracy_knob()->set_error_estimate(knob.error_estimate);
     }
-    for (const models::ParamSpec& p : model->params()) {
-      v1::ParamSchema* s = info->add_params();
-      s->set_name(p.name);
-      s->set_type(ToProto(p.type));
-      s->set_unit(p.unit);
-      s->set_min(p.min);
-      s->set_max(p.max);
-      s->mutable_default_values()->Add(p.defaults.begin(), p.defaults.end());
-      s->set_description(p.description);
-      s->set_min_count(p.min_count);
-      s->set_max_count(p.max_count);
-    }
+    AddSchema(model->params(), info->mutable_params());
     for (const models::PresetSpec& preset : model->presets()) {
       v1::Preset* out = info->add_presets();
       out->set_name(preset.name);
@@ -265,6 +310,15 @@ grpc::ServerUnaryReactor* LoomlightService::ListModels(grpc::CallbackServerConte
   for (const std::string& name : deps_.environments->Names()) response->add_environment_maps(name);
   DescribeYarnModel(response->mutable_yarn());
   return AnswerNow(deps_.metrics, context, "ListModels", received, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* LoomlightService::ListScenes(grpc::CallbackServerContext* context,
+                                                       const v1::ListScenesRequest*,
+                                                       v1::ListScenesResponse* response) {
+  const auto received = batching::Clock::now();
+  if (grpc::Status s = Serving(); !s.ok()) return AnswerNow(deps_.metrics, context, "ListScenes", received, s);
+  for (const render::SceneSpec& spec : render::SceneRegistry::Global().scenes()) DescribeScene(spec, response->add_scenes());
+  return AnswerNow(deps_.metrics, context, "ListScenes", received, grpc::Status::OK);
 }
 
 grpc::ServerUnaryReactor* LoomlightService::Evaluate(grpc::CallbackServerContext* context,

@@ -130,6 +130,9 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
                                        v1::ListModelsResponse* response) override;
+  // The scene registry's scenes (server/render/scene_registry.h), each at its parameters' defaults.
+  grpc::ServerUnaryReactor* ListScenes(grpc::CallbackServerContext* context, const v1::ListScenesRequest* request,
+                                       v1::ListScenesResponse* response) override;
   grpc::ServerUnaryReactor* Evaluate(grpc::CallbackServerContext* context, const v1::EvaluateRequest* request,
                                      v1::EvaluateResponse* response) override;
   // Delegates to HandleTextureSlice (server/api/texture_slice.h).

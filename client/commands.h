@@ -27,6 +27,7 @@ struct Command {
 
 const Command& models_command();
 const Command& eval_command();
+const Command& scenes_command();
 const Command& plot_command();
 const Command& slice_command();
 const Command& tab_command();

@@ -21,9 +21,9 @@ constexpr int kExitUsage = 2;
 
 const OptionSpec kHelpOption = {"help", "", "show this help"};
 
-std::array<const Command*, 11> commands() {
-  return {&models_command(), &eval_command(), &sample_command(), &plot_command(), &slice_command(), &tab_command(),
-          &render_command(), &batch_command(), &yarn_command(), &btf_command(), &health_command()};
+std::array<const Command*, 12> commands() {
+  return {&models_command(), &scenes_command(), &eval_command(), &sample_command(), &plot_command(), &slice_command(),
+          &tab_command(), &render_command(), &batch_command(), &yarn_command(), &btf_command(), &health_command()};
 }
 
 // A family member's word: "create" of "btf create".

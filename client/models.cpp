@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "client/commands.h"
+#include "client/param_schema.h"
 #include "client/rpc.h"
 
 namespace loomlight::client {
@@ -72,6 +73,8 @@ std::string range_text(const v1::ParamSchema& p) {
 using ParamSchemas = google::protobuf::RepeatedPtrField<v1::ParamSchema>;
 using Presets = google::protobuf::RepeatedPtrField<v1::Preset>;
 
+}  // namespace
+
 void print_parameters(std::ostream& out, const ParamSchemas& params) {
   std::vector<Row> rows = {{"NAME", "TYPE", "UNIT", "RANGE", "COUNT", "DEFAULT", "DESCRIPTION"}};
   for (const v1::ParamSchema& p : params)
@@ -84,6 +87,8 @@ void print_parameters(std::ostream& out, const ParamSchemas& params) {
   out << "  parameters:\n";
   print_table(out, rows, "    ");
 }
+
+namespace {
 
 // With `values`, every parameter of each preset follows its line.
 void print_presets(std::ostream& out, const Presets& presets, bool values) {

@@ -37,15 +37,17 @@ v1::RenderFormat output_format(const ParsedOptions& options, const std::string& 
   return parse_format(out.substr(dot + 1), "--format (from the extension of " + out + ")");
 }
 
-v1::ScenePreset parse_scene(const std::string& name) {
+// --scene: the names this client always took as their ScenePreset (servers before ListScenes know only those),
+// any other as a registered scene's name (`loomlight scenes`), which the server checks.
+void set_scene(const std::string& name, v1::RenderRequest& request) {
   const std::string n = lower(name);
-  if (n == "sphere") return v1::SCENE_SPHERE;
-  if (n == "cylinders") return v1::SCENE_CYLINDERS;
-  if (n == "swatch") return v1::SCENE_SWATCH;
-  if (n == "curtain") return v1::SCENE_CURTAIN;
-  if (n == "yarn") return v1::SCENE_YARN;
-  if (n == "woven-patch") return v1::SCENE_WOVEN_PATCH;
-  throw UsageError("--scene: expected sphere, cylinders, swatch, curtain, yarn or woven-patch, got '" + name + "'");
+  if (n == "sphere") request.set_scene(v1::SCENE_SPHERE);
+  else if (n == "cylinders") request.set_scene(v1::SCENE_CYLINDERS);
+  else if (n == "swatch") request.set_scene(v1::SCENE_SWATCH);
+  else if (n == "curtain") request.set_scene(v1::SCENE_CURTAIN);
+  else if (n == "yarn") request.set_scene(v1::SCENE_YARN);
+  else if (n == "woven-patch") request.set_scene(v1::SCENE_WOVEN_PATCH);
+  else request.set_scene_name(name);
 }
 
 void add_triple(google::protobuf::RepeatedField<double>* out, const std::string& text, const std::string& what) {
@@ -99,7 +101,9 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
   v1::RenderRequest request;
   *request.mutable_material() = material.material();
   request.set_precision(material.precision());
-  request.set_scene(parse_scene(options.last("scene").value_or("sphere")));
+  set_scene(options.last("scene").value_or("sphere"), request);
+  for (const auto& entry : options.matching({"scene-param"}))
+    *request.add_scene_params() = parse_param(entry.value, "--scene-param");
   parse_size(options.last("size").value_or("256x256"), request);
   if (auto spp = options.last("spp")) request.set_samples_per_pixel(parse_int(*spp, "--spp", 1, 1 << 20));
   if (auto seed = options.last("seed")) request.set_seed(static_cast<uint64_t>(parse_int(*seed, "--seed", 0, 1 << 30)));
@@ -199,7 +203,8 @@ int run_render(const ParsedOptions& options) {
 OptionList render_options() {
   OptionList options = material_options();
   options.insert(options.end(), {
-      {"scene", "NAME", "sphere (default), cylinders, swatch, curtain; fiber scenes: yarn, woven-patch"},
+      {"scene", "NAME", "sphere (default), cylinders, swatch, curtain; fiber scenes: yarn, woven-patch (`loomlight scenes`)"},
+      {"scene-param", "NAME=V", "set a scene parameter (repeatable; names and ranges: `loomlight scenes`)"},
       {"yarn", "PRESET", "fiber scenes: the yarn, cotton1 (default), cotton2, polyester1, rayon2 or silk1"},
       {"yarn-param", "NAME=V", "fiber scenes: override a yarn parameter (repeatable; names: `loomlight models`)"},
       {"weave", "PRESET", "woven-patch: lay out warp and weft by this woven preset's pattern (default cotton_twill)"},

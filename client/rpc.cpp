@@ -212,6 +212,14 @@ v1::ListModelsResponse Client::list_models() {
   check(stub_->ListModels(&context, v1::ListModelsRequest(), &response));
   return response;
 }
+v1::ListScenesResponse Client::list_scenes() {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::ListScenesResponse response;
+  check(stub_->ListScenes(&context, v1::ListScenesRequest(), &response));
+  return response;
+}
+
 
 v1::EvaluateResponse Client::evaluate(const v1::EvaluateRequest& request) {
   grpc::ClientContext context;

@@ -41,6 +41,7 @@ class Client {
   // grpc.health.v1.Health/Check of `service` ("" = the whole server).
   grpc::health::v1::HealthCheckResponse::ServingStatus health(const std::string& service);
   v1::ListModelsResponse list_models();
+  v1::ListScenesResponse list_scenes();
   // Checks that the response holds one RGB triple per query before returning it.
   v1::EvaluateResponse evaluate(const v1::EvaluateRequest& request);
   // Checks that the response holds wi, pdf, weight and f for every query before returning it.

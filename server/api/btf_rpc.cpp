@@ -16,6 +16,7 @@
 #include "server/models/material_plan.h"
 #include "server/models/quote.h"
 #include "server/render/btf_capture.h"
+#include "server/render/renderer.h"
 
 namespace loomlight::api {
 namespace {
@@ -348,7 +349,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     const size_t begin = piece_begin_, end = std::min(texels, begin + piece_texels_);
     deps_.geometry->Post([this, begin, end] {
       const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
-      capture_->TraceView(next_view_, begin, end, int(kTraceThreads), stop, &bucket_);
+      capture_->TraceView(next_view_, begin, end, int(render::kTraceThreads), stop, &bucket_);
       Post([this, end] {
         tracing_ = false;
         piece_begin_ = end;

@@ -1,11 +1,7 @@
 #include "server/api/render_rpc.h"
 
-#include <algorithm>
-#include <array>
-#include <atomic>
 #include <cmath>
 #include <memory>
-#include <thread>
 #include <vector>
 
 #include "server/api/admission.h"
@@ -13,12 +9,8 @@
 #include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
 #include "server/models/material.h"
-#include "server/models/btf/environment_fold.h"
 #include "server/render/adaptive_sampling.h"
-#include "server/render/fidelity.h"
-#include "server/render/folded_environment.h"
-#include "server/render/shading.h"
-#include "server/render/tone_map.h"
+#include "server/render/renderer.h"
 #include "server/api/yarn_rpc.h"
 #include "server/yarn/fiber_scene.h"
 #include "server/yarn/visibility.h"
@@ -27,9 +19,10 @@ namespace loomlight::api {
 namespace {
 
 constexpr const char* kRpc = "Render";
+// A chunk is a quarter of one Evaluate call (render/renderer.h).
+static_assert(render::kRenderChunkQueries == kMaxQueriesPerCall / 4);
 
 using Clock = batching::Clock;
-using render::Rgb;
 using render::Vec3;
 
 
@@ -94,6 +87,9 @@ render::SceneKind ToSceneKind(v1::ScenePreset scene) {
 
 bool IsFiberScene(v1::ScenePreset scene) { return scene == v1::SCENE_YARN || scene == v1::SCENE_WOVEN_PATCH; }
 
+// The request's scene (a fiber scene's fibers are generated and built separately).
+render::Scene SceneOf(const v1::RenderRequest& r) { return render::MakeScene(ToSceneKind(r.scene())); }
+
 // The camera a request asks for, or its scene's.
 render::CameraSpec CameraOf(const v1::RenderRequest& r, const render::Scene& scene) {
   render::CameraSpec camera = scene.default_camera;
@@ -126,7 +122,7 @@ std::string FiberJobOf(const models::Registry& registry, const v1::RenderRequest
 void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderSetup::FiberDetail* report,
                        bool* check) {
   *check = false;
-  const render::Scene scene = render::MakeScene(ToSceneKind(r.scene()));
+  const render::Scene scene = SceneOf(r);
   const render::CameraSpec camera = CameraOf(r, scene);
   const render::PinholeCamera pinhole(camera, static_cast<int>(r.height()), static_cast<int>(r.height()));
   const double footprint = pinhole.pixel_angle() * render::Length(camera.look_at - camera.position);
@@ -160,16 +156,76 @@ void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderS
   }
 }
 
-// One Render call in flight, on the host worker (server/api/stream_call.h); batcher completions post there
-// too. The call is finished only when no batcher job and no write is outstanding.
-//
-// Pixels are rendered in chunks of whole pixels (all of a pixel's samples of the pass); two chunk buffers
-// alternate: while one chunk's jobs are on the device, the worker accumulates the previous chunk and traces the
-// next. Every pixel sample's sum is taken in a fixed order (evaluators in order, then queries in order), and a
-// pixel's in sample order, so the image does not depend on timing or on how launches were batched. Sampling
-// uniformly is one pass of samples_per_pixel; adaptively (server/render/adaptive_sampling.h), a first pass of a
-// few samples per pixel measures each pixel's noise, and a second gives pixel p its samples up to counts_[p].
-class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
+render::Status FromGrpc(const grpc::Status& s) {
+  using batching::JobStatus;
+  switch (s.error_code()) {
+    case grpc::StatusCode::OK: return {};
+    case grpc::StatusCode::DEADLINE_EXCEEDED: return {JobStatus::kDeadlineExceeded, s.error_message()};
+    case grpc::StatusCode::CANCELLED: return {JobStatus::kCancelled, s.error_message()};
+    case grpc::StatusCode::UNAVAILABLE: return {JobStatus::kUnavailable, s.error_message()};
+    case grpc::StatusCode::RESOURCE_EXHAUSTED: return {JobStatus::kResourceExhausted, s.error_message()};
+    default: return {JobStatus::kInternal, s.error_message()};
+  }
+}
+
+grpc::Status ToGrpc(const render::Status& s) { return ToStatus(batching::JobResult{s.code, s.message}); }
+
+// The renderer's inputs from a validated request: its scene (fibers as generated), camera, lights, environment
+// (`map`: the loaded one; null: the built-in sky), texture and sampling; the material is the caller's.
+render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, std::shared_ptr<const render::Environment> map) {
+  render::RenderInputs in;
+  render::RenderSetup& s = in.setup;
+  s.scene = SceneOf(r);
+  s.fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_SLICES ? yarn::ShadowMethod::kSlices : yarn::ShadowMethod::kTraced;
+  s.fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_TEXTURE    ? yarn::OcclusionMethod::kTexture
+                      : r.fiber_occlusion() == v1::FIBER_OCCLUSION_DISTANCE ? yarn::OcclusionMethod::kDistance
+                                                                            : yarn::OcclusionMethod::kTraced;
+  s.choose_fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_AUTO;
+  s.choose_fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_AUTO;
+  in.views.push_back({CameraOf(r, s.scene), static_cast<int>(r.width()), static_cast<int>(r.height())});
+  s.samples_per_pixel = SamplesPerPixel(r);
+  s.seed = r.seed();
+  s.texture_scale = r.texture_scale() > 0 ? r.texture_scale() : s.scene.default_texture_scale;
+  s.texture_rotation_deg = r.texture_rotation_deg();
+  for (const v1::RenderLight& light : r.lights()) {
+    render::Light l;
+    l.rgb = ToVec(light.rgb());
+    if (light.type() == v1::RenderLight::TYPE_POINT) {
+      l.type = render::Light::Type::kPoint;
+      l.position = ToVec(light.position());
+    } else {
+      l.direction = render::Normalize(ToVec(light.direction()));
+    }
+    s.lights.push_back(l);
+  }
+  const bool default_lighting = r.lights().empty() && !r.has_environment();
+  if (default_lighting) s.lights = s.scene.default_lights;
+  s.ambient = r.ambient() > 0 ? r.ambient() : default_lighting ? s.scene.default_ambient : 0.0;
+  if ((default_lighting && s.scene.default_environment) || r.has_environment()) {
+    // A copy with its own transform; the decoded map itself is shared (a cached map is not copied).
+    auto environment = std::make_shared<render::Environment>(map ? *map : render::Environment::Builtin());
+    const double intensity = default_lighting ? s.scene.default_environment_intensity
+                             : r.environment().intensity() > 0 ? r.environment().intensity() : 1.0;
+    environment->SetTransform(intensity, r.has_environment() ? r.environment().rotation_deg() : 0.0);
+    s.environment = std::move(environment);
+  }
+  in.error_target = r.error_target() > 0 ? r.error_target() : render::kDefaultErrorTarget;
+  in.force_full_fidelity = r.force_full_fidelity();
+  in.sampling = r.sampling() == v1::SAMPLING_ADAPTIVE  ? render::Sampling::kAdaptive
+                : r.sampling() == v1::SAMPLING_UNIFORM ? render::Sampling::kUniform
+                                                       : render::Sampling::kAuto;
+  in.btf_environment = r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED ? render::BtfEnvironmentChoice::kFolded
+                       : r.btf_environment() == v1::BTF_ENVIRONMENT_AUTO ? render::BtfEnvironmentChoice::kAuto
+                                                                          : render::BtfEnvironmentChoice::kSampled;
+  return in;
+}
+
+// One Render call in flight, on the host worker (server/api/stream_call.h): it loads what the renderer needs
+// (the environment map, the fiber geometry, the material), runs the renderer (server/render/renderer.h) there,
+// sends its chunks to the batcher as the renderer's QueryEvaluator (completions post back to the worker), and
+// streams progress and the encoded image. The call is finished only when no batcher job and no write is
+// outstanding.
+class RenderCall final : public WorkerStreamCall<v1::RenderUpdate>, public render::QueryEvaluator {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
              std::shared_ptr<const models::PreparedMaterial> material, FiberJobs fiber_jobs,
@@ -203,21 +259,47 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     });
   }
 
+  // render::QueryEvaluator: a chunk's plans as bulk batcher jobs, one per part; the outcome once all returned.
+  void Submit(std::vector<render::ShadingWork> work, std::function<void(const render::ShadingOutcome&)> done) override {
+    auto chunk = std::make_shared<ChunkJobs>();
+    chunk->done = std::move(done);
+    for (const render::ShadingWork& w : work) chunk->remaining += w.plan->parts();
+    if (chunk->remaining == 0) {  // nothing to evaluate (e.g. only background): done at once, in the worker's turn
+      Post([chunk] { chunk->done(chunk->outcome); });
+      return;
+    }
+    for (const render::ShadingWork& w : work) {
+      const models::EvaluationPlan* plan = w.plan;
+      SubmitPlan(deps_.batcher, *plan, w.sink, fp64_, batching::Priority::kBulk, deadline_, context_, client_,
+                 [this, chunk, plan](size_t k, batching::JobResult r) {
+                   Post([this, chunk, plan, k, r = std::move(r)] { OnJobDone(*chunk, *plan, k, r); });
+                 });
+    }
+  }
 
  private:
-  struct Chunk {
-    uint64_t first_pixel = 0, pixels = 0;     // pixels 0: nothing prepared
-    // Per pixel of the chunk (and one past the last): its first slot, one slot per pixel sample.
-    std::vector<uint32_t> slot_begin;
-    std::vector<render::QueryBucket> buckets;  // per evaluator; tag = slot
-    std::vector<Rgb> value;                    // per slot: the radiance needing no query, then the sample's all
-    std::vector<uint16_t> slot_queries;        // adaptive first pass: per slot, its queries (the sample's work)
-    std::vector<uint8_t> slot_folded;          // adaptive first pass: per slot, 1 for a hit shaded by the fold
-    std::vector<std::vector<double>> f;        // per evaluator: the kernel's results
-    std::vector<std::unique_ptr<models::EvaluationPlan>> plans;  // per evaluator: its kernel parts
-    size_t jobs_in_flight = 0;
-    uint64_t queries = 0;
+  // A chunk's jobs with the batcher.
+  struct ChunkJobs {
+    std::function<void(const render::ShadingOutcome&)> done;
+    size_t remaining = 0;
+    render::ShadingOutcome outcome;
   };
+
+  void OnJobDone(ChunkJobs& chunk, const models::EvaluationPlan& plan, size_t part, const batching::JobResult& result) {
+    if (result.status != batching::JobStatus::kOk) {
+      if (chunk.outcome.status.ok()) chunk.outcome.status = {result.status, result.message};
+    } else {
+      const size_t n = plan.size(part);
+      if (result.batch_queries > 0)
+        deps_.metrics->Evaluated(plan.model(part).name(), fp64_, n, result.batch_queries, result.batch_requests,
+                                 result.queue_seconds, result.kernel_seconds);
+      deps_.metrics->Rendered(n);
+      chunk.outcome.queries += n;
+      chunk.outcome.kernel_seconds += result.kernel_seconds;
+    }
+    if (--chunk.remaining == 0) return chunk.done(chunk.outcome);  // the renderer pumps
+    Pump();
+  }
 
   // On the asset loader: the request's map (by name or from its bytes) into environment_, within the call's
   // deadline, while the client is there, and within the memory budget.
@@ -254,483 +336,87 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     grpc::Status s = BuildFiberScene(fiber_job_.get(), stop, grow, &fibers_, &fiber_visibility_, deps_.fiber_scenes);
     if (s.ok() && full_fiber_job_)  // AUTO's thinning is checked against full detail (both kept in the cache)
       s = BuildFiberScene(full_fiber_job_.get(), stop, grow, &full_fibers_, &full_fiber_visibility_, deps_.fiber_scenes);
-    if (s.ok()) fiber_count_ = static_cast<uint64_t>(fibers_->stats().curves);
     return s;
   }
 
-  // Scene, camera, lights, environment and the fidelity choice; on failure status_ says why.
+  // The renderer, given the request's inputs, plans; its builds (a fold, material samplers) run on the asset
+  // loader (not on the host worker every streaming call shares), then it renders. On failure status_ says why.
   void SetUp() {
     const v1::RenderRequest& r = request_;
-    render::RenderSetup& s = setup_;
-    s.scene = render::MakeScene(ToSceneKind(r.scene()));
-    s.scene.fibers = fibers_;
-    s.scene.fiber_visibility = fiber_visibility_;
-    s.full_detail_fibers = full_fibers_;
-    s.full_detail_visibility = full_fiber_visibility_;
-    s.fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_SLICES ? yarn::ShadowMethod::kSlices : yarn::ShadowMethod::kTraced;
-    s.fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_TEXTURE    ? yarn::OcclusionMethod::kTexture
-                        : r.fiber_occlusion() == v1::FIBER_OCCLUSION_DISTANCE ? yarn::OcclusionMethod::kDistance
-                                                                              : yarn::OcclusionMethod::kTraced;
-    s.choose_fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_AUTO;
-    s.choose_fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_AUTO;
-    const render::CameraSpec camera = CameraOf(r, s.scene);
-    s.width = static_cast<int>(r.width());
-    s.height = static_cast<int>(r.height());
-    s.samples_per_pixel = SamplesPerPixel(r);
-    s.seed = r.seed();
-    s.camera = render::PinholeCamera(camera, s.width, s.height);
-    s.texture_scale = r.texture_scale() > 0 ? r.texture_scale() : s.scene.default_texture_scale;
-    s.texture_rotation_deg = r.texture_rotation_deg();
-    for (const v1::RenderLight& light : r.lights()) {
-      render::Light l;
-      l.rgb = ToVec(light.rgb());
-      if (light.type() == v1::RenderLight::TYPE_POINT) {
-        l.type = render::Light::Type::kPoint;
-        l.position = ToVec(light.position());
-      } else {
-        l.direction = render::Normalize(ToVec(light.direction()));
-      }
-      s.lights.push_back(l);
-    }
-    const bool default_lighting = r.lights().empty() && !r.has_environment();
-    if (default_lighting) s.lights = s.scene.default_lights;
-    s.ambient = r.ambient() > 0 ? r.ambient() : default_lighting ? s.scene.default_ambient : 0.0;
-    if ((default_lighting && s.scene.default_environment) || r.has_environment()) {
-      // A copy with its own transform; the decoded map itself is shared (a cached map is not copied).
-      auto environment = std::make_shared<render::Environment>(environment_ ? *environment_
-                                                                            : render::Environment::Builtin());
-      const double intensity = default_lighting ? s.scene.default_environment_intensity
-                               : r.environment().intensity() > 0 ? r.environment().intensity() : 1.0;
-      environment->SetTransform(intensity, r.has_environment() ? r.environment().rotation_deg() : 0.0);
-      s.environment = std::move(environment);
-    }
-
+    render::RenderInputs in = RenderInputsOf(r, std::move(environment_));
+    in.setup.scene.fibers = std::move(fibers_);
+    in.setup.scene.fiber_visibility = std::move(fiber_visibility_);
+    // Held only by the renderer from here: it lets go of the full-detail check's geometry once planned.
+    in.setup.full_detail_fibers = std::move(full_fibers_);
+    in.setup.full_detail_visibility = std::move(full_fiber_visibility_);
     if (!material_ && !(status_ = PrepareMaterial(deps_, r.material(), &material_)).ok()) return;
     if (fiber_job_) {
-      s.fiber_detail = fiber_detail_;
-      s.fiber_detail.reason += "; " + std::to_string(fiber_count_) + " fiber curves";
+      in.setup.fiber_detail = fiber_detail_;
+      in.setup.fiber_detail.reason +=
+          "; " + std::to_string(in.setup.scene.fibers->stats().curves) + " fiber curves";
     }
-    render::MaterialInfo info;
-    info.model = material_->model;
-    info.values = material_->values;
-    info.layered = material_->transmission != nullptr;
-    s.object_transmits.assign(s.scene.objects.size(), render::Transmits(info));
-    variants_ = std::make_unique<render::CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
-    error_target_ = r.error_target() > 0 ? r.error_target() : render::kDefaultErrorTarget;
-    if (std::string e = render::ChooseFidelity(s, info, *variants_, error_target_, r.force_full_fidelity(), &plan_,
-                                                int(kTraceThreads));
-        !e.empty()) {
-      status_ = {grpc::StatusCode::INTERNAL, e};
+    in.material = material_;
+    in.variants = std::make_unique<render::CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
+    in.materials = deps_.materials;
+    in.folds = deps_.folds;
+    renderer_ = std::make_unique<render::Renderer>(
+        std::move(in), this, [this] { return FromGrpc(StopStatus(context_, deadline_, stream_broken_)); },
+        [this] { Pump(); });
+    if (render::Status s = renderer_->Plan(); !s.ok()) {
+      status_ = ToGrpc(s);
       return;
     }
-    if (plan_.fiber_full_detail) {  // AUTO's thinning was over the target: the render is at full detail
-      s.scene.fibers = full_fibers_;
-      s.scene.fiber_visibility = full_fiber_visibility_;
-      fiber_count_ = static_cast<uint64_t>(full_fibers_->stats().curves);
-    }
-    // The check's full-detail geometry is held only by s.scene from here (when chosen): otherwise the render
-    // does not keep it alive, and the scene cache may let it go.
-    s.full_detail_fibers.reset();
-    s.full_detail_visibility.reset();
-    full_fibers_.reset();
-    full_fiber_visibility_.reset();
-    s.fiber_shadows = plan_.fiber_shadows;
-    s.fiber_occlusion = plan_.fiber_occlusion;
-    ChooseBtfEnvironment();
-    // Surfaces sample their material too (weighed against the environment's samples by MIS), unless their
-    // environment light is folded. A material's table is built on its first render, on the asset loader (not on
-    // the host worker every streaming call shares), and kept with it in the material cache; the fold, when
-    // requested or a candidate, is built and chosen there first.
-    if (!folding_) {
-      bool built = true;
-      for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
-        if (const models::PreparedMaterial* m = SampledMaterial(o, nullptr); m && !m->SamplerBuilt()) built = false;
-      if (built) return StartRendering();
-    }
+    if (!renderer_->NeedsBuild()) return Start();
     loading_ = true;
     deps_.loader->Post([this] {
-      std::shared_ptr<const render::FoldedEnvironment> folded;
-      std::vector<render::FidelityChoice> choices;
-      grpc::Status status = folding_ ? FoldEnvironment(&folded, &choices) : grpc::Status::OK;
-      for (size_t o = 0; o < plan_.objects.size() && status.ok() && setup_.environment; ++o)
-        if (const models::PreparedMaterial* m = SampledMaterial(o, folded.get()); m && !m->SamplerBuilt()) {
-          m->Sampler();
-          deps_.materials->ChargeSampler(*m);
-        }
-      Post([this, status, folded, choices] {
+      const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
+      const auto admit = [this](uint64_t bytes) { return admission_.bytes.Grow(size_t(bytes)); };
+      grpc::Status status = ToGrpc(renderer_->Build(stop, admit));
+      if (!status.ok())
+        if (grpc::Status stopped = StopStatus(context_, deadline_); !stopped.ok()) status = stopped;
+      Post([this, status] {
         loading_ = false;
         if (!status.ok()) {
           if (status_.ok()) status_ = status;
         } else {
-          setup_.folded_environment = folded;
-          for (size_t o = 0; o < choices.size() && o < plan_.fidelity.size(); ++o)
-            if (!choices[o].aspect.empty()) {
-              plan_.fidelity[o].choices.push_back(choices[o]);
-              plan_.fidelity[o].estimated_error += choices[o].estimated_error;
-            }
-          StartRendering();
+          Start();
         }
         Pump();
       });
     }, client_);
   }
 
-  // Whether the environment light of the `btf` objects may be folded (btf_environment FOLDED, or AUTO where the
-  // fold's estimated error is within the target: render::FoldEnvironment decides, once folded) or is sampled,
-  // in the fidelity report of every object whose material is a `btf` asset lit by an environment. FOLDED is
-  // validated: a `btf` material without a layer, environment lighting, not a fiber scene.
-  void ChooseBtfEnvironment() {
-    const v1::RenderRequest& r = request_;
-    if (!setup_.environment || !material_->model->folds_environment() || fiber_job_) return;
-    const bool asked = r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED || r.btf_environment() == v1::BTF_ENVIRONMENT_AUTO;
-    folding_ = asked && !r.force_full_fidelity() && !material_->transmission;
-    if (folding_) return;
-    const std::string reason = r.force_full_fidelity() ? "force_full_fidelity"
-                               : material_->transmission
-                                   ? "the material lets light through its layer: the fold is of reflected light only"
-                                   : "requested";
-    for (size_t o = 0; o < plan_.fidelity.size(); ++o)
-      if (!setup_.scene.objects[o].fibers)
-        plan_.fidelity[o].choices.push_back({"btf_environment", "sampled", "sampled", 0, reason});
-  }
-
-  // On the asset loader: each object's `btf` material (as its kernel path reads it: the chosen components, BTF
-  // or BRDF) folded with the environment, within the deadline, while the client is there, and within the
-  // memory budget.
-  grpc::Status FoldEnvironment(std::shared_ptr<const render::FoldedEnvironment>* out,
-                               std::vector<render::FidelityChoice>* choices) {
-    std::vector<render::FoldedEnvironment::Material> materials(plan_.objects.size());
-    for (size_t o = 0; o < plan_.objects.size(); ++o) {
-      const int e = plan_.objects[o].evaluator;
-      if (e < 0) continue;
-      const render::Evaluator& evaluator = plan_.evaluators[e];
-      materials[o] = {evaluator.material->packed.tables, evaluator.material->packed.uniform, evaluator.with_uv};
-    }
-    const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
-    const auto admit = [this](uint64_t bytes) { return admission_.bytes.Grow(size_t(bytes)); };
-    bool refused = false;
-    const std::string e = render::FoldEnvironment(setup_, materials, deps_.folds, error_target_,
-                                                  request_.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED,
-                                                  int(kTraceThreads), stop, admit, &refused, out, choices);
-    if (e.empty()) return grpc::Status::OK;
-    if (grpc::Status stopped = StopStatus(context_, deadline_); !stopped.ok()) return stopped;
-    if (refused) return {grpc::StatusCode::RESOURCE_EXHAUSTED, "btf_environment: " + e};
-    return {grpc::StatusCode::INTERNAL, "btf_environment: " + e};
-  }
-
-  // The material whose sampler object o's hits draw from (null: it samples lights only, as fibers do and as
-  // objects whose environment light is in `folded` do).
-  const models::PreparedMaterial* SampledMaterial(size_t o, const render::FoldedEnvironment* folded) const {
-    if (folded && folded->Covers(int(o))) return nullptr;
-    const int e = plan_.objects[o].evaluator;
-    return e >= 0 && !plan_.evaluators[e].fiber_axis ? plan_.evaluators[e].material : nullptr;
-  }
-
-  // Once every sampler is built: the chunk size and the first chunks.
-  void StartRendering() {
-    render::RenderSetup& s = setup_;
-    s.object_samplers.assign(s.scene.objects.size(), nullptr);
-    for (size_t o = 0; o < plan_.objects.size() && s.environment; ++o)
-      if (const models::PreparedMaterial* m = SampledMaterial(o, s.folded_environment.get()))
-        s.object_samplers[o] = &m->Sampler();
-    total_pixels_ = uint64_t(s.width) * s.height;
-    chunk_slots_ = std::max<uint64_t>(1, kRenderChunkQueries / std::max<size_t>(1, render::MaxQueriesPerSample(s)));
-    sums_.assign(total_pixels_, Rgb{});
-    const uint32_t spp = s.samples_per_pixel;
-    adaptive_ = request_.sampling() == v1::SAMPLING_ADAPTIVE ||
-                (request_.sampling() == v1::SAMPLING_AUTO && spp >= render::kAutoAdaptiveSamples);
-    first_pass_ = adaptive_ ? render::FirstPassSamples(spp) : spp;
-    samples_total_ = total_pixels_ * spp;
-    if (adaptive_) {
-      squares_.assign(total_pixels_, 0.0);
-      pixel_queries_.assign(total_pixels_, 0.0f);
-    }
+  void Start() {
     setup_seconds_ = SecondsSince(received_);
-    // The first chunk goes to the device before the second is traced, so the two overlap from the start.
-    Prepare(chunks_[next_chunk_]);
-    MaybeSubmit();
-    Prepare(chunks_[1 - next_chunk_]);
+    renderer_->Start();
   }
 
-  // The one step of the state machine (as Tabulate's): notice a stop, keep one chunk in flight, keep one
-  // write in flight while there is news, finish when nothing is outstanding.
+  // The one step of the state machine (as Tabulate's): notice a stop, keep one write in flight while there is
+  // news, encode the image once rendered, finish when nothing is outstanding.
   void Pump() override {
     if (finished_ || loading_) return;  // a load in flight still refers to this call
     NoticeStop();
-    MaybeSubmit();  // does nothing once stopping
+    if (status_.ok() && renderer_ && !renderer_->status().ok()) status_ = ToGrpc(renderer_->status());
+    if (status_.ok() && renderer_ && renderer_->done() && !complete_) Encode();
     if (!status_.ok()) {
-      if (!JobsInFlight() && !write_in_flight_) FinishCall(status_);
+      if (!(renderer_ && renderer_->InFlight()) && !write_in_flight_) FinishCall(status_);
       return;
     }
-    if (write_in_flight_) return;
+    if (write_in_flight_ || !renderer_) return;
     if (complete_ && !final_sent_) return WriteUpdate(true);
     if (final_sent_) return FinishCall(grpc::Status::OK);
-    if (!sent_first_ || samples_done_ > samples_sent_) WriteUpdate(false);
-  }
-
-  bool JobsInFlight() const { return chunks_[0].jobs_in_flight + chunks_[1].jobs_in_flight > 0; }
-
-  // The samples of `pixel` this pass traces: [begin, end).
-  std::pair<uint32_t, uint32_t> PassSamples(uint64_t pixel) const {
-    return pass_ == 0 ? std::pair{0u, first_pass_} : std::pair{first_pass_, counts_[pixel]};
-  }
-
-  // Traces the next pixels of the pass (at most chunk_slots_ samples, or one pixel) into a free chunk buffer
-  // (none left: pixels = 0).
-  void Prepare(Chunk& chunk) {
-    chunk.first_pixel = next_pixel_;
-    chunk.slot_begin.assign(1, 0);
-    uint64_t slots = 0;
-    for (; next_pixel_ < total_pixels_; ++next_pixel_) {
-      const auto [begin, end] = PassSamples(next_pixel_);
-      if (chunk.slot_begin.size() > 1 && slots + (end - begin) > chunk_slots_) break;
-      slots += end - begin;
-      chunk.slot_begin.push_back(static_cast<uint32_t>(slots));
-    }
-    chunk.pixels = next_pixel_ - chunk.first_pixel;
-    chunk.buckets.resize(plan_.evaluators.size());
-    for (render::QueryBucket& b : chunk.buckets) b.Clear();
-    chunk.value.assign(slots, Rgb{});
-    chunk.slot_folded.assign(adaptive_ && pass_ == 0 ? slots : 0, 0);
-    chunk.queries = 0;
-    // Chunks are traced on kTraceThreads threads (casting rays and sampling lights and materials is the host's
-    // share of a render), each taking the next block of kTraceBlockPixels pixels into its own buckets, appended
-    // in thread order. Blocks are handed out as threads come for them, not fixed per thread: beside the device's
-    // threads the two trace threads do not get equal CPU, and with every other block fixed to each, one thread
-    // waited 10-27 ms per chunk for the other (a fifth of the satin cylinders' render with a core idle). Which
-    // thread traces a block changes only where its queries sit in the batch; each sample's queries stay
-    // together and in order, every query is evaluated alone, and a sample's value goes to its own slot, so the
-    // image does not depend on the threads' timing.
-    const uint64_t threads = std::clamp<uint64_t>(chunk.pixels, 1, kTraceThreads);
-    // The other threads' buckets are kept from chunk to chunk, and through a chunk of one pixel or none (a
-    // pass's end): filled afresh each time, they page-faulted their memory in again, which made the second
-    // thread 15-25% slower than the first.
-    trace_parts_.resize(std::max<size_t>(trace_parts_.size(), threads - 1));
-    for (std::vector<render::QueryBucket>& part : trace_parts_) {
-      part.resize(plan_.evaluators.size());
-      for (render::QueryBucket& b : part) b.Clear();
-    }
-    std::atomic<uint64_t> next_block{0};
-    std::vector<std::thread> workers;
-    for (uint64_t t = 1; t < threads; ++t)
-      workers.emplace_back([this, &chunk, &next_block, t] { TraceBlocks(chunk, &next_block, &trace_parts_[t - 1]); });
-    TraceBlocks(chunk, &next_block, &chunk.buckets);
-    for (std::thread& w : workers) w.join();
-    for (const std::vector<render::QueryBucket>& part : trace_parts_)
-      for (size_t e = 0; e < part.size(); ++e) chunk.buckets[e].Append(part[e]);
-    for (const render::QueryBucket& b : chunk.buckets) chunk.queries += b.size();
-  }
-
-  // Traces the chunk's pixel blocks (of kTraceBlockPixels) this thread takes from *next_block: their queries
-  // into `buckets`, what needs none into chunk.value. Hits on objects with a folded environment get its radiance
-  // too, evaluated on the host for all the thread's blocks at once.
-  void TraceBlocks(Chunk& chunk, std::atomic<uint64_t>* next_block, std::vector<render::QueryBucket>* buckets) const {
-    std::array<render::ShadingPoint, render::Scene::kMaxPacket> points;
-    std::array<render::PixelSample, render::Scene::kMaxPacket> batch;
-    std::array<uint32_t, render::Scene::kMaxPacket> batch_slot;
-    size_t queued = 0;
-    std::vector<render::FoldedEnvironment::Query> folded;
-    std::vector<uint32_t> folded_slot;
-    // Samples are traced a packet at a time, in pixel order (a pixel's queries stay in sample order).
-    const auto flush = [&] {
-      render::TracePixelSamples(setup_, {batch.data(), queued}, points.data());
-      for (size_t k = 0; k < queued; ++k) {
-        const render::ShadingPoint& point = points[k];
-        const uint32_t slot = batch_slot[k];
-        if (point.object < 0) {
-          chunk.value[slot] = point.background;
-          continue;
-        }
-        chunk.value[slot] = render::AppendQueries(point, plan_.objects[point.object], plan_.evaluators, slot, buckets);
-        if (point.environment_folded) {
-          folded.push_back(setup_.folded_environment->QueryOf(point));
-          folded_slot.push_back(slot);
-          if (!chunk.slot_folded.empty()) chunk.slot_folded[slot] = 1;
-        }
-      }
-      queued = 0;
-    };
-    for (uint64_t block = next_block->fetch_add(1, std::memory_order_relaxed); block * kTraceBlockPixels < chunk.pixels;
-         block = next_block->fetch_add(1, std::memory_order_relaxed)) {
-      const uint64_t end = std::min<uint64_t>((block + 1) * kTraceBlockPixels, chunk.pixels);
-      for (uint64_t p = block * kTraceBlockPixels; p < end; ++p) {
-        const uint64_t pixel = chunk.first_pixel + p;
-        uint32_t slot = chunk.slot_begin[p];
-        const auto [first_sample, last_sample] = PassSamples(pixel);
-        for (uint32_t s = first_sample; s < last_sample; ++s, ++slot) {
-          batch[queued] = {pixel, s};
-          batch_slot[queued] = slot;
-          if (++queued == batch.size()) flush();
-        }
-      }
-      flush();  // a packet holds one block's samples, whichever thread traces it
-    }
-    if (folded.empty()) return;
-    std::vector<Rgb> radiance;
-    setup_.folded_environment->Radiance(folded, &radiance);
-    for (size_t q = 0; q < folded.size(); ++q) chunk.value[folded_slot[q]] = chunk.value[folded_slot[q]] + radiance[q];
-  }
-
-  // Sends the next chunk's jobs when none is in flight.
-  void MaybeSubmit() {
-    Chunk& chunk = chunks_[next_chunk_];
-    if (!status_.ok() || JobsInFlight() || chunk.pixels == 0 || submitted_[next_chunk_]) return;
-    submitted_[next_chunk_] = true;
-    const int index = next_chunk_;
-    chunk.f.assign(plan_.evaluators.size(), {});
-    chunk.plans.clear();
-    chunk.plans.resize(plan_.evaluators.size());
-    for (size_t e = 0; e < plan_.evaluators.size(); ++e) {
-      const render::QueryBucket& b = chunk.buckets[e];
-      if (b.size() == 0) continue;
-      const render::Evaluator& evaluator = plan_.evaluators[e];
-      chunk.f[e].resize(3 * b.size());
-      chunk.plans[e] = render::PlanOf(evaluator, b);
-      chunk.jobs_in_flight += chunk.plans[e]->parts();
-    }
-    if (chunk.jobs_in_flight == 0) {  // nothing to evaluate (e.g. only background): the chunk is done at once
-      Post([this, index] { OnChunkDone(index); });
-      chunk.jobs_in_flight = 1;  // held until OnChunkDone, so the call does not finish under it
-      return;
-    }
-    for (size_t e = 0; e < plan_.evaluators.size(); ++e) {
-      if (!chunk.plans[e]) continue;
-      SubmitPlan(deps_.batcher, *chunk.plans[e], runtime::ResultSink{.f64 = chunk.f[e].data()}, fp64_,
-                 batching::Priority::kBulk, deadline_, context_, client_, [this, index, e](size_t k, batching::JobResult r) {
-                   Post([this, index, e, k, r = std::move(r)] { OnJobDone(index, e, k, r); });
-                 });
-    }
-  }
-
-  void OnJobDone(int index, size_t evaluator, size_t part, const batching::JobResult& result) {
-    Chunk& chunk = chunks_[index];
-    if (result.status != batching::JobStatus::kOk) {
-      if (status_.ok()) status_ = ToStatus(result);
-    } else {
-      const models::EvaluationPlan& plan = *chunk.plans[evaluator];
-      const size_t n = plan.size(part);
-      if (result.batch_queries > 0)
-        deps_.metrics->Evaluated(plan.model(part).name(), fp64_, n, result.batch_queries, result.batch_requests,
-                                 result.queue_seconds, result.kernel_seconds);
-      deps_.metrics->Rendered(n);
-      queries_ += n;
-      kernel_seconds_ += result.kernel_seconds;
-    }
-    if (--chunk.jobs_in_flight == 0) return OnChunkDone(index);
-    Pump();
-  }
-
-  // The next chunk goes to the device first; this one is then accumulated and its buffer refilled.
-  void OnChunkDone(int index) {
-    Chunk& chunk = chunks_[index];
-    chunk.jobs_in_flight = 0;
-    submitted_[index] = false;
-    next_chunk_ = 1 - index;
-    NoticeStop();
-    if (status_.ok()) {
-      MaybeSubmit();
-      Accumulate(chunk);
-      if (pass_pixels_done_ == total_pixels_ && pass_ == 0 && adaptive_) {
-        // Both buffers are free: the other holds nothing (the pass is done), and this one was just accumulated.
-        AllocateSamples();
-        Prepare(chunks_[next_chunk_]);
-        MaybeSubmit();  // on the device while this buffer is traced
-        Prepare(chunk);
-      } else {
-        Prepare(chunk);
-      }
-      if (pass_pixels_done_ == total_pixels_) Encode();
-    }
-    Pump();
-  }
-
-  // After an adaptive render's first pass: each pixel's samples (render::AllocateSamples), from the spread of
-  // its first samples and their work (queries, folded hits); then the second pass begins.
-  void AllocateSamples() {
-    render::PixelNoise noise;
-    noise.variance.resize(total_pixels_);
-    noise.cost.resize(total_pixels_);
-    const double n = first_pass_;
-    for (uint64_t p = 0; p < total_pixels_; ++p) {
-      const Rgb& sum = sums_[p];
-      // The unbiased sample variance, summed over the channels: (sum x^2 - (sum x)^2 / n) / (n - 1).
-      noise.variance[p] = std::max(0.0, squares_[p] - (sum.x * sum.x + sum.y * sum.y + sum.z * sum.z) / n) / (n - 1);
-      noise.cost[p] = render::kSampleCostWithoutQueries + pixel_queries_[p] / n;
-    }
-    counts_ = render::AllocateSamples(setup_.width, setup_.height, noise, first_pass_, setup_.samples_per_pixel,
-                                      MostSamples());
-    samples_total_ = 0;
-    for (uint32_t c : counts_) samples_total_ += c;
-    squares_ = {};
-    pixel_queries_ = {};
-    pass_ = 1;
-    next_pixel_ = 0;
-    pass_pixels_done_ = 0;
-  }
-
-  // The most samples an adaptive render gives one pixel.
-  uint32_t MostSamples() const {
-    return static_cast<uint32_t>(std::min<uint64_t>(8 * uint64_t{setup_.samples_per_pixel}, chunk_slots_));
-  }
-
-  uint32_t PixelSamples(uint64_t pixel) const { return pass_ == 1 ? counts_[pixel] : setup_.samples_per_pixel; }
-
-  // Each sample's radiance (its queries' weight x f added to what needed none), then each pixel's sum; the first
-  // pass of an adaptive render also keeps each pixel's sum of squares and its queries.
-  void Accumulate(Chunk& chunk) {
-    const bool measure = adaptive_ && pass_ == 0;
-    if (measure) chunk.slot_queries.assign(chunk.value.size(), 0);
-    for (size_t e = 0; e < chunk.buckets.size(); ++e) {
-      const render::QueryBucket& b = chunk.buckets[e];
-      const std::vector<double>& f = chunk.f[e];
-      for (size_t q = 0; q < b.size(); ++q) {
-        Rgb& sample = chunk.value[b.tag[q]];
-        for (int c = 0; c < 3; ++c) {
-          const double value = double(b.weight[3 * q + c]) * f[3 * q + c];
-          if (std::isfinite(value)) (c == 0 ? sample.x : c == 1 ? sample.y : sample.z) += value;
-        }
-        if (measure) ++chunk.slot_queries[b.tag[q]];
-      }
-    }
-    for (uint64_t p = 0; p < chunk.pixels; ++p) {
-      const uint64_t pixel = chunk.first_pixel + p;
-      Rgb& sum = sums_[pixel];
-      for (uint32_t slot = chunk.slot_begin[p]; slot < chunk.slot_begin[p + 1]; ++slot) {
-        const Rgb& v = chunk.value[slot];
-        sum = sum + v;
-        if (!measure) continue;
-        squares_[pixel] += v.x * v.x + v.y * v.y + v.z * v.z;
-        pixel_queries_[pixel] += chunk.slot_queries[slot] + (chunk.slot_folded[slot] ? render::kFoldedSampleCost : 0.0);
-      }
-    }
-    samples_done_ += chunk.value.size();
-    pass_pixels_done_ += chunk.pixels;
+    if (!sent_first_ || renderer_->samples_done() > samples_sent_) WriteUpdate(false);
   }
 
   void Encode() {
-    imaging::LinearRgbImage image;
-    image.width = setup_.width;
-    image.height = setup_.height;
-    image.rgb.resize(3 * total_pixels_);
-    double mean[3] = {0, 0, 0};
-    for (uint64_t p = 0; p < total_pixels_; ++p)
-      for (int c = 0; c < 3; ++c) {
-        double v = sums_[p][c] / PixelSamples(p);
-        if (!std::isfinite(v) || v < 0) v = 0;  // never NaN or Inf in an image
-        image.rgb[3 * p + c] = static_cast<float>(v);
-        mean[c] += v / total_pixels_;
-      }
+    const render::RenderedImage& rendered = renderer_->images().front();
+    const imaging::ImageFormat format = request_.format() == v1::RENDER_FORMAT_EXR    ? imaging::ImageFormat::kExr
+                                        : request_.format() == v1::RENDER_FORMAT_JPEG ? imaging::ImageFormat::kJpeg
+                                                                                      : imaging::ImageFormat::kPng;
     double exposure = 1;
-    std::string bytes, error;
-    if (request_.format() == v1::RENDER_FORMAT_EXR) {
-      error = imaging::EncodeImage(image, imaging::ImageFormat::kExr, 1.0, &bytes);
-    } else {
-      exposure = request_.exposure() > 0 ? request_.exposure() : render::AutomaticExposure(image);
-      const imaging::ImageFormat format =
-          request_.format() == v1::RENDER_FORMAT_JPEG ? imaging::ImageFormat::kJpeg : imaging::ImageFormat::kPng;
-      error = imaging::EncodeImage(render::ToneMap(image, exposure), format, 1.0, &bytes);
-    }
-    if (!error.empty()) {
+    std::string bytes;
+    if (std::string error = render::EncodeRendered(rendered.image, format, request_.exposure(), &bytes, &exposure);
+        !error.empty()) {
       status_ = {grpc::StatusCode::INTERNAL, "cannot encode the image: " + error};
       return;
     }
@@ -739,13 +425,16 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     final_.set_width(request_.width());
     final_.set_height(request_.height());
     final_.set_exposure(exposure);
-    for (double m : mean) final_.add_mean(m);
+    for (double m : rendered.mean) final_.add_mean(m);
+    final_.set_adaptive_sampling(rendered.adaptive);
+    final_.set_min_samples_per_pixel(rendered.min_samples_per_pixel);
+    final_.set_max_samples_per_pixel(rendered.max_samples_per_pixel);
     complete_ = true;
   }
 
   void AddFidelity(v1::RenderUpdate* update) const {
-    update->set_error_target(error_target_);
-    for (const render::ObjectFidelity& of : plan_.fidelity) {
+    update->set_error_target(renderer_->error_target());
+    for (const render::ObjectFidelity& of : renderer_->fidelity()) {
       v1::ObjectFidelity* out = update->add_fidelity();
       out->set_object(of.object);
       out->set_model(of.model);
@@ -772,22 +461,13 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     }
     if (last || !sent_first_) AddFidelity(&update_);
     sent_first_ = true;
-    update_.set_samples_done(samples_done_);
-    update_.set_samples_total(samples_total_);
-    samples_sent_ = samples_done_;
+    update_.set_samples_done(renderer_->samples_done());
+    update_.set_samples_total(renderer_->samples_total());
+    samples_sent_ = renderer_->samples_done();
     if (last) {
-      update_.set_adaptive_sampling(adaptive_);
-      uint32_t fewest = setup_.samples_per_pixel, most = fewest;
-      if (adaptive_) {
-        const auto range = std::minmax_element(counts_.begin(), counts_.end());
-        fewest = *range.first;
-        most = *range.second;
-      }
-      update_.set_min_samples_per_pixel(fewest);
-      update_.set_max_samples_per_pixel(most);
-      update_.set_queries(queries_);
+      update_.set_queries(renderer_->queries());
       update_.set_setup_seconds(setup_seconds_);
-      update_.set_kernel_seconds(kernel_seconds_);
+      update_.set_kernel_seconds(renderer_->kernel_seconds());
       update_.set_total_seconds(SecondsSince(received_));
     }
     write_in_flight_ = true;
@@ -799,38 +479,16 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   const bool fp64_;
   std::unique_ptr<YarnJob> fiber_job_;  // fiber scenes: the yarn to generate (null otherwise)
   std::unique_ptr<YarnJob> full_fiber_job_;  // AUTO's thinning: the same yarn at full detail, to check it against
-  std::shared_ptr<const yarn::FiberScene> full_fibers_;
-  std::shared_ptr<const yarn::YarnVisibility> full_fiber_visibility_;
   render::RenderSetup::FiberDetail fiber_detail_;
-  std::shared_ptr<const yarn::FiberScene> fibers_;
-  std::shared_ptr<const yarn::YarnVisibility> fiber_visibility_;
-  uint64_t fiber_count_ = 0;
-  bool loading_ = false;  // the asset loader is reading the environment map
-  bool folding_ = false;  // the `btf` objects' environment light is folded or a candidate (ChooseBtfEnvironment)
+  // Loaded for the renderer, and handed to it by SetUp.
+  std::shared_ptr<const yarn::FiberScene> fibers_, full_fibers_;
+  std::shared_ptr<const yarn::YarnVisibility> fiber_visibility_, full_fiber_visibility_;
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
+  bool loading_ = false;  // the asset loader or geometry worker is loading or building for this call
 
-  render::RenderSetup setup_;
-  std::unique_ptr<render::CachedVariants> variants_;  // owns the packed variants the plan points at
-  render::FidelityPlan plan_;
-  double error_target_ = render::kDefaultErrorTarget;
-  Chunk chunks_[2];
-  bool submitted_[2] = {false, false};
-  int next_chunk_ = 0;  // the chunk to submit next (chunks alternate)
-  uint64_t total_pixels_ = 0, chunk_slots_ = 1, next_pixel_ = 0, pass_pixels_done_ = 0;
-  uint64_t samples_done_ = 0, samples_sent_ = 0, samples_total_ = 0;
-  std::vector<Rgb> sums_;  // per pixel: the sum over its samples
-  // Prepare: the queries of trace threads 1.. (per evaluator), before they join the chunk's buckets.
-  std::vector<std::vector<render::QueryBucket>> trace_parts_;
-  // Sampling: pass 0 gives every pixel first_pass_ samples (all of samples_per_pixel when uniform); an adaptive
-  // render's pass 1 then gives pixel p its samples up to counts_[p].
-  bool adaptive_ = false;
-  uint32_t first_pass_ = 0;
-  int pass_ = 0;
-  std::vector<uint32_t> counts_;
-  std::vector<double> squares_;      // adaptive, pass 0: per pixel, its samples' squared radiance summed over channels
-  std::vector<float> pixel_queries_;  // adaptive, pass 0: per pixel, its samples' queries
-  uint64_t queries_ = 0;
-  double setup_seconds_ = 0, kernel_seconds_ = 0;
+  std::unique_ptr<render::Renderer> renderer_;  // set by SetUp
+  uint64_t samples_sent_ = 0;
+  double setup_seconds_ = 0;
   v1::RenderUpdate update_;  // the write in flight
   v1::RenderUpdate final_;   // the image and its summary, once encoded
   bool sent_first_ = false, complete_ = false, final_sent_ = false;
@@ -846,13 +504,12 @@ size_t RenderBytes(const v1::RenderRequest& r) {
   // of the chunk's bound: radiance, queries and first slot, 30); the second trace thread's queries before they
   // join a chunk's (60); the plan of the chunk on the device (fibers' turned wi and wo; a curtain's parts with
   // their uv and index, and three transmittances or scales while it is built: at most 64); the request's map
-  // bytes. A fiber scene's yarn
-  // and BVH are admitted when generated (RenderCall::BuildFibers).
+  // bytes. A fiber scene's yarn and BVH are admitted when generated (RenderCall::BuildFibers).
   size_t fibers = 0;
   if (IsFiberScene(r.scene()))  // the generated curves, held while the BVH is built
     fibers = kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber;
-  return pixels * 108 + 2 * kRenderChunkQueries * 138 + kRenderChunkQueries * (60 + 64) + r.environment().data().size() +
-         fibers;
+  return pixels * 108 + 2 * render::kRenderChunkQueries * 138 + render::kRenderChunkQueries * (60 + 64) +
+         r.environment().data().size() + fibers;
 }
 
 std::string ValidateRenderRequest(const v1::RenderRequest& r) {
@@ -916,7 +573,7 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   if (r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED) {
     if (IsFiberScene(r.scene())) return "btf_environment: FOLDED is for `btf` materials, not the fiber scenes";
     const bool default_sky = r.lights().empty() && !r.has_environment() &&
-                             render::MakeScene(ToSceneKind(r.scene())).default_environment;
+                             SceneOf(r).default_environment;
     if (!r.has_environment() && !default_sky)
       return "btf_environment: FOLDED folds the environment map, and this request's lighting has none";
   }

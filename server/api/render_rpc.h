@@ -1,8 +1,8 @@
-// The Render RPC: a thumbnail of a material on a preset scene. The renderer is a client of the evaluator:
-// pixel samples become shading queries (server/render/) that go through the batcher as Evaluate-style
-// jobs, at most kRenderChunkQueries per chunk and one chunk in flight per call, so concurrent clients' work
-// interleaves with a render. Scene set-up, the fidelity choice, query generation, accumulation and
-// encoding run on the service's HostWorker, never on the batcher's thread or a gRPC callback thread.
+// The Render RPC: a thumbnail of a material on a preset scene. This layer validates the request, admits it,
+// translates it into the renderer's inputs (server/render/renderer.h: scene, camera, lights, material, fidelity
+// options), sends the renderer's chunks of shading queries through the batcher as Evaluate-style jobs and
+// streams progress and the encoded image. The renderer and encoding run on the service's HostWorker, never on
+// the batcher's thread or a gRPC callback thread.
 #pragma once
 
 #include <cstdint>
@@ -29,18 +29,10 @@ constexpr double kMaxSceneCoordinate = 1e4;                    // |x|, |y|, |z| 
 constexpr double kMaxLightValue = 1e9;                         // per RGB channel
 constexpr double kMaxTextureScale = 1e5;                       // pattern repeats per unit
 constexpr double kMinFovDeg = 1, kMaxFovDeg = 150;
-// Queries per chunk (whole pixels): a quarter of one Evaluate call, so that a render takes turns with
-// other clients' launches often and its host work (ray casting, accumulation) overlaps the kernels.
-constexpr size_t kRenderChunkQueries = kMaxQueriesPerCall / 4;
 // Fiber scenes: the most fiber curves and control points one render generates (about 16 times a 2 x 2 repeat
 // twill patch of cotton1 at full detail); their BVH is bounded by the memory budget as it is built.
 constexpr uint64_t kMaxRenderFibers = 100'000;
 constexpr uint64_t kMaxRenderFiberPoints = 2'000'000;
-// Threads a chunk is traced on (ray casting, light and material sampling: the host's share of a render).
-constexpr uint64_t kTraceThreads = 2;
-// Pixels per block the trace threads take turns over: small enough that sky and cloth fall to both, large
-// enough that neighbouring samples make coherent ray packets.
-constexpr uint64_t kTraceBlockPixels = 16;
 
 using RenderDeps = ServiceDeps;
 

@@ -12,7 +12,8 @@ Conventions (docs/contributing.md, "Docs"):
   deploy/environments/sunset.exr resolve, and outputs land in the temporary directory.
 - One server serves every file (README.md first, then docs/ in name order), started on a free port with its
   own temporary data directory and the shipped environment maps; LOOMLIGHT_SERVER names it to the client.
-- An image a doc shows, `![... (WxH)](path.png)`, must be a committed PNG that decodes to W x H pixels.
+- An image a doc shows, `![... (WxH)](path.png)`, must be a committed PNG that decodes to W x H pixels, and a
+  command of the same doc must write a PNG of that file name and size (the picture's own command).
 - A command written as an indented code block (four spaces then build/, ./scripts/ or loomlight) fails the test:
   it would escape the run.
 
@@ -169,13 +170,14 @@ def main():
     docs_dir = os.path.join(root, "docs")
     files = ["README.md"] + sorted(os.path.join("docs", name) for name in os.listdir(docs_dir)
                                    if name.endswith(".md"))
-    problems, blocks = [], []
+    problems, blocks, pictures = [], [], []  # pictures: (doc, file name, width, height)
     for name in files:
         with open(os.path.join(root, name), encoding="utf-8") as f:
             text = f.read()
         blocks += parse(name, text, problems)
         for match in IMAGE.finditer(text):
             width, height, image = int(match.group(1)), int(match.group(2)), match.group(3)
+            pictures.append((name, os.path.basename(image), width, height))
             image_path = os.path.normpath(os.path.join(root, os.path.dirname(name), image))
             try:
                 size = png_size(image_path)
@@ -229,6 +231,18 @@ def main():
                 else:
                     print(f"FAIL {where} (exit {status}): {command}\n{output[-2000:]}", flush=True)
                     failures.append(f"{where}: {command} (exit {status})")
+        # Each picture's command ran: its output has the committed picture's size.
+        for doc, image, width, height in pictures:
+            if args.only and doc not in args.only:
+                continue
+            made = os.path.join(work, doc.replace("/", "_"), image)
+            try:
+                size = png_size(made)
+                if size != (width, height):
+                    failures.append(f"{doc}: the command writing {image} made {size[0]}x{size[1]}, the doc shows "
+                                    f"{width}x{height}")
+            except (OSError, ValueError, KeyError, zlib.error) as error:
+                failures.append(f"{doc}: no command of the doc wrote {image} as a PNG ({error})")
     finally:
         os.killpg(process.pid, signal.SIGTERM)
         try:

@@ -11,6 +11,7 @@
 #include "server/models/material.h"
 #include "server/render/adaptive_sampling.h"
 #include "server/render/renderer.h"
+#include "server/render/scene_registry.h"
 #include "server/api/yarn_rpc.h"
 #include "server/yarn/fiber_scene.h"
 #include "server/yarn/visibility.h"
@@ -74,21 +75,21 @@ uint32_t SamplesPerPixel(const v1::RenderRequest& r) {
   return r.samples_per_pixel() > 0 ? r.samples_per_pixel() : kDefaultRenderSamplesPerPixel;
 }
 
-render::SceneKind ToSceneKind(v1::ScenePreset scene) {
-  switch (scene) {
-    case v1::SCENE_CYLINDERS: return render::SceneKind::kCylinders;
-    case v1::SCENE_SWATCH: return render::SceneKind::kSwatch;
-    case v1::SCENE_CURTAIN: return render::SceneKind::kCurtain;
-    case v1::SCENE_YARN: return render::SceneKind::kYarn;
-    case v1::SCENE_WOVEN_PATCH: return render::SceneKind::kWovenPatch;
-    default: return render::SceneKind::kSphere;
-  }
+// The registered scene a validated request names (scene_name, else scene) at its scene_params.
+render::ResolvedScene ResolvedSceneOf(const v1::RenderRequest& r) {
+  render::ResolvedScene scene;
+  render::ResolveScene(r, render::SceneRegistry::Global(), &scene);
+  return scene;
 }
 
-bool IsFiberScene(v1::ScenePreset scene) { return scene == v1::SCENE_YARN || scene == v1::SCENE_WOVEN_PATCH; }
+// What the request's scene needs (nothing for a scene the registry does not know: validation refuses it).
+render::SceneNeeds NeedsOf(const v1::RenderRequest& r) {
+  const render::ResolvedScene scene = ResolvedSceneOf(r);
+  return scene.spec ? scene.spec->needs : render::SceneNeeds{};
+}
 
 // The request's scene (a fiber scene's fibers are generated and built separately).
-render::Scene SceneOf(const v1::RenderRequest& r) { return render::MakeScene(ToSceneKind(r.scene())); }
+render::Scene SceneOf(const v1::RenderRequest& r) { return ResolvedSceneOf(r).Build(); }
 
 // The camera a request asks for, or its scene's.
 render::CameraSpec CameraOf(const v1::RenderRequest& r, const render::Scene& scene) {
@@ -106,14 +107,15 @@ render::CameraSpec CameraOf(const v1::RenderRequest& r, const render::Scene& sce
 // at the detail it asks for. Validation only (cheap); `detail` is filled in by ChooseFiberDetail.
 std::string FiberJobOf(const models::Registry& registry, const v1::RenderRequest& r, YarnJob* job) {
   v1::WovenYarnLayout woven = r.woven();
-  if (r.scene() == v1::SCENE_WOVEN_PATCH) {
+  const bool woven_layout = NeedsOf(r).woven;
+  if (woven_layout) {
     if (!woven.has_weave()) woven.mutable_weave()->set_preset("cotton_twill");
     if (woven.repeats_u() == 0) woven.set_repeats_u(2);
     if (woven.repeats_v() == 0) woven.set_repeats_v(2);
   }
   job->limits.max_fibers = static_cast<int64_t>(kMaxRenderFibers);
   job->limits.max_control_points = static_cast<int64_t>(kMaxRenderFiberPoints);
-  return YarnJobOf(registry, r.yarn(), r.scene() == v1::SCENE_WOVEN_PATCH ? &woven : nullptr, 0, job);
+  return YarnJobOf(registry, r.yarn(), woven_layout ? &woven : nullptr, 0, job);
 }
 
 // Eq. 4's level of detail for a fiber scene: from the pixel footprint at the camera's look-at point (AUTO, LOD),
@@ -506,14 +508,16 @@ size_t RenderBytes(const v1::RenderRequest& r) {
   // their uv and index, and three transmittances or scales while it is built: at most 64); the request's map
   // bytes. A fiber scene's yarn and BVH are admitted when generated (RenderCall::BuildFibers).
   size_t fibers = 0;
-  if (IsFiberScene(r.scene()))  // the generated curves, held while the BVH is built
+  if (NeedsOf(r).fibers)  // the generated curves, held while the BVH is built
     fibers = kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber;
   return pixels * 108 + 2 * render::kRenderChunkQueries * 138 + render::kRenderChunkQueries * (60 + 64) +
          r.environment().data().size() + fibers;
 }
 
 std::string ValidateRenderRequest(const v1::RenderRequest& r) {
-  if (!v1::ScenePreset_IsValid(r.scene())) return "scene: unknown value " + std::to_string(r.scene());
+  render::ResolvedScene scene;
+  if (std::string e = render::ResolveScene(r, render::SceneRegistry::Global(), &scene); !e.empty()) return e;
+  const render::SceneNeeds& needs = scene.spec->needs;
   if (!std::isfinite(r.texture_scale()) || r.texture_scale() < 0 || r.texture_scale() > kMaxTextureScale)
     return "texture_scale: " + std::to_string(r.texture_scale()) + " is outside 0.." + std::to_string(int(kMaxTextureScale)) +
            " pattern repeats per unit (0 = the scene's default)";
@@ -571,21 +575,21 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   if (!v1::BtfEnvironment_IsValid(r.btf_environment()))
     return "btf_environment: unknown value " + std::to_string(r.btf_environment());
   if (r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED) {
-    if (IsFiberScene(r.scene())) return "btf_environment: FOLDED is for `btf` materials, not the fiber scenes";
-    const bool default_sky = r.lights().empty() && !r.has_environment() &&
-                             SceneOf(r).default_environment;
+    if (needs.fibers) return "btf_environment: FOLDED is for `btf` materials, not the fiber scenes";
+    const bool default_sky = r.lights().empty() && !r.has_environment() && scene.Build().default_environment;
     if (!r.has_environment() && !default_sky)
       return "btf_environment: FOLDED folds the environment map, and this request's lighting has none";
   }
   if (!std::isfinite(r.ambient()) || r.ambient() < 0 || r.ambient() > kMaxLightValue)
     return "ambient: " + std::to_string(r.ambient()) + " must be finite in 0.." + std::to_string(kMaxLightValue);
-  if (!IsFiberScene(r.scene())) {
-    if (r.has_yarn()) return "yarn: only for the fiber scenes (SCENE_YARN, SCENE_WOVEN_PATCH)";
+  if (!needs.fibers) {
+    if (r.has_yarn()) return "yarn: only for the fiber scenes (ListScenes: fibers), not '" + scene.spec->name + "'";
     if (r.fiber_detail() != v1::FIBER_DETAIL_AUTO) return "fiber_detail: only for the fiber scenes";
     if (r.fiber_shadows() != v1::FIBER_SHADOWS_AUTO) return "fiber_shadows: only for the fiber scenes";
     if (r.fiber_occlusion() != v1::FIBER_OCCLUSION_AUTO) return "fiber_occlusion: only for the fiber scenes";
   }
-  if (r.has_woven() && r.scene() != v1::SCENE_WOVEN_PATCH) return "woven: only for SCENE_WOVEN_PATCH";
+  if (r.has_woven() && !needs.woven)
+    return "woven: only for the fiber scenes laid out as a weave, not '" + scene.spec->name + "'";
   return "";
 }
 
@@ -600,7 +604,7 @@ grpc::Status CheckRenderRequest(const models::Registry& registry, const v1::Rend
       (!model.folds_environment() || request.material().has_transmission()))
     return Invalid("btf_environment: FOLDED needs a material whose model is `btf` (an asset) without a layer, not '" +
                    model.name() + "'" + (request.material().has_transmission() ? " with a layer" : ""));
-  if (!IsFiberScene(request.scene())) return grpc::Status::OK;
+  if (!NeedsOf(request).fibers) return grpc::Status::OK;
   *fiber_job = std::make_unique<YarnJob>();
   if (std::string error = FiberJobOf(registry, request, fiber_job->get()); !error.empty()) return Invalid(error);
   // Checked before any fiber is generated (after the yarn's own fields): the material's model is known without packing it.

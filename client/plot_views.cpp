@@ -12,7 +12,7 @@
 #include "client/directions.h"
 #include "client/material.h"
 #include "client/rpc.h"
-#include "server/api/tabulate_grid.h"
+#include "server/models/tabulation/angles.h"
 
 namespace loomlight::client {
 namespace {

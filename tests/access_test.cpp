@@ -624,7 +624,7 @@ TEST(OneClient, AClientsShareOfTheMemoryBudgetLeavesRoomForOthers) {
   const models::Model* model = models::Registry::Global().FindPreset("velvet", &preset);
   ASSERT_TRUE(model);
   api::TabulationGrid grid;
-  ASSERT_EQ(api::TabulationGrid::Resolve(HeldTabulation::Request(), *model, &grid), "");
+  ASSERT_EQ(api::ResolveTabulationGrid(HeldTabulation::Request(), *model, &grid), "");
   const size_t call = api::TabulateBytes(HeldTabulation::Request(), grid);
   api::ServerOptions options;
   options.limits.memory_budget_bytes = 4 * call;

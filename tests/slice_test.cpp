@@ -19,6 +19,7 @@
 #include "server/api/server.h"
 #include "server/api/texture_slice.h"
 #include "server/imaging/image_encode.h"
+#include "server/models/texture_slice.h"
 #include "tests/testing.h"
 
 // After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
@@ -229,6 +230,50 @@ TEST(SliceSamples, OffsetsAreWellSpacedInsideThePixelAndRotatedPerPixel) {
   // Neighbouring pixels get different rotations of the point set.
   EXPECT_NE(api::PixelSampleOffset(0, 0, 4), api::PixelSampleOffset(1, 0, 4));
   EXPECT_NE(api::PixelSampleOffset(1, 0, 4), api::PixelSampleOffset(2, 0, 4));
+}
+
+// A chunk of whole pixels may start anywhere in a row (the server's chunks hold a multiple of the samples, not of
+// the width): each query's position is its pixel's corner plus its sample's offset, scaled into the region,
+// row 0 at v_max.
+TEST(SliceSamples, PositionsOfAChunkStartingMidRowAreEachPixelsSampleOffsetsInTheRegion) {
+  const models::SliceSampling slice{.u_min = -0.5, .v_min = 2, .u_max = 1.5, .v_max = 3, .width = 7, .height = 5,
+                                    .samples = 3};
+  const uint64_t first = 3 * 11;  // pixel 11: x 4 of row 1
+  const size_t count = 3 * 9;     // to pixel 19, across the row's end
+  std::vector<float> uv(2 * count);
+  models::SliceTexturePositions(slice, first, count, uv.data());
+  for (size_t i = 0; i < count; ++i) {
+    const uint64_t q = first + i, pixel = q / 3;
+    const auto o = api::PixelSampleOffset(pixel, q % 3, 3);
+    const double x = double(pixel % 7), y = double(pixel / 7);
+    EXPECT_EQ(uv[2 * i], float(-0.5 + (x + o[0]) / 7 * 2.0)) << q;
+    EXPECT_EQ(uv[2 * i + 1], float(3.0 - (y + o[1]) / 5 * 1.0)) << q;
+  }
+}
+
+// Each pixel of a chunk is the mean of its samples, in its own place in the image, and adds to the sums; other
+// pixels are untouched; a non-finite sample fails the chunk.
+TEST(SliceSamples, PixelMeansFillTheirPixelsAndSumsAndANonFiniteSampleIsAnError) {
+  imaging::LinearRgbImage image;
+  image.width = 4;
+  image.height = 1;
+  image.rgb.assign(12, -1.0f);
+  std::vector<double> f;  // pixels 1 and 2, two samples each: p + s + c / 4
+  for (int p : {1, 2})
+    for (int s = 0; s < 2; ++s)
+      for (int c = 0; c < 3; ++c) f.push_back(p + s + c / 4.0);
+  std::array<double, 3> sum{0, 0, 0};
+  EXPECT_EQ(models::AddPixelMeans(2, 2, 4, f.data(), &image, &sum), "");
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_EQ(image.rgb[c], -1.0f);
+    EXPECT_EQ(image.rgb[3 + c], float(1.5 + c / 4.0));
+    EXPECT_EQ(image.rgb[6 + c], float(2.5 + c / 4.0));
+    EXPECT_EQ(image.rgb[9 + c], -1.0f);
+    EXPECT_DOUBLE_EQ(sum[c], 4.0 + c / 2.0);
+  }
+  std::vector<double> bad(12, 1.0);
+  bad[7] = std::nan("");
+  EXPECT_NE(models::AddPixelMeans(2, 2, 4, bad.data(), &image, &sum), "");
 }
 
 // Largest relative error over the channels of the slice mean over one repeat against the BRDF.

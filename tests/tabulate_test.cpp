@@ -22,6 +22,8 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/server.h"
 #include "server/api/tabulate.h"
+#include "server/models/query_means.h"
+#include "server/models/tabulation/grid.h"
 #include "tests/testing.h"
 
 // After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
@@ -649,6 +651,63 @@ TEST_F(TabulateTest, PlotViewsWritePngsOfTheRequestedSize) {
       EXPECT_GT(png.drawn, 0.01) << view;
     }
   }
+}
+
+// ---- The grid and the means without a server (server/models/tabulation/, server/models/query_means.h) ----
+
+// The server tests ask MERL tables for one phi_h sample (phi_h = 0); here a cell of four: query s at phi_h =
+// s 90 degrees, each the half/diff directions written above.
+TEST(TabulationGrid, MerlQueriesOfACellTurnAboutTheNormalAtEvenPhiH) {
+  const uint32_t samples = 4;
+  const tabulation::Grid grid = tabulation::Grid::Merl(samples);
+  ASSERT_EQ(grid.cells(), uint64_t{90 * 90 * 180});
+  ASSERT_EQ(grid.queries(), grid.cells() * samples);
+  for (const auto& [i, j, k] : {std::array<int, 3>{0, 0, 0}, {37, 12, 101}, {89, 89, 179}}) {
+    const uint64_t cell = (uint64_t(i) * 90 + j) * 180 + k;
+    std::vector<float> wi(3 * samples), wo(3 * samples);
+    grid.FillDirections(cell * samples, samples, wi.data(), wo.data());
+    const double x = (i + 0.5) / 90.0;
+    EXPECT_EQ(grid.CellAngles(cell), (std::vector<double>{x * x * 90.0, j + 0.5, k + 0.5}));
+    for (uint32_t s = 0; s < samples; ++s) {
+      const auto [expected_wi, expected_wo] = HalfDiff(x * x * 90.0, s * 90.0, j + 0.5, k + 0.5);
+      for (int c = 0; c < 3; ++c) {
+        EXPECT_NEAR(wi[3 * s + c], expected_wi[c], 1e-6) << i << " " << j << " " << k << " sample " << s;
+        EXPECT_NEAR(wo[3 * s + c], expected_wo[c], 1e-6) << i << " " << j << " " << k << " sample " << s;
+      }
+    }
+  }
+}
+
+// The CSV of a 4D table names each cell by its bin centres, theta_i slowest and phi_o fastest (the server's CSV
+// test is in-plane).
+TEST(TabulationGrid, AnisotropicCellsAreBinCentresThetaISlowestPhiOFastest) {
+  const tabulation::Grid grid = tabulation::Grid::Anisotropic(2, 3, 4, 5);
+  EXPECT_EQ(grid.cells(), 120u);
+  EXPECT_EQ(grid.row_cells(), 20u);
+  EXPECT_EQ(grid.angle_names(), (std::vector<std::string>{"theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg"}));
+  uint64_t cell = 0;
+  for (uint32_t a = 0; a < 2; ++a)
+    for (uint32_t b = 0; b < 3; ++b)
+      for (uint32_t c = 0; c < 4; ++c)
+        for (uint32_t d = 0; d < 5; ++d, ++cell)
+          EXPECT_EQ(grid.CellAngles(cell),
+                    (std::vector<double>{Centre(a, 2, 90), Centre(b, 3, 360), Centre(c, 4, 90), Centre(d, 5, 360)}))
+              << cell;
+}
+
+// A cell's value is the mean of its queries (MERL's phi_h samples), written where the cell's mean belongs; a
+// non-finite mean names its group.
+TEST(QueryMeans, EachGroupsMeanLandsInPlaceAndTheFirstNonFiniteGroupIsNamed) {
+  std::vector<double> f(3 * 12);
+  for (size_t q = 0; q < 12; ++q)
+    for (int c = 0; c < 3; ++c) f[3 * q + c] = 10.0 * q + c;
+  EXPECT_EQ(models::GroupMeansInPlace(f.data(), 3, 4), 3u);
+  for (size_t g = 0; g < 3; ++g)
+    for (int c = 0; c < 3; ++c) EXPECT_DOUBLE_EQ(f[3 * g + c], 10.0 * (4 * g + 1.5) + c) << g << " " << c;
+  std::vector<double> bad(3 * 12, 1.0);
+  bad[3 * 9 + 2] = HUGE_VAL;  // group 2
+  bad[3 * 5 + 1] = std::nan("");  // group 1
+  EXPECT_EQ(models::GroupMeansInPlace(bad.data(), 3, 4), 1u);
 }
 
 }  // namespace

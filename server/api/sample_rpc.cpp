@@ -11,16 +11,10 @@
 #include "server/api/unary_call.h"
 #include "server/models/direction_sampler.h"
 #include "server/models/material_plan.h"
-#include "server/render/rng.h"
+#include "server/models/sample_queries.h"
 
 namespace loomlight::api {
 namespace {
-
-// Number d of a query's stream from the seed, as the float a client would send: the nearest float to
-// CounterRng's uniform number, at most the largest float below 1.
-float SeedNumber(const render::CounterRng& rng, uint32_t d) {
-  return std::min(static_cast<float>(rng.Uniform(d)), 0x1.fffffep-1f);
-}
 
 // One Sample call (server/api/unary_call.h). The gRPC thread checks what is cheap and admits the bytes; on the
 // preparer, Start gets the material and checks the rest, Draw draws wi chunk by chunk (the first chunk of a new
@@ -56,27 +50,10 @@ struct SampleCall : PlanCall<v1::SampleRequest, v1::SampleResponse> {
     const models::DirectionSampler& sampler = call->material->Sampler();  // built here on first use
     if (!built) call->deps->materials->ChargeSampler(*call->material);
     const v1::SampleRequest& request = *call->request;
-    const bool given = request.random_size() > 0;
-    const float* wo = request.wo().data();
-    const float* random = given ? request.random().data() : nullptr;
-    float* wi = call->response->mutable_wi()->mutable_data();
-    float* pdf = call->response->mutable_pdf()->mutable_data();
     const size_t end = std::min(call->n, begin + kSampleDrawChunk);
-    for (size_t q = begin; q < end; ++q) {
-      double u[3];
-      if (given) {
-        for (int d = 0; d < 3; ++d) u[d] = random[3 * q + d];
-      } else {  // the numbers a client would send: floats (below 1)
-        const render::CounterRng rng(request.seed(), q);
-        for (int d = 0; d < 3; ++d) u[d] = SeedNumber(rng, d);
-      }
-      const double x = wo[3 * q], y = wo[3 * q + 1], z = wo[3 * q + 2];
-      const double length = std::sqrt(x * x + y * y + z * z);  // unit within kUnitTolerance (validated)
-      const models::DirectionSampler::Sample s = sampler.Draw({x / length, y / length, z / length}, u[0], u[1], u[2]);
-      const double wl = std::sqrt(s.wi[0] * s.wi[0] + s.wi[1] * s.wi[1] + s.wi[2] * s.wi[2]);
-      for (int c = 0; c < 3; ++c) wi[3 * q + c] = wl > 0 ? static_cast<float>(s.wi[c] / wl) : 0.0f;
-      pdf[q] = std::isfinite(s.pdf) && s.pdf > 0 ? static_cast<float>(s.pdf) : 0.0f;
-    }
+    const float* random = request.random_size() > 0 ? request.random().data() : nullptr;  // else from the seed
+    models::DrawSampleQueries(sampler, request.wo().data(), random, request.seed(), begin, end,
+                              call->response->mutable_wi()->mutable_data(), call->response->mutable_pdf()->mutable_data());
     call->sampling_seconds += SecondsSince(started);
     if (end < call->n) {
       call->deps->preparer->Post([call, end] { Draw(call, end); }, call->client);
@@ -91,18 +68,8 @@ struct SampleCall : PlanCall<v1::SampleRequest, v1::SampleResponse> {
 
   // weight = f cos / pdf per query (0 where pdf is 0 or the product is not finite), then finishes.
   void Complete() {
-    const models::DirectionSampler& sampler = material->Sampler();
-    const float* wi = response->wi().data();
-    const float* pdf = response->pdf().data();
-    const float* f = response->f().data();
-    float* weight = response->mutable_weight()->mutable_data();
-    for (size_t q = 0; q < n; ++q) {
-      const double cosine = sampler.Cosine({wi[3 * q], wi[3 * q + 1], wi[3 * q + 2]});
-      for (int c = 0; c < 3; ++c) {
-        const double w = pdf[q] > 0 ? f[3 * q + c] * cosine / pdf[q] : 0.0;
-        weight[3 * q + c] = std::isfinite(w) ? static_cast<float>(w) : 0.0f;
-      }
-    }
+    models::SampleWeights(material->Sampler(), n, response->wi().data(), response->pdf().data(), response->f().data(),
+                          response->mutable_weight()->mutable_data());
     response->set_sampling_seconds(sampling_seconds);
     Finish(grpc::Status::OK);
   }

@@ -2,15 +2,13 @@
 
 #include <algorithm>
 #include <array>
-#include <bit>
 #include <cmath>
-#include <cstdio>
 #include <initializer_list>
 
 #include "server/api/job_status.h"
 #include "server/api/stream_call.h"
-#include "server/imaging/image_encode.h"
 #include "server/models/material_plan.h"
+#include "server/models/query_means.h"
 
 namespace loomlight::api {
 namespace {
@@ -19,7 +17,6 @@ constexpr const char* kRpc = "Tabulate";
 constexpr uint32_t kMaxPhiHSamples = 1024;  // the cell limit binds first (23 for the MERL grid)
 
 using Clock = batching::Clock;
-using tabulation::CosSin;
 
 
 // "1,048,576": limits in messages are read by people.
@@ -55,117 +52,6 @@ std::string CheckQueries(uint64_t cells, uint32_t per_cell, const std::string& f
   if (per_cell > 1) what += " x " + std::to_string(per_cell) + " queries per cell";
   return field + ": " + what + " exceed the limit of " + Grouped(kMaxTabulateQueries) + " evaluations per call";
 }
-
-// Little-endian whatever the host's byte order.
-void AppendLe32(uint32_t v, std::string* out) {
-  for (int b = 0; b < 4; ++b) out->push_back(static_cast<char>((v >> (8 * b)) & 0xffu));
-}
-void AppendLe64(uint64_t v, std::string* out) {
-  for (int b = 0; b < 8; ++b) out->push_back(static_cast<char>((v >> (8 * b)) & 0xffu));
-}
-void AppendFloat(float v, std::string* out) { AppendLe32(std::bit_cast<uint32_t>(v), out); }
-void AppendDouble(double v, std::string* out) { AppendLe64(std::bit_cast<uint64_t>(v), out); }
-
-// RAW: the "LLTB" header (README "Tabulate"), then float32 R, G, B per cell in grid order.
-class RawEncoder final : public TableEncoder {
- public:
-  explicit RawEncoder(const TabulationGrid& grid) : grid_(grid) {}
-  void Begin(std::string* out) override {
-    out->append("LLTB", 4);
-    AppendLe32(kRawVersion, out);
-    AppendLe32(kRawHeaderBytes, out);
-    AppendLe32(static_cast<uint32_t>(grid_.kind()), out);
-    AppendLe32(static_cast<uint32_t>(grid_.dims().size()), out);
-    for (size_t d = 0; d < 4; ++d) AppendLe32(d < grid_.dims().size() ? grid_.dims()[d] : 1, out);
-    AppendLe32(3, out);  // channels
-  }
-  void AddCells(uint64_t, const double* rgb, size_t count, std::string* out) override {
-    out->reserve(out->size() + 12 * count);
-    for (size_t i = 0; i < 3 * count; ++i) AppendFloat(static_cast<float>(rgb[i]), out);
-  }
-
- private:
-  const TabulationGrid& grid_;
-};
-
-// MERL .binary: int32 dims (90, 90, 180), then all R, all G, all B as float64 f / scale. R streams as it is
-// computed; G and B wait for the last cell.
-class MerlEncoder final : public TableEncoder {
- public:
-  explicit MerlEncoder(const TabulationGrid& grid) : green_(grid.cells()), blue_(grid.cells()) {}
-  void Begin(std::string* out) override {
-    for (int d : {tabulation::kMerlThetaH, tabulation::kMerlThetaD, tabulation::kMerlPhiD})
-      AppendLe32(static_cast<uint32_t>(d), out);
-  }
-  void AddCells(uint64_t first, const double* rgb, size_t count, std::string* out) override {
-    out->reserve(out->size() + 8 * count);
-    for (size_t i = 0; i < count; ++i) {
-      AppendDouble(rgb[3 * i] / tabulation::kMerlScale[0], out);
-      green_[first + i] = rgb[3 * i + 1] / tabulation::kMerlScale[1];
-      blue_[first + i] = rgb[3 * i + 2] / tabulation::kMerlScale[2];
-    }
-  }
-  std::string End(std::string* out) override {
-    out->reserve(out->size() + 16 * green_.size());
-    for (const std::vector<double>* block : {&green_, &blue_})
-      for (double v : *block) AppendDouble(v, out);
-    return "";
-  }
-
- private:
-  std::vector<double> green_, blue_;
-};
-
-// EXR: the table as an image, one row per incoming cell, one column per outgoing cell, encoded at the end.
-class ExrEncoder final : public TableEncoder {
- public:
-  explicit ExrEncoder(const TabulationGrid& grid) {
-    image_.width = static_cast<int>(grid.row_cells());
-    image_.height = static_cast<int>(grid.cells() / grid.row_cells());
-    image_.rgb.resize(3 * grid.cells());
-  }
-  void AddCells(uint64_t first, const double* rgb, size_t count, std::string*) override {
-    std::transform(rgb, rgb + 3 * count, image_.rgb.begin() + 3 * first, [](double v) { return static_cast<float>(v); });
-  }
-  std::string End(std::string* out) override {
-    std::string bytes;
-    if (std::string error = imaging::EncodeImage(image_, imaging::ImageFormat::kExr, 1.0, &bytes); !error.empty())
-      return error;
-    out->append(bytes);
-    return "";
-  }
-
- private:
-  imaging::LinearRgbImage image_;
-};
-
-// CSV: a header row, then per cell its grid angles (degrees) and r, g, b.
-class CsvEncoder final : public TableEncoder {
- public:
-  CsvEncoder(const TabulationGrid& grid, bool fp64) : grid_(grid), value_format_(fp64 ? "%.17g" : "%.9g") {}
-  void Begin(std::string* out) override {
-    for (const std::string& name : grid_.angle_names()) out->append(name + ",");
-    out->append("r,g,b\n");
-  }
-  void AddCells(uint64_t first, const double* rgb, size_t count, std::string* out) override {
-    char buf[64];
-    for (size_t i = 0; i < count; ++i) {
-      for (double angle : grid_.CellAngles(first + i)) {
-        std::snprintf(buf, sizeof buf, "%.10g,", angle);
-        out->append(buf);
-      }
-      for (int c = 0; c < 3; ++c) {
-        std::snprintf(buf, sizeof buf, value_format_, rgb[3 * i + c]);
-        out->append(buf);
-        out->push_back(c < 2 ? ',' : '\n');
-      }
-    }
-  }
-
- private:
-  const TabulationGrid& grid_;
-  const char* value_format_;
-};
 
 // One Tabulate call in flight, on the host worker (server/api/stream_call.h); batcher completions post there
 // too. The call is finished only when neither a batcher job nor a write is outstanding, so nothing refers
@@ -245,7 +131,7 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     const size_t count = static_cast<size_t>(std::min<uint64_t>(chunk_queries_, grid_.queries() - next_query_));
     chunk.wi.resize(3 * count);
     chunk.wo.resize(3 * count);
-    for (size_t i = 0; i < count; ++i) grid_.Directions(next_query_ + i, &chunk.wi[3 * i], &chunk.wo[3 * i]);
+    grid_.FillDirections(next_query_, count, chunk.wi.data(), chunk.wo.data());
     chunk.plan = std::make_unique<models::EvaluationPlan>(*material_, chunk.wi.data(), chunk.wo.data(), nullptr, count);
     chunk.f.assign(3 * count, 0.0);
     next_query_ += count;
@@ -278,23 +164,16 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
     Pump();  // submits into the freed slots
   }
 
-  // Means over each cell's queries, encoded. The means replace the front of f: a cell's queries lie at or after
-  // its mean's place, so each is read before it is overwritten. Returns "" or what is wrong with the output.
+  // Means over each cell's queries (in place in f), encoded. Returns "" or what is wrong with the output.
   std::string AddCells(uint64_t first_query, size_t count, std::vector<double>& f) {
     if (f.size() != 3 * count)
       return "kernel returned " + std::to_string(f.size()) + " values for " + std::to_string(count) + " queries";
     const uint32_t per_cell = grid_.queries_per_cell();
     const uint64_t first_cell = first_query / per_cell;
     const size_t cells = count / per_cell;
-    for (size_t cell = 0; cell < cells; ++cell)
-      for (int c = 0; c < 3; ++c) {
-        double sum = 0;
-        for (size_t q = cell * per_cell; q < (cell + 1) * per_cell; ++q) sum += f[3 * q + c];
-        f[3 * cell + c] = sum / per_cell;
-        if (!std::isfinite(f[3 * cell + c]))
-          return "model '" + material_->model->name() + "' returned a non-finite value in cell " +
-                 std::to_string(first_cell + cell);
-      }
+    if (const size_t bad = models::GroupMeansInPlace(f.data(), cells, per_cell); bad < cells)
+      return "model '" + material_->model->name() + "' returned a non-finite value in cell " +
+             std::to_string(first_cell + bad);
     encoder_->AddCells(first_cell, f.data(), cells, &pending_);
     cells_done_ += cells;
     deps_.metrics->Tabulated(material_->model->name(), fp64_, cells);
@@ -355,19 +234,11 @@ class TabulateCall final : public WorkerStreamCall<v1::TabulateChunk> {
 
 }  // namespace
 
-void TabulationGrid::Axis::Add(double deg, double direction_deg) {
-  this->deg.push_back(deg);
-  trig.push_back(CosSin::Degrees(direction_deg));
-}
-
-std::string TabulationGrid::Resolve(const v1::TabulateRequest& request, const models::Model& model,
-                                    TabulationGrid* out) {
-  TabulationGrid g;
-  using tabulation::BinCentreDeg;
+std::string ResolveTabulationGrid(const v1::TabulateRequest& request, const models::Model& model,
+                                  TabulationGrid* out) {
   switch (request.grid_case()) {
     case v1::TabulateRequest::kInPlane: {
       const v1::InPlaneGrid& p = request.in_plane();
-      g.kind_ = GridKind::kInPlane;
       if (p.theta_i_deg_size() > 0 && p.theta_i_count() > 0)
         return "in_plane.theta_i_count: give incidence angles (theta_i_deg) or a count, not both";
       if (p.theta_i_deg_size() == 0 && p.theta_i_count() == 0)
@@ -380,49 +251,32 @@ std::string TabulationGrid::Resolve(const v1::TabulateRequest& request, const mo
       if (!std::isfinite(p.phi_plane_deg()) || std::fabs(p.phi_plane_deg()) > kMaxAngleDeg)
         return "in_plane.phi_plane_deg: " + std::to_string(p.phi_plane_deg()) + " is not finite within [-360, 360]";
       const uint32_t incidences = p.theta_i_deg_size() > 0 ? p.theta_i_deg_size() : p.theta_i_count();
-      g.dims_ = {incidences, p.theta_o_count()};
       if (std::string e = CheckQueries(SaturatingProduct({incidences, p.theta_o_count()}), 1, "in_plane",
                                        std::to_string(incidences) + " x " + std::to_string(p.theta_o_count()));
           !e.empty())
         return e;
-      g.axes_.resize(2);
-      for (uint32_t k = 0; k < incidences; ++k) {
-        const double theta_i = p.theta_i_deg_size() > 0 ? p.theta_i_deg(k) : BinCentreDeg(k, incidences, 90.0);
-        g.axes_[0].Add(theta_i, -theta_i);  // the light at -theta_i: the mirror direction at +theta_i
-      }
-      const double range = p.full_circle() ? 360.0 : 180.0;
-      for (uint32_t k = 0; k < p.theta_o_count(); ++k) {
-        const double theta_o = -range / 2 + BinCentreDeg(k, p.theta_o_count(), range);
-        g.axes_[1].Add(theta_o, theta_o);
-      }
-      g.phi_plane_ = CosSin::Degrees(p.phi_plane_deg());
-      break;
+      *out = p.theta_i_deg_size() > 0
+                 ? TabulationGrid::InPlane({p.theta_i_deg().begin(), p.theta_i_deg().end()}, p.theta_o_count(),
+                                           p.full_circle(), p.phi_plane_deg())
+                 : TabulationGrid::InPlaneBins(incidences, p.theta_o_count(), p.full_circle(), p.phi_plane_deg());
+      return "";
     }
     case v1::TabulateRequest::kAnisotropic: {
       const v1::AnisotropicGrid& a = request.anisotropic();
-      g.kind_ = GridKind::kAnisotropic;
-      g.dims_ = {a.theta_i_count(), a.phi_i_count(), a.theta_o_count(), a.phi_o_count()};
+      const uint32_t dims[4] = {a.theta_i_count(), a.phi_i_count(), a.theta_o_count(), a.phi_o_count()};
       const char* names[4] = {"theta_i_count", "phi_i_count", "theta_o_count", "phi_o_count"};
       for (int d = 0; d < 4; ++d)
-        if (std::string e = CheckCount(g.dims_[d], std::string("anisotropic.") + names[d]); !e.empty()) return e;
-      const uint64_t cells = SaturatingProduct({g.dims_[0], g.dims_[1], g.dims_[2], g.dims_[3]});
+        if (std::string e = CheckCount(dims[d], std::string("anisotropic.") + names[d]); !e.empty()) return e;
+      const uint64_t cells = SaturatingProduct({dims[0], dims[1], dims[2], dims[3]});
       if (std::string e = CheckQueries(cells, 1, "anisotropic",
-                                       std::to_string(g.dims_[0]) + " x " + std::to_string(g.dims_[1]) + " x " +
-                                           std::to_string(g.dims_[2]) + " x " + std::to_string(g.dims_[3]));
+                                       std::to_string(dims[0]) + " x " + std::to_string(dims[1]) + " x " +
+                                           std::to_string(dims[2]) + " x " + std::to_string(dims[3]));
           !e.empty())
         return e;
-      g.axes_.resize(4);
-      for (int d = 0; d < 4; ++d) {
-        const double range = d % 2 == 0 ? 90.0 : 360.0;  // theta, phi, theta, phi
-        for (uint32_t k = 0; k < g.dims_[d]; ++k) {
-          const double angle = BinCentreDeg(k, g.dims_[d], range);
-          g.axes_[d].Add(angle, angle);
-        }
-      }
-      break;
+      *out = TabulationGrid::Anisotropic(dims[0], dims[1], dims[2], dims[3]);
+      return "";
     }
     case v1::TabulateRequest::kMerl: {
-      g.kind_ = GridKind::kMerl;
       const uint32_t requested = request.merl().phi_h_samples();
       if (requested > kMaxPhiHSamples)
         return "merl.phi_h_samples: " + std::to_string(requested) + " is outside 0.." + std::to_string(kMaxPhiHSamples);
@@ -430,77 +284,20 @@ std::string TabulationGrid::Resolve(const v1::TabulateRequest& request, const mo
       if (std::string e = CheckQueries(tabulation::kMerlCells, samples, "merl.phi_h_samples", "90 x 90 x 180");
           !e.empty())
         return e;
-      g.dims_ = {tabulation::kMerlThetaH, tabulation::kMerlThetaD, tabulation::kMerlPhiD};
-      g.queries_per_cell_ = samples;
-      g.axes_.resize(4);
-      for (int i = 0; i < tabulation::kMerlThetaH; ++i)
-        g.axes_[0].Add(tabulation::MerlThetaHDeg(i), tabulation::MerlThetaHDeg(i));
-      for (int j = 0; j < tabulation::kMerlThetaD; ++j)
-        g.axes_[1].Add(tabulation::MerlThetaDDeg(j), tabulation::MerlThetaDDeg(j));
-      for (int k = 0; k < tabulation::kMerlPhiD; ++k)
-        g.axes_[2].Add(tabulation::MerlPhiDDeg(k), tabulation::MerlPhiDDeg(k));
-      for (uint32_t s = 0; s < samples; ++s) g.axes_[3].Add(s * 360.0 / samples, s * 360.0 / samples);
-      break;
+      *out = TabulationGrid::Merl(samples);
+      return "";
     }
     default:
       return "grid: set one of in_plane, anisotropic, merl";
   }
-  g.cells_ = 1;
-  for (uint32_t d : g.dims_) g.cells_ *= d;
-  g.row_cells_ = g.kind_ == GridKind::kAnisotropic ? uint64_t{g.dims_[2]} * g.dims_[3] : g.dims_.back();
-  *out = std::move(g);
-  return "";
-}
-
-uint32_t TabulationGrid::Index(uint64_t cell, size_t dim) const {
-  for (size_t d = dims_.size() - 1; d > dim; --d) cell /= dims_[d];
-  return static_cast<uint32_t>(cell % dims_[dim]);
-}
-
-void TabulationGrid::Directions(uint64_t query, float* wi, float* wo) const {
-  const uint64_t cell = query / queries_per_cell_;
-  tabulation::Direction i, o;
-  switch (kind_) {
-    case GridKind::kInPlane:
-      i = tabulation::InPlane(axes_[0].trig[Index(cell, 0)], phi_plane_);
-      o = tabulation::InPlane(axes_[1].trig[Index(cell, 1)], phi_plane_);
-      break;
-    case GridKind::kAnisotropic:
-      i = tabulation::Spherical(axes_[0].trig[Index(cell, 0)], axes_[1].trig[Index(cell, 1)]);
-      o = tabulation::Spherical(axes_[2].trig[Index(cell, 2)], axes_[3].trig[Index(cell, 3)]);
-      break;
-    case GridKind::kMerl:
-      tabulation::HalfDiffDirections(axes_[0].trig[Index(cell, 0)], axes_[3].trig[query % queries_per_cell_],
-                                     axes_[1].trig[Index(cell, 1)], axes_[2].trig[Index(cell, 2)], &i, &o);
-      break;
-  }
-  for (int c = 0; c < 3; ++c) {
-    wi[c] = static_cast<float>(i[c]);
-    wo[c] = static_cast<float>(o[c]);
-  }
-}
-
-std::vector<double> TabulationGrid::CellAngles(uint64_t cell) const {
-  std::vector<double> angles;
-  for (size_t d = 0; d < dims_.size(); ++d) angles.push_back(axes_[d].deg[Index(cell, d)]);
-  return angles;
-}
-
-std::vector<std::string> TabulationGrid::angle_names() const {
-  switch (kind_) {
-    case GridKind::kInPlane: return {"theta_i_deg", "theta_o_deg"};
-    case GridKind::kAnisotropic: return {"theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg"};
-    case GridKind::kMerl: return {"theta_h_deg", "theta_d_deg", "phi_d_deg"};
-  }
-  return {};
 }
 
 std::unique_ptr<TableEncoder> MakeTableEncoder(v1::TableFormat format, const TabulationGrid& grid, bool fp64) {
   switch (format) {
-    case v1::TABLE_FORMAT_EXR: return std::make_unique<ExrEncoder>(grid);
-    case v1::TABLE_FORMAT_MERL: return std::make_unique<MerlEncoder>(grid);
-    case v1::TABLE_FORMAT_CSV: return std::make_unique<CsvEncoder>(grid, fp64);
-    default: return std::make_unique<RawEncoder>(grid);
+    case v1::TABLE_FORMAT_EXR: return tabulation::MakeTableEncoder(tabulation::TableFormat::kExr, grid, fp64);
+    case v1::TABLE_FORMAT_MERL: return tabulation::MakeTableEncoder(tabulation::TableFormat::kMerl, grid, fp64);
+    case v1::TABLE_FORMAT_CSV: return tabulation::MakeTableEncoder(tabulation::TableFormat::kCsv, grid, fp64);
+    default: return tabulation::MakeTableEncoder(tabulation::TableFormat::kRaw, grid, fp64);
   }
 }
 
@@ -536,7 +333,7 @@ std::string ValidateTabulateRequest(const v1::TabulateRequest& request, const Ta
 
 grpc::Status CheckTabulateRequest(const v1::TabulateRequest& request, const models::Model& model, bool has_fp64,
                                   TabulationGrid* grid) {
-  if (std::string error = TabulationGrid::Resolve(request, model, grid); !error.empty()) return Invalid(error);
+  if (std::string error = ResolveTabulationGrid(request, model, grid); !error.empty()) return Invalid(error);
   if (std::string error = ValidateTabulateRequest(request, *grid); !error.empty()) return Invalid(error);
   if (request.precision() == v1::PRECISION_FP64 && !has_fp64)
     return {grpc::StatusCode::FAILED_PRECONDITION, "precision: the OpenCL device has no fp64"};

@@ -9,26 +9,14 @@
 #include "server/api/job_status.h"
 #include "server/api/unary_call.h"
 #include "server/imaging/image_encode.h"
+#include "server/models/texture_slice.h"
 
 namespace loomlight::api {
 namespace {
 
 constexpr const char* kRpc = "TextureSlice";
-// The R2 sequence's generators: 1/phi2 and 1/phi2^2, phi2 the plastic number (Roberts 2018).
-constexpr double kR2[2] = {0.7548776662, 0.5698402910};
-
 using Clock = batching::Clock;
 
-
-// splitmix64's finaliser: a fixed, well-mixed hash of the pixel index.
-uint64_t MixBits(uint64_t x) {
-  x += 0x9e3779b97f4a7c15ull;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
-  return x ^ (x >> 31);
-}
-
-double Fraction(double t) { return t - std::floor(t); }  // exact, so always < 1
 
 imaging::ImageFormat ToImaging(v1::ImageFormat format) {
   switch (format) {
@@ -79,15 +67,10 @@ uint32_t SamplesPerPixel(const v1::TextureSliceRequest& request) {
   return std::max<uint32_t>(request.samples_per_pixel(), 1);
 }
 
-// The Cranley-Patterson rotation of a pixel's sample set: two numbers in [0, 1) from a hash of its index.
-std::array<double, 2> PixelRotation(uint64_t pixel) {
-  const uint64_t h = MixBits(pixel);
-  return {static_cast<double>(h >> 40) * 0x1p-24, static_cast<double>((h >> 16) & 0xffffff) * 0x1p-24};
-}
-
-std::array<double, 2> RotatedR2(uint32_t sample, const std::array<double, 2>& rotation) {
-  const double i = sample + 0.5;
-  return {Fraction(i * kR2[0] + rotation[0]), Fraction(i * kR2[1] + rotation[1])};
+models::SliceSampling SamplingOf(const v1::TextureSliceRequest& request) {
+  const v1::TextureRegion region = RegionOf(request);
+  return {region.u_min(), region.v_min(), region.u_max(), region.v_max(), request.width(), request.height(),
+          SamplesPerPixel(request)};
 }
 
 // One TextureSlice call in flight: its inputs, two chunk buffers and the image accumulated so far.
@@ -113,7 +96,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
         width_(request.width()),
         height_(request.height()),
         samples_(SamplesPerPixel(request)),
-        region_(RegionOf(request)),
+        sampling_(SamplingOf(request)),
         format_(request.format()),
         exposure_(request.exposure()),
         total_queries_(uint64_t{width_} * height_ * samples_),
@@ -136,13 +119,8 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     if (!material_)
       if (grpc::Status s = PrepareMaterial(deps_, material_request_, &material_); !s.ok()) return Finish(s);
     // The kernel takes a direction per query: the one wi and wo, repeated, shared by both chunk buffers.
-    wi_.resize(3 * chunk_queries_);
-    wo_.resize(3 * chunk_queries_);
-    for (size_t q = 0; q < chunk_queries_; ++q)
-      for (int c = 0; c < 3; ++c) {
-        wi_[3 * q + c] = wi_one_[c];
-        wo_[3 * q + c] = wo_one_[c];
-      }
+    wi_ = models::RepeatedDirection(wi_one_, chunk_queries_);
+    wo_ = models::RepeatedDirection(wo_one_, chunk_queries_);
     image_.width = static_cast<int>(width_);
     image_.height = static_cast<int>(height_);
     image_.rgb.resize(size_t{3} * width_ * height_);
@@ -169,22 +147,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     next_query_ += chunk.count;
     chunk.uv.resize(2 * chunk.count);
     chunk.f.resize(3 * chunk.count);
-    const double du = region_.u_max() - region_.u_min(), dv = region_.v_max() - region_.v_min();
-    uint64_t pixel = chunk.first / samples_;
-    uint32_t x = static_cast<uint32_t>(pixel % width_), y = static_cast<uint32_t>(pixel / width_);
-    float* uv = chunk.uv.data();
-    for (size_t p = 0; p < chunk.count / samples_; ++p, ++pixel) {
-      const std::array<double, 2> rotation = samples_ > 1 ? PixelRotation(pixel) : std::array<double, 2>{};
-      for (uint32_t s = 0; s < samples_; ++s) {
-        const auto [sx, sy] = samples_ > 1 ? RotatedR2(s, rotation) : std::array<double, 2>{0.5, 0.5};
-        *uv++ = static_cast<float>(region_.u_min() + (x + sx) / width_ * du);
-        *uv++ = static_cast<float>(region_.v_max() - (y + sy) / height_ * dv);  // y = 0 is the top row
-      }
-      if (++x == width_) {
-        x = 0;
-        ++y;
-      }
-    }
+    models::SliceTexturePositions(sampling_, chunk.first, chunk.count, chunk.uv.data());
   }
 
   // Sends a prepared chunk to the batcher (a refusal arrives as its result); returns false, having finished the
@@ -215,32 +178,16 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
     kernel_seconds_ += result.kernel_seconds;
     const bool last = chunks_[1 - index].count == 0;
     if (!last && !Submit(1 - index)) return;
-    if (std::string error = Accumulate(chunk); !error.empty()) {
+    // Per-pixel means (in double, rounded once to the image's float).
+    if (std::string error =
+            models::AddPixelMeans(samples_, chunk.first, chunk.count, chunk.f.data(), &image_, &image_sum_);
+        !error.empty()) {
       failure_ = {grpc::StatusCode::INTERNAL, error};
       if (last) Finish(failure_);
       return;
     }
     Prepare(chunk);  // empty when no queries are left
     if (last) EncodeAndFinish();
-  }
-
-  // Per-pixel means (in double, rounded once to the image's float) of a chunk of whole pixels. Returns ""
-  // or what is wrong with the kernel's output.
-  std::string Accumulate(const Chunk& chunk) {
-    const std::vector<double>& f = chunk.f;
-    const uint64_t first_pixel = chunk.first / samples_;
-    for (size_t p = 0; p < chunk.count / samples_; ++p) {
-      double sum[3] = {0, 0, 0};
-      for (uint32_t s = 0; s < samples_; ++s)
-        for (int c = 0; c < 3; ++c) sum[c] += f[3 * (p * samples_ + s) + c];
-      for (int c = 0; c < 3; ++c) {
-        const double mean = sum[c] / samples_;
-        if (!std::isfinite(mean)) return "the BTF kernel returned a non-finite value";
-        image_.rgb[3 * (first_pixel + p) + c] = static_cast<float>(mean);
-        image_sum_[c] += mean;
-      }
-    }
-    return "";
   }
 
   void EncodeAndFinish() {
@@ -289,7 +236,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   Clock::time_point deadline_ = Clock::time_point::max();
   const bool fp64_;
   const uint32_t width_, height_, samples_;
-  const v1::TextureRegion region_;
+  const models::SliceSampling sampling_;
   const v1::ImageFormat format_;
   const double exposure_;
   const uint64_t total_queries_;
@@ -300,7 +247,7 @@ class SliceCall : public std::enable_shared_from_this<SliceCall> {
   Chunk chunks_[2];
   uint64_t next_query_ = 0;     // the first query not yet in a chunk
   imaging::LinearRgbImage image_;
-  double image_sum_[3] = {0, 0, 0};
+  std::array<double, 3> image_sum_ = {0, 0, 0};
   double kernel_seconds_ = 0;
   grpc::Status failure_;  // a chunk's output was unusable; reported when the chunk in flight returns
 };
@@ -311,11 +258,6 @@ grpc::ServerUnaryReactor* Reject(const TextureSliceDeps& deps, grpc::CallbackSer
 }
 
 }  // namespace
-
-std::array<double, 2> PixelSampleOffset(uint64_t pixel, uint32_t sample, uint32_t samples) {
-  if (samples <= 1) return {0.5, 0.5};
-  return RotatedR2(sample, PixelRotation(pixel));
-}
 
 size_t SliceBytes(const v1::TextureSliceRequest& request) {
   const uint64_t queries = uint64_t{request.width()} * request.height() * SamplesPerPixel(request);

@@ -1,7 +1,7 @@
 // The TextureSlice RPC: an image of a spatially varying material's BTF over a region of texture space for
 // one wi and wo. Pixels become BTF queries that go through the batcher in chunks (so a slice interleaves
-// with other clients' work); the host work (sample positions, accumulation, encoding) runs on a worker
-// thread (the service's HostWorker), never on the batcher's.
+// with other clients' work); the host work (sample positions and per-pixel means, server/models/texture_slice.h;
+// encoding) runs on a worker thread (the service's HostWorker), never on the batcher's.
 #pragma once
 
 #include <array>
@@ -14,6 +14,7 @@
 #include "server/api/service.h"
 #include "server/batching/batcher.h"
 #include "server/models/registry.h"
+#include "server/models/texture_slice.h"
 
 namespace loomlight::api {
 
@@ -27,11 +28,8 @@ constexpr size_t kSliceChunkQueries = kMaxQueriesPerCall;
 
 using TextureSliceDeps = ServiceDeps;
 
-// The position in [0, 1)^2 inside pixel `pixel` (index y * width + x) of its sample `sample` of `samples`:
-// the centre for one sample; otherwise the R2 sequence (i + 1/2) (0.7548776662, 0.5698402910) mod 1, shifted
-// mod 1 by a fixed hash of the pixel index (a Cranley-Patterson rotation), so the result is deterministic
-// but neighbouring pixels do not share one point set.
-std::array<double, 2> PixelSampleOffset(uint64_t pixel, uint32_t sample, uint32_t samples);
+// Where each query samples (server/models/texture_slice.h); the tests name it through this header.
+using models::PixelSampleOffset;
 
 // The bytes a validated request's call holds (its admission).
 size_t SliceBytes(const v1::TextureSliceRequest& request);

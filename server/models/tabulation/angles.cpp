@@ -1,4 +1,4 @@
-#include "server/api/tabulate_grid.h"
+#include "server/models/tabulation/angles.h"
 
 #include <cmath>
 #include <numbers>

@@ -1,11 +1,17 @@
 #include "server/runtime/cl_runtime.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cctype>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <unistd.h>
 
 namespace loomlight::runtime {
 namespace {
@@ -58,6 +64,63 @@ struct Buffers {
   }
 };
 
+// Program binaries kept beside PoCL's cache. PoCL finds a cached program only after preprocessing its source with
+// clang (about 90 ms a program; 20 programs were 2 of a server's 3 s to start); a program made from its binary
+// builds in about 3 ms. A file is named by what it is for (source, options, device), so a changed source replaces
+// its old file, and holds the full key it was built from (platform, driver, device, options, source text),
+// compared whole before use: anything else is a miss and the source is built.
+std::string ProgramBinaryKey(cl_platform_id platform, cl_device_id device, const std::string& options,
+                             const std::string& source) {
+  return PlatformInfo(platform, CL_PLATFORM_VERSION) + "\n" + DeviceInfo(device, CL_DRIVER_VERSION) + "\n" +
+         DeviceInfo(device, CL_DEVICE_NAME) + "\n" + options + "\n" + source;
+}
+
+std::string ProgramBinaryPath(const std::string& dir, const std::string& source_name, const std::string& options,
+                              const std::string& device_name) {
+  std::string name = source_name + options + "-" + device_name;
+  for (char& c : name)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '-' && c != '.') c = '_';
+  return dir + "/" + name.substr(0, 200) + ".bin";
+}
+
+constexpr char kProgramBinaryMagic[] = "loomlight program binary 1";
+
+// The binary stored under `key` at `path`; false when absent or stored for another key.
+bool ReadProgramBinary(const std::string& path, const std::string& key, std::string* binary) {
+  std::ifstream in(path, std::ios::binary);
+  std::string magic, size;
+  if (!std::getline(in, magic) || magic != kProgramBinaryMagic || !std::getline(in, size)) return false;
+  std::string stored(key.size(), '\0');
+  if (size != std::to_string(key.size()) || !in.read(stored.data(), stored.size()) || stored != key) return false;
+  std::ostringstream rest;
+  rest << in.rdbuf();
+  *binary = rest.str();
+  return !binary->empty();
+}
+
+// Stores a built program's binary; best effort (a failure leaves the next start building from source). Written
+// whole under a name of its own, then renamed over the old file: a reader in another process sees one or the other.
+void WriteProgramBinary(const std::string& path, const std::string& key, cl_program program) {
+  size_t size = 0;
+  if (clGetProgramInfo(program, CL_PROGRAM_BINARY_SIZES, sizeof size, &size, nullptr) != CL_SUCCESS || size == 0) return;
+  std::string binary(size, '\0');
+  unsigned char* data = reinterpret_cast<unsigned char*>(binary.data());
+  if (clGetProgramInfo(program, CL_PROGRAM_BINARIES, sizeof data, &data, nullptr) != CL_SUCCESS) return;
+  static std::atomic<unsigned> written{0};
+  const std::string temporary = path + ".tmp" + std::to_string(::getpid()) + "-" + std::to_string(written++);
+  {
+    std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
+    out << kProgramBinaryMagic << "\n" << key.size() << "\n" << key << binary;
+    if (!out.flush()) {
+      std::remove(temporary.c_str());
+      return;
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(temporary, path, ec);
+  if (ec) std::filesystem::remove(temporary, ec);
+}
+
 }  // namespace
 
 std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std::string* error) {
@@ -86,6 +149,11 @@ std::unique_ptr<ClRuntime> ClRuntime::Create(const RuntimeOptions& options, std:
 
   auto rt = std::unique_ptr<ClRuntime>(new ClRuntime);
   rt->main_.local_size = options.local_size;
+  if (const char* pocl_cache = std::getenv("POCL_CACHE_DIR"); pocl_cache && *pocl_cache) {
+    std::error_code ec;
+    rt->binary_cache_dir_ = std::string(pocl_cache) + "/loomlight-programs";
+    if (!std::filesystem::create_directories(rt->binary_cache_dir_, ec) && ec) rt->binary_cache_dir_.clear();
+  }
   cl_device_id chosen = nullptr;
   std::string seen;
   // Two passes: the requested platform, or PoCL first and then anything when nothing was requested.
@@ -216,17 +284,33 @@ bool ClRuntime::Build(Target& target, const models::KernelSpec& spec, bool fp64,
     *error = "kernel source '" + source + "' is not embedded (add it to KERNEL_ENTRIES in CMakeLists.txt)";
     return false;
   }
-  const char* text = it->second.c_str();
+  out->width = fp64 ? std::max(1, vector_width_ / 2) : vector_width_;  // doubles are twice as wide
+  const size_t items = std::max<size_t>(1, target.local_size / out->width);
+  const std::string options = "-cl-std=CL1.2 -DLL_LOCAL_SIZE=" + std::to_string(items) +
+                              " -DLL_WIDTH=" + std::to_string(out->width) + (fp64 ? " -DLL_FP64" : "");
   cl_int err = CL_SUCCESS;
+  std::string key, binary_path, binary;
+  if (!binary_cache_dir_.empty()) {
+    key = ProgramBinaryKey(platform_, target.device, options, it->second);
+    binary_path = ProgramBinaryPath(binary_cache_dir_, source, options, target.device_name);
+    if (ReadProgramBinary(binary_path, key, &binary)) {
+      const unsigned char* data = reinterpret_cast<const unsigned char*>(binary.data());
+      const size_t size = binary.size();
+      cl_int status = CL_SUCCESS;
+      out->program = clCreateProgramWithBinary(target.context, 1, &target.device, &size, &data, &status, &err);
+      if (err == CL_SUCCESS && status == CL_SUCCESS &&
+          clBuildProgram(out->program, 1, &target.device, options.c_str(), nullptr, nullptr) == CL_SUCCESS)
+        return CreateKernels(spec, out, error);
+      if (out->program) clReleaseProgram(out->program);  // not usable here: built from source below
+      out->program = nullptr;
+    }
+  }
+  const char* text = it->second.c_str();
   out->program = clCreateProgramWithSource(target.context, 1, &text, nullptr, &err);
   if (err != CL_SUCCESS) {
     *error = ClError("clCreateProgramWithSource", err);
     return false;
   }
-  out->width = fp64 ? std::max(1, vector_width_ / 2) : vector_width_;  // doubles are twice as wide
-  const size_t items = std::max<size_t>(1, target.local_size / out->width);
-  const std::string options = "-cl-std=CL1.2 -DLL_LOCAL_SIZE=" + std::to_string(items) +
-                              " -DLL_WIDTH=" + std::to_string(out->width) + (fp64 ? " -DLL_FP64" : "");
   err = clBuildProgram(out->program, 1, &target.device, options.c_str(), nullptr, nullptr);
   if (err != CL_SUCCESS) {
     size_t size = 0;
@@ -237,9 +321,15 @@ bool ClRuntime::Build(Target& target, const models::KernelSpec& spec, bool fp64,
              std::to_string(err) + "):\n" + log;
     return false;
   }
+  if (!binary_path.empty()) WriteProgramBinary(binary_path, key, out->program);
+  return CreateKernels(spec, out, error);
+}
+
+bool ClRuntime::CreateKernels(const models::KernelSpec& spec, Program* out, std::string* error) {
   for (auto [function, kernel] : {std::pair{&spec.function, &out->kernel}, std::pair{&spec.uv_function, &out->uv_kernel},
                                   std::pair{&spec.ambient_function, &out->ambient_kernel}}) {
     if (function->empty()) continue;
+    cl_int err = CL_SUCCESS;
     *kernel = clCreateKernel(out->program, function->c_str(), &err);
     if (err != CL_SUCCESS) {
       *error = ClError(("clCreateKernel " + *function).c_str(), err);

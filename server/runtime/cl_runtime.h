@@ -1,5 +1,6 @@
 // OpenCL runtime: platform and device choice, one program build per model and precision at start-up
-// (PoCL's on-disk cache in POCL_CACHE_DIR keeps restarts fast), and launches with a fixed local size.
+// (PoCL's on-disk cache in POCL_CACHE_DIR and the programs' binaries kept beside it keep restarts fast), and
+// launches with a fixed local size.
 #pragma once
 
 #include <CL/cl.h>
@@ -136,12 +137,15 @@ class ClRuntime {
     bool Open(cl_device_id d, std::string* error);
     void Close();
   };
+  // From the program binary cache (binary_cache_dir_) when it holds this program, else from source (then stored).
   bool Build(Target& target, const models::KernelSpec& spec, bool fp64, Program* out, std::string* error);
+  bool CreateKernels(const models::KernelSpec& spec, Program* out, std::string* error);
 
   cl_platform_id platform_ = nullptr;
   bool has_fp64_ = false;
   int vector_width_ = 8;
   std::string platform_name_;
+  std::string binary_cache_dir_;  // "" when none (no cache directory)
   Target main_;
   Target small_;  // device null: none
   size_t small_launch_queries_ = 0;

@@ -146,7 +146,7 @@ Job parse_job(const std::vector<std::string>& fields, const Columns& columns, co
   const std::string options_text = columns.options ? fields[*columns.options] : "";
   try {
     const std::vector<std::string> arguments = split_arguments(options_text, where);
-    const ParsedOptions options = parse_options(arguments, command->options, false);
+    const ParsedOptions options = parse_options(command->options, arguments);
     if (!options.positional.empty()) throw UsageError("unexpected argument '" + options.positional[0] + "'");
     if (options.has("out")) throw UsageError("the output goes in the out column, not --out");
     if (command == &render_command())

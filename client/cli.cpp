@@ -3,16 +3,12 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
-#include <iomanip>
-#include <ostream>
+#include <map>
+
+#include "client/cli11_rules.h"
 
 namespace loomlight::client {
 namespace {
-
-const OptionSpec* find_spec(const OptionList& specs, std::string_view name) {
-  const auto it = std::find_if(specs.begin(), specs.end(), [&](const OptionSpec& s) { return s.name == name; });
-  return it == specs.end() ? nullptr : &*it;
-}
 
 std::string_view trim(std::string_view text) {
   const auto first = text.find_first_not_of(" \t\r");
@@ -21,10 +17,9 @@ std::string_view trim(std::string_view text) {
   return text.substr(first, last - first + 1);
 }
 
-std::string option_label(const OptionSpec& spec) {
-  std::string label = "--" + std::string(spec.name);
-  if (!spec.value.empty()) label += " " + std::string(spec.value);
-  return label;
+// The `index`th time `option` was given; a flag's value is empty.
+ParsedOptions::Entry entry(const CLI::Option& option, std::size_t index) {
+  return {option.get_lnames().front(), option.get_expected_max() == 0 ? "" : option.results().at(index)};
 }
 
 }  // namespace
@@ -46,43 +41,52 @@ std::vector<ParsedOptions::Entry> ParsedOptions::matching(std::initializer_list<
   return out;
 }
 
-ParsedOptions parse_options(std::span<const std::string> args, const OptionList& specs, bool stop_at_positional) {
-  ParsedOptions parsed;
-  for (std::size_t i = 0; i < args.size(); ++i) {
-    const std::string& arg = args[i];
-    // "-" alone is a value (stdin), not an option; "--" ends the options.
-    if (arg == "--") {
-      parsed.positional.insert(parsed.positional.end(), args.begin() + i + 1, args.end());
-      break;
-    }
-    if (arg.size() < 2 || arg[0] != '-') {
-      if (stop_at_positional) {
-        parsed.positional.assign(args.begin() + i, args.end());
-        break;
-      }
-      parsed.positional.push_back(arg);
-      continue;
-    }
-    if (arg == "-h") {
-      parsed.entries.push_back({"help", ""});
-      continue;
-    }
-    if (arg.rfind("--", 0) != 0) throw UsageError("unknown option '" + arg + "'");
-    const auto eq = arg.find('=');
-    const std::string name = arg.substr(2, eq == std::string::npos ? std::string::npos : eq - 2);
-    const OptionSpec* spec = find_spec(specs, name);
-    if (spec == nullptr) throw UsageError("unknown option '--" + name + "'");
-    if (spec->value.empty()) {
-      if (eq != std::string::npos) throw UsageError("option '--" + name + "' takes no value");
-      parsed.entries.push_back({name, ""});
-    } else if (eq != std::string::npos) {
-      parsed.entries.push_back({name, arg.substr(eq + 1)});
-    } else {
-      if (i + 1 >= args.size()) throw UsageError("option '--" + name + "' needs a value " + std::string(spec->value));
-      parsed.entries.push_back({name, args[++i]});
-    }
+void add_options(CLI::App& app, const OptionList& specs, const std::string& group) {
+  for (const OptionSpec& spec : specs) {
+    const std::string name = "--" + std::string(spec.name);
+    CLI::Option* option =
+        spec.value.empty()
+            ? app.add_flag(name)->check(cli::NoValue())
+            : app.add_option(name, CLI::callback_t(), "")
+                  ->type_name(std::string(spec.value))
+                  ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);  // every value, for ParsedOptions
+    option->description(std::string(spec.help))->group(group);
+    if (!spec.environment.empty()) option->envname(std::string(spec.environment));
   }
+}
+
+ParsedOptions collect_options(const std::vector<const CLI::App*>& apps) {
+  ParsedOptions parsed;
+  std::vector<ParsedOptions::Entry> from_environment;
+  for (const CLI::App* app : apps) {
+    std::map<const CLI::Option*, std::size_t> given;  // the times each option appears in the command line
+    for (const CLI::Option* option : app->parse_order()) {
+      parsed.entries.push_back(entry(*option, given[option]));
+      ++given[option];
+    }
+    // CLI11 adds an environment variable's value as a result that has no place in the command line.
+    for (const CLI::Option* option : app->get_options())
+      if (option->nonpositional() && given[option] == 0 && !option->results().empty())
+        from_environment.push_back(entry(*option, 0));
+    const std::vector<std::string> extras = app->remaining();
+    if (const auto unknown = cli::UnknownOption(extras)) throw UsageError(*unknown);
+    parsed.positional.insert(parsed.positional.end(), extras.begin(), extras.end());
+  }
+  parsed.entries.insert(parsed.entries.begin(), from_environment.begin(), from_environment.end());
   return parsed;
+}
+
+ParsedOptions parse_options(const OptionList& specs, std::vector<std::string> args) {
+  CLI::App app;
+  cli::Configure(app, 30);
+  add_options(app, specs, "options");
+  std::reverse(args.begin(), args.end());  // CLI11 takes the arguments last first
+  try {
+    app.parse(args);
+  } catch (const CLI::ParseError& e) {
+    throw UsageError(e.what());
+  }
+  return collect_options({&app});
 }
 
 double parse_number(std::string_view text, std::string_view what) {
@@ -116,13 +120,6 @@ std::vector<double> parse_numbers(std::string_view text, std::string_view what, 
     throw UsageError(std::string(what) + " needs " + std::to_string(count) + " comma-separated values, got '" +
                      std::string(text) + "'");
   return values;
-}
-
-void print_option_help(std::ostream& out, const OptionList& specs) {
-  std::size_t width = 0;
-  for (const OptionSpec& s : specs) width = std::max(width, option_label(s).size());
-  for (const OptionSpec& s : specs)
-    out << "  " << std::left << std::setw(static_cast<int>(width) + 2) << option_label(s) << s.help << '\n';
 }
 
 }  // namespace loomlight::client

@@ -1,15 +1,17 @@
-// Command-line plumbing of the `loomlight` client: option tables, parsing, number lists, help text.
+// Command-line plumbing of the `loomlight` client: option tables declared to CLI11, what it parsed, number lists.
 #pragma once
 
 #include <cstddef>
 #include <initializer_list>
-#include <iosfwd>
 #include <optional>
-#include <span>
 #include <stdexcept>
 #include <string>
 #include <string_view>
 #include <vector>
+
+namespace CLI {
+class App;
+}
 
 namespace loomlight::client {
 
@@ -23,6 +25,7 @@ struct OptionSpec {
   std::string_view name;   // without the leading "--"
   std::string_view value;  // placeholder shown in the help, e.g. "HOST:PORT"
   std::string_view help;
+  std::string_view environment = {};  // a variable whose value stands in when the option is not given
 };
 using OptionList = std::vector<OptionSpec>;
 
@@ -40,10 +43,18 @@ struct ParsedOptions {
   std::vector<Entry> matching(std::initializer_list<std::string_view> names) const;
 };
 
-// Parses "--name VALUE", "--name=VALUE" and flags against `specs`; an option not in `specs` is a UsageError.
-// With `stop_at_positional`, parsing stops at the first positional argument, which is returned in
-// `positional` together with everything after it unparsed (used for global options before the command).
-ParsedOptions parse_options(std::span<const std::string> args, const OptionList& specs, bool stop_at_positional);
+// Declares `specs` on `app` under the help heading `group`: each "--name VALUE" option keeps every value given, in
+// order; an option without a value placeholder is a flag, which refuses a value.
+void add_options(CLI::App& app, const OptionList& specs, const std::string& group);
+
+// The options `apps` were given (the program's, then its command's, then a family member's), CLI11 having parsed
+// them: values taken from the environment first, then each app's in command-line order, so that a later one
+// overrides an earlier one; the arguments CLI11 left over are the positional arguments, an option among them a
+// UsageError.
+ParsedOptions collect_options(const std::vector<const CLI::App*>& apps);
+
+// Parses `args` against `specs` alone (the options column of a batch's CSV).
+ParsedOptions parse_options(const OptionList& specs, std::vector<std::string> args);
 
 // Numbers are parsed locale-independently; `what` names the option or field in error messages.
 double parse_number(std::string_view text, std::string_view what);
@@ -51,8 +62,5 @@ double parse_number(std::string_view text, std::string_view what);
 int parse_int(std::string_view text, std::string_view what, int lo, int hi);
 // A comma-separated list "v1,v2,..."; with `count` > 0 exactly that many values are required.
 std::vector<double> parse_numbers(std::string_view text, std::string_view what, std::size_t count = 0);
-
-// Writes one aligned "  --name VALUE   help" line per option.
-void print_option_help(std::ostream& out, const OptionList& specs);
 
 }  // namespace loomlight::client

@@ -15,7 +15,8 @@ struct Command {
   std::string_view synopsis;     // the arguments after the command name
   std::string_view summary;      // one line for the command list
   std::string_view description;  // further help text, may be empty
-  OptionList options;            // the command's own options (main adds --help and the connection options)
+  // The command's own options; main declares them to CLI11, with --help and the connection options.
+  OptionList options;
   int (*run)(const ParsedOptions& options);
   // Arguments after the command's name and before or among its options (e.g. an asset's NAME), handed to
   // `run` as ParsedOptions::positional; main rejects fewer or more.
@@ -26,8 +27,8 @@ struct Command {
 };
 
 const Command& models_command();
-const Command& eval_command();
 const Command& scenes_command();
+const Command& eval_command();
 const Command& plot_command();
 const Command& slice_command();
 const Command& tab_command();

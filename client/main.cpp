@@ -3,13 +3,16 @@
 #include <algorithm>
 #include <array>
 #include <exception>
-#include <iomanip>
 #include <iostream>
-#include <span>
+#include <map>
+#include <sstream>
 #include <string>
 #include <vector>
 
+#include <CLI/CLI.hpp>
+
 #include "client/cli.h"
+#include "client/cli11_rules.h"
 #include "client/commands.h"
 #include "client/rpc.h"
 
@@ -18,8 +21,8 @@ namespace {
 
 constexpr int kExitFailure = 1;
 constexpr int kExitUsage = 2;
-
-const OptionSpec kHelpOption = {"help", "", "show this help"};
+constexpr std::size_t kHelpColumnWidth = 30;
+constexpr std::size_t kCommandColumnWidth = 10;  // "  health  ..."
 
 std::array<const Command*, 12> commands() {
   return {&models_command(), &scenes_command(), &eval_command(), &sample_command(), &plot_command(), &slice_command(),
@@ -31,123 +34,174 @@ std::string_view member_word(const Command& family, const Command& member) {
   return member.name.substr(family.name.size() + 1);
 }
 
-// The command the words begin with, descending into a family while the next word names a member; `words`
-// loses the words used. `current` follows the descent, so that a usage error shows the nearest synopsis.
-const Command* resolve_command(std::span<const std::string>& words, const Command*& current) {
-  const auto all = commands();
-  const auto found = std::find_if(all.begin(), all.end(), [&](const Command* c) { return c->name == words[0]; });
-  if (found == all.end()) throw UsageError("unknown command '" + words[0] + "'");
-  current = *found;
-  words = words.subspan(1);
-  while (!current->members.empty() && !words.empty() && !words[0].starts_with('-')) {
-    const auto member = std::find_if(current->members.begin(), current->members.end(),
-                                     [&](const Command* c) { return member_word(*current, *c) == words[0]; });
-    if (member == current->members.end())
-      throw UsageError("unknown command '" + std::string(current->name) + " " + words[0] + "'");
-    current = *member;
-    words = words.subspan(1);
+// CLI11's help laid out as the client's always was: the usage line from the command's synopsis first.
+class HelpFormatter : public CLI::Formatter {
+ public:
+  explicit HelpFormatter(const std::map<const CLI::App*, const Command*>* commands) : commands_(commands) {}
+
+  std::string make_usage(const CLI::App* app, std::string name) const override {
+    const auto found = commands_->find(app);
+    const std::string synopsis = found == commands_->end()
+                                     ? "[--server HOST:PORT] [--timeout SECONDS] COMMAND [options]"
+                                     : std::string(found->second->synopsis);
+    return get_label("Usage") + ": " + name + (synopsis.empty() ? "" : " " + synopsis) + "\n";
   }
-  return current;
-}
 
-// The options accepted before any command: the connection and --help.
-OptionList global_options() {
-  OptionList options = connection_options();
-  options.push_back(kHelpOption);
-  return options;
-}
-
-// A command accepts its own options plus the global ones, so `loomlight eval --server X ...` works too.
-OptionList accepted_options(const Command& command) {
-  OptionList options = command.options;
-  const OptionList globals = global_options();
-  options.insert(options.end(), globals.begin(), globals.end());
-  return options;
-}
-
-void print_usage(std::ostream& out) {
-  out << "usage: loomlight [--server HOST:PORT] [--timeout SECONDS] COMMAND [options]\n\ncommands:\n";
-  for (const Command* c : commands()) out << "  " << std::left << std::setw(8) << c->name << c->summary << '\n';
-  out << "  help    show the help of a command: loomlight help COMMAND\n\noptions:\n";
-  print_option_help(out, global_options());
-  out << "\nRun 'loomlight COMMAND --help' for the options of a command.\n";
-}
-
-void print_synopsis(std::ostream& out, const Command& command) {
-  out << "usage: loomlight " << command.name << ' ' << command.synopsis << '\n';
-}
-
-void print_command_help(std::ostream& out, const Command& command) {
-  print_synopsis(out, command);
-  out << '\n' << command.summary << ".\n";
-  if (!command.description.empty()) out << '\n' << command.description << '\n';
-  if (!command.members.empty()) {
-    out << "\ncommands:\n";
-    for (const Command* m : command.members)
-      out << "  " << std::left << std::setw(8) << member_word(command, *m) << m->summary << '\n';
-    out << "\nRun 'loomlight " << command.name << " COMMAND --help' for the arguments and options of each.\n";
-    return;
+  // A command list shows each command's summary, not its whole description.
+  std::string make_subcommand(const CLI::App* sub) const override {
+    const auto found = commands_->find(sub);
+    std::ostringstream out;
+    CLI::detail::format_help(out, sub->get_name(),
+                             found == commands_->end() ? sub->get_description() : std::string(found->second->summary),
+                             kCommandColumnWidth);
+    return out.str();
   }
-  out << "\noptions:\n";
-  print_option_help(out, command.options);
-  out << "\ncommon options:\n";
-  print_option_help(out, global_options());
-}
 
-// `loomlight help [COMMAND [MEMBER]]`.
-int run_help(std::span<const std::string> args, const Command*& current) {
-  if (args.empty()) {
-    print_usage(std::cout);
+  std::string make_help(const CLI::App* app, std::string name, CLI::AppFormatMode mode) const override {
+    std::ostringstream out;
+    out << make_usage(app, name);
+    if (!app->get_description().empty()) out << '\n' << make_description(app);
+    out << make_subcommands(app, mode) << make_groups(app, mode) << '\n' << make_footer(app);
+    return out.str();
+  }
+
+ private:
+  const std::map<const CLI::App*, const Command*>* commands_;
+};
+
+// The command line: the program's connection options and --help, a subcommand per command (a family's members
+// its subcommands), each with its own options, the connection options again (so that `loomlight eval --server X`
+// works too) and --help, and `help [COMMAND [MEMBER]]`.
+class CommandLine {
+ public:
+  CommandLine() {
+    app_.formatter(std::make_shared<HelpFormatter>(&commands_));
+    cli::Configure(app_, kHelpColumnWidth);
+    app_.require_subcommand(0, 1);  // a word after the command is its argument, not another command
+    add_options(app_, connection_options(), "options");
+    cli::AddHelpFlag(app_, "options");
+    for (const Command* command : commands()) add_command(app_, *command, command->name);
+    help_ = app_.add_subcommand("help", "show the help of a command: loomlight help COMMAND")->group("commands");
+    help_->set_help_flag();
+    help_->allow_extras();
+    app_.footer("Run 'loomlight COMMAND --help' for the options of a command.");
+  }
+
+  // The command the arguments named (the member, in a family), or null; set as soon as CLI11 has seen it, so that
+  // a usage error can show the nearest synopsis.
+  const Command* command() const {
+    const CLI::App* app = chosen_app();
+    const auto found = commands_.find(app);
+    return found == commands_.end() ? nullptr : found->second;
+  }
+
+  int run(int argc, char** argv) {
+    try {
+      app_.parse(argc, argv);
+    } catch (const CLI::ParseError& e) {
+      throw UsageError(e.what());
+    }
+    if (help_->parsed()) return run_help();
+    const std::vector<std::string> extras = app_.remaining();
+    if (const auto unknown = cli::UnknownOption(extras)) throw UsageError(*unknown);
+    if (!extras.empty()) throw UsageError("unknown command '" + extras.front() + "'");
+    const Command* chosen = command();
+    if (chosen == nullptr) {
+      if (app_.get_option("--help")->count() == 0) throw UsageError("no command given");
+      std::cout << help_text(app_);
+      return 0;
+    }
+    std::vector<const CLI::App*> apps = {&app_};
+    for (const CLI::App* app = &app_; !app->get_subcommands().empty();) apps.push_back(app = app->get_subcommands()[0]);
+    const ParsedOptions options = collect_options(apps);
+    if (options.has("help")) {
+      std::cout << help_text(*apps.back());
+      return 0;
+    }
+    if (!chosen->members.empty()) {
+      if (!options.positional.empty())
+        throw UsageError("unknown command '" + std::string(chosen->name) + " " + options.positional[0] + "'");
+      throw UsageError("'" + std::string(chosen->name) + "' needs a command");
+    }
+    if (options.positional.size() > chosen->max_arguments)
+      throw UsageError("unexpected argument '" + options.positional[chosen->max_arguments] + "'");
+    if (options.positional.size() < chosen->min_arguments) throw UsageError("missing arguments");
+    return chosen->run(options);
+  }
+
+  std::string usage() const { return help_text(app_); }
+
+ private:
+  void add_command(CLI::App& parent, const Command& command, std::string_view word) {
+    std::string description = std::string(command.summary) + ".";
+    if (!command.description.empty()) description += "\n\n" + std::string(command.description);
+    CLI::App* app = parent.add_subcommand(std::string(word), "")->group("commands");
+    app->description(description);
+    commands_[app] = &command;
+    app->set_help_flag();
+    app->allow_extras();
+    if (!command.members.empty()) {
+      app->require_subcommand(0, 1);
+      app->footer("Run 'loomlight " + std::string(command.name) +
+                  " COMMAND --help' for the arguments and options of each.");
+      for (const Command* member : command.members) add_command(*app, *member, member_word(command, *member));
+    }
+    add_options(*app, command.options, "options");
+    add_options(*app, connection_options(), "common options");
+    cli::AddHelpFlag(*app, "common options");
+  }
+
+  // The deepest command CLI11 has seen, or the program.
+  const CLI::App* chosen_app() const {
+    const CLI::App* app = &app_;
+    while (!app->get_subcommands().empty()) app = app->get_subcommands()[0];
+    return app;
+  }
+
+  // The help of the program or a command, its usage line naming the command whole ("loomlight btf create").
+  // (App::help would show the help of a subcommand parsed, `help` included.)
+  std::string help_text(const CLI::App& app) const {
+    std::string name;
+    for (const CLI::App* at = &app; at != &app_; at = at->get_parent()) name = " " + at->get_name() + name;
+    return app.get_formatter()->make_help(&app, "loomlight" + name, CLI::AppFormatMode::Normal);
+  }
+
+  // `loomlight help [COMMAND [MEMBER]]`.
+  int run_help() {
+    const CLI::App* at = &app_;
+    std::string named;
+    for (const std::string& word : help_->remaining()) {
+      named += (named.empty() ? "" : " ") + word;
+      const auto subcommands = at->get_subcommands([&](const CLI::App* app) { return app != help_; });
+      const auto next = std::find_if(subcommands.begin(), subcommands.end(),
+                                     [&](const CLI::App* app) { return app->get_name() == word; });
+      if (next == subcommands.end()) throw UsageError("unknown command '" + named + "'");
+      at = *next;
+    }
+    std::cout << help_text(*at);
     return 0;
   }
-  print_command_help(std::cout, *resolve_command(args, current));
-  return 0;
-}
 
-// Parses the command's options (global options given before the command come first, so later ones win) and runs it.
-int run_command(const Command& command, const ParsedOptions& globals, std::span<const std::string> args) {
-  ParsedOptions options = parse_options(args, accepted_options(command), false);
-  options.entries.insert(options.entries.begin(), globals.entries.begin(), globals.entries.end());
-  if (options.has("help")) {
-    print_command_help(std::cout, command);
-    return 0;
-  }
-  if (!command.members.empty()) throw UsageError("'" + std::string(command.name) + "' needs a command");
-  if (options.positional.size() > command.max_arguments)
-    throw UsageError("unexpected argument '" + options.positional[command.max_arguments] + "'");
-  if (options.positional.size() < command.min_arguments) throw UsageError("missing arguments");
-  return command.run(options);
-}
-
-int run(const std::vector<std::string>& args, const Command*& current) {
-  const ParsedOptions globals = parse_options(args, global_options(), true);
-  if (globals.positional.empty()) {
-    if (!globals.has("help")) throw UsageError("no command given");
-    print_usage(std::cout);
-    return 0;
-  }
-  std::span<const std::string> rest(globals.positional);
-  if (rest[0] == "help") return run_help(rest.subspan(1), current);
-  const Command& command = *resolve_command(rest, current);
-  return run_command(command, globals, rest);
-}
+  CLI::App app_{"", "loomlight"};
+  CLI::App* help_ = nullptr;
+  std::map<const CLI::App*, const Command*> commands_;
+};
 
 }  // namespace
 }  // namespace loomlight::client
 
 int main(int argc, char** argv) {
   using namespace loomlight::client;
-  const std::vector<std::string> args(argv + 1, argv + argc);
-  const Command* command = nullptr;  // set once the command is known, for its usage on errors
+  CommandLine command_line;
   try {
-    return run(args, command);
+    return command_line.run(argc, argv);
   } catch (const UsageError& e) {
     std::cerr << "error: " << e.what() << "\n\n";
-    if (command != nullptr) {
-      print_synopsis(std::cerr, *command);
-      std::cerr << "Run 'loomlight " << command->name << " --help' for the options.\n";
+    if (const Command* command = command_line.command()) {
+      std::cerr << "usage: loomlight " << command->name << ' ' << command->synopsis << '\n'
+                << "Run 'loomlight " << command->name << " --help' for the options.\n";
     } else {
-      print_usage(std::cerr);
+      std::cerr << command_line.usage();
     }
     return kExitUsage;
   } catch (const std::exception& e) {

@@ -21,9 +21,7 @@ constexpr double kDefaultTimeoutSeconds = 60.0;
 constexpr int kMaxMessageBytes = 64 << 20;
 
 std::string server_target(const ParsedOptions& options) {
-  if (auto server = options.last("server")) return *server;
-  if (const char* env = std::getenv("LOOMLIGHT_SERVER"); env != nullptr && *env != '\0') return env;
-  return kDefaultServer;
+  return options.last("server").value_or(kDefaultServer);  // --server's CLI11 envname gives $LOOMLIGHT_SERVER
 }
 
 std::chrono::milliseconds call_timeout(const ParsedOptions& options) {
@@ -176,7 +174,8 @@ const char* status_code_name(grpc::StatusCode code) {
 
 const OptionList& connection_options() {
   static const OptionList options = {
-      {"server", "TARGET", "HOST:PORT, several as H1:P1,H2:P2, or dns:///NAME:PORT; several replicas are used round-robin (default $LOOMLIGHT_SERVER, else 127.0.0.1:50051)"},
+      {"server", "TARGET", "HOST:PORT, several as H1:P1,H2:P2, or dns:///NAME:PORT; several replicas are used round-robin (default $LOOMLIGHT_SERVER, else 127.0.0.1:50051)",
+       "LOOMLIGHT_SERVER"},
       {"tls-ca", "FILE", "connect with TLS, trusting the CA certificates in FILE ('system': the system's)"},
       {"tls-cert", "FILE", "the client's certificate chain, for servers that require one (mutual TLS)"},
       {"tls-key", "FILE", "the private key of --tls-cert"},
@@ -212,6 +211,7 @@ v1::ListModelsResponse Client::list_models() {
   check(stub_->ListModels(&context, v1::ListModelsRequest(), &response));
   return response;
 }
+
 v1::ListScenesResponse Client::list_scenes() {
   grpc::ClientContext context;
   prepare(context);
@@ -219,7 +219,6 @@ v1::ListScenesResponse Client::list_scenes() {
   check(stub_->ListScenes(&context, v1::ListScenesRequest(), &response));
   return response;
 }
-
 
 v1::EvaluateResponse Client::evaluate(const v1::EvaluateRequest& request) {
   grpc::ClientContext context;

@@ -11,6 +11,7 @@ packages=(
   prometheus-cpp-dev
   libembree-dev
   libeigen3-dev
+  libcli11-dev
   libgtest-dev libgmock-dev
   fonts-dejavu-core
   haproxy

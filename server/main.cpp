@@ -3,83 +3,62 @@
 #include <cstdio>
 #include <cstdlib>
 #include <algorithm>
+#include <cctype>
 #include <cstring>
-#include <optional>
+#include <functional>
+#include <iostream>
 #include <string>
 #include <thread>
+#include <vector>
 
+#include <CLI/CLI.hpp>
+
+#include "client/cli11_rules.h"
 #include "server/api/server.h"
 #include "server/runtime/allocator.h"
 
 namespace {
 
-void Usage() {
-  std::fprintf(stderr,
-               "usage: loomlight-server [options]\n"
-               "  --address HOST:PORT        listen address (default 127.0.0.1:50051)\n"
-               "  --tls-cert FILE            serve TLS with this PEM certificate chain (and --tls-key)\n"
-               "  --tls-key FILE             the certificate's PEM private key\n"
-               "  --tls-client-ca FILE       mutual TLS: clients must present a certificate this CA signed\n"
-               "  --tokens FILE              every call but health needs a bearer token listed in FILE\n"
-               "                             (lines 'TOKEN CLIENT CALLS'; reloaded on SIGHUP; needs TLS)\n"
-               "  --allow-plaintext-remote   allow plaintext on an address other than loopback\n"
-               "  --trusted-proxy ADDR[/BITS] believe X-Forwarded-For from this proxy (repeatable): fair share and\n"
-               "                             per-client limits then count the client it forwards, not the proxy\n"
-               "  --platform NAME            OpenCL platform substring (env LOOMLIGHT_PLATFORM; default PoCL)\n"
-               "  --device NAME              OpenCL device substring (env LOOMLIGHT_DEVICE; default first CPU)\n"
-               "  --cache-dir DIR            PoCL kernel cache (POCL_CACHE_DIR; default ~/.cache/loomlight/pocl)\n"
-               "  --vector-width N           queries per work-item in float kernels: 1, 2, 4, 8, 16 (default: device)\n"
-               "  --small-launch-queries N   launches of at most N queries run on PoCL's single-threaded basic device,\n"
-               "                             on the launching thread (default 256; 0: every launch on the main device)\n"
-               "  --max-batch-queries N      queries per coalesced launch (default 1048576)\n"
-               "  --max-queue-delay-us N     wait this long for a batch to fill (default 0; both priorities)\n"
-               "  --max-queued-queries N     queued queries per priority before RESOURCE_EXHAUSTED (default 8388608\n"
-               "                             interactive, 16777216 bulk)\n"
-               "  --queue-policy PRIORITY:KEY=VALUE[,KEY=VALUE...]\n"
-               "                             one priority's queue (interactive: Evaluate, Sample, TextureSlice;\n"
-               "                             bulk: Tabulate, Render); keys: max_queue_delay_us, max_queued_queries,\n"
-               "                             max_client_queued_queries (default 4194304, bulk 8388608), timeout_ms (default 0,\n"
-               "                             none), timeout_action: reject (a job queued longer than timeout_ms\n"
-               "                             fails RESOURCE_EXHAUSTED; the default) or delay (it goes behind every\n"
-               "                             job of its priority that has not timed out)\n"
-               "  --no-batching              one request per launch\n"
-               "  --metrics-address HOST:PORT  serve Prometheus metrics at http://HOST:PORT/metrics (default: off)\n"
-               "  --environment-dir DIR      environment maps clients may name (EXR/HDR files; default: none)\n"
-               "  --data-dir DIR             BTF assets live under DIR/btf (default $XDG_STATE_HOME/loomlight,\n"
-               "                             else ~/.local/state/loomlight)\n"
-               "  --btf-store-mb N           all BTF assets together, in MiB (default 2048)\n"
-               "  --btf-client-quota-mb N    one client's BTF assets, in MiB (default 1024; 0: the store's bound)\n"
-               "  --btf-sync-seconds N       look for assets other replicas sharing --data-dir added, replaced or\n"
-               "                             deleted every N s (default 5; 0: only at start and on SIGHUP)\n"
-               "  --memory-budget-mb N       bytes all calls' buffers may hold, in MiB (default 2048)\n"
-               "  --max-long-calls N         TextureSlice, Tabulate and Render calls at once (default 16)\n"
-               "  --max-long-calls-per-client N  of them, one client's (its token's name, else the address a\n"
-               "                             --trusted-proxy forwarded, else its address; default 8)\n"
-               "  --max-memory-per-client-mb N  of the memory budget, one client's calls together, in MiB\n"
-               "                             (default: half of --memory-budget-mb)\n"
-               "  --max-streams-per-connection N  calls open at once on one connection (default 100)\n"
-               "  --keepalive-seconds N      ping a connection after N s without traffic (default 60) and close it\n"
-               "                             when the answer takes --keepalive-timeout-seconds (default 20)\n"
-               "  --max-connection-age-seconds N  a connection is told to reconnect after N s (default 3600); its\n"
-               "                             calls may finish within --max-connection-age-grace-seconds (default:\n"
-               "                             the bulk --max-call-seconds)\n"
-               "  --max-health-watches N     health Watch streams open at once (default 256)\n"
-               "  --max-health-watches-per-client N  of them, one client's (default 8)\n"
-               "  --material-cache-mb N      packed materials kept, in MiB (default 64)\n"
-               "  --fold-cache-mb N          BTF environment folds kept across renders, in MiB (default 128)\n"
-               "  --fiber-cache-mb N         fiber scenes (fibers' BVH, tubes, openness) kept across calls, in MiB\n"
-               "                             (default 256)\n"
-               "  --upload-idle-seconds N    an UploadBtf that sends nothing for N s is cancelled (default 60)\n"
-               "  --max-upload-seconds N     an UploadBtf still sending N s after it started is cancelled\n"
-               "                             (default 1800)\n"
-               "  --environment-cache-mb N   decoded environment maps kept, in MiB (default 256)\n"
-               "  --grpc-memory-mb N         gRPC's own buffers, in MiB (default 512)\n"
-               "  --stall-seconds N          health NOT_SERVING while one task runs longer (default 20)\n"
-               "  --max-call-seconds [PRIORITY:]N  a call's deadline is its client's, at most N s (both priorities,\n"
-               "                             or interactive: Evaluate, Sample, TextureSlice; bulk: Tabulate, Render,\n"
-               "                             YarnGeometry, CreateBtf; repeatable; default interactive 120, bulk 3600)\n"
-               "  --stall-write-seconds N    a stream whose client reads nothing for N s is cancelled (default 60)\n"
-               "  --shutdown-grace SECONDS   on SIGTERM, in-flight calls may finish this long (default 30)\n");
+constexpr std::size_t kHelpColumnWidth = 36;
+constexpr unsigned long long kMaxMebibytes = 1ULL << 24;
+constexpr unsigned long long kDaySeconds = 86400, kYearSeconds = 31536000;
+
+// The checks of a number option, in the words the server always used (CLI11 prefixes the option's name). Digits
+// only: strtoull took "-1" as 2^64 - 1.
+const CLI::Validator kWholeNumber(
+    [](std::string& text) {
+      const bool digits = !text.empty() && text.size() <= 19 &&
+                          std::all_of(text.begin(), text.end(), [](unsigned char c) { return std::isdigit(c); });
+      return digits ? std::string() : "takes a whole number, got '" + text.substr(0, 80) + "'";
+    },
+    "");
+const CLI::Validator kAtLeastOne([](std::string& text) { return std::stoull(text) == 0 ? "must be at least 1" : ""; },
+                                 "");
+const CLI::Validator kMebibytes(
+    [](std::string& text) { return std::stoull(text) > kMaxMebibytes ? "takes 1..16777216 MiB" : ""; }, "");
+
+using Number = unsigned long long;
+
+// A whole-number option ("--name N"); `set` takes the number once every check passed.
+CLI::Option* AddNumber(CLI::App& app, const std::string& name, const std::string& help,
+                       std::function<void(Number)> set) {
+  return app.add_option_function<Number>(name, std::move(set), help)->type_name("N")->check(kWholeNumber);
+}
+// At least 1.
+CLI::Option* AddPositive(CLI::App& app, const std::string& name, const std::string& help,
+                         std::function<void(Number)> set) {
+  return AddNumber(app, name, help, std::move(set))->check(kAtLeastOne);
+}
+// 1..16777216 MiB into bytes.
+CLI::Option* AddMebibytes(CLI::App& app, const std::string& name, const std::string& help, size_t* bytes) {
+  return AddPositive(app, name, help, [bytes](Number n) { *bytes = static_cast<size_t>(n) << 20; })->check(kMebibytes);
+}
+// At least 1 s, at most `max_seconds` (a larger number is that bound).
+template <typename Duration>
+CLI::Option* AddSeconds(CLI::App& app, const std::string& name, const std::string& help, Duration* duration,
+                        Number max_seconds) {
+  return AddPositive(app, name, help,
+                     [duration, max_seconds](Number n) { *duration = std::chrono::seconds(std::min(n, max_seconds)); });
 }
 
 // "bulk:timeout_ms=60000,max_queued_queries=4194304" into the priority's policy; "" or what is wrong.
@@ -116,146 +95,206 @@ std::string ParseQueuePolicy(const std::string& text, loomlight::batching::Batch
   return "";
 }
 
+// "N" caps both priorities' calls, "interactive:N" or "bulk:N" one; "" or what is wrong.
+std::string ParseCallCap(const std::string& text, loomlight::api::ServerOptions* options) {
+  const size_t colon = text.find(':');
+  const std::string priority = colon == std::string::npos ? "" : text.substr(0, colon);
+  const std::string n = text.substr(colon == std::string::npos ? 0 : colon + 1);
+  char* end = nullptr;
+  const unsigned long long seconds = std::strtoull(n.c_str(), &end, 10);
+  if ((colon != std::string::npos && priority != "interactive" && priority != "bulk") || n.empty() || *end ||
+      !std::isdigit(static_cast<unsigned char>(n[0])) || seconds == 0)
+    return "--max-call-seconds takes N, interactive:N or bulk:N (N >= 1), got '" + text.substr(0, 80) + "'";
+  const std::chrono::milliseconds cap = std::chrono::seconds(std::min(seconds, kYearSeconds));
+  if (priority != "bulk") options->call_caps.interactive = cap;
+  if (priority != "interactive") options->call_caps.bulk = cap;
+  return "";
+}
+
+// Each value of a repeatable option, in command-line order, through `apply` ("" or what is wrong).
+CLI::Option* AddRepeatable(CLI::App& app, const std::string& name, const std::string& value_name,
+                           const std::string& help, std::function<std::string(const std::string&)> apply) {
+  return app
+      .add_option_function<std::vector<std::string>>(
+          name,
+          [apply = std::move(apply)](const std::vector<std::string>& values) {
+            for (const std::string& value : values)
+              if (const std::string error = apply(value); !error.empty()) throw CLI::ValidationError(error);
+          },
+          help)
+      ->type_name(value_name)
+      ->expected(1)
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+}
+
 volatile std::sig_atomic_t g_stop = 0;
 volatile std::sig_atomic_t g_reload = 0;
+
+// Declares every option of `options` on `app`: each sets its field once CLI11 has checked it.
+void AddOptions(CLI::App& app, loomlight::api::ServerOptions& options) {
+  using std::chrono::seconds;
+  auto& access = options.access;
+  auto& limits = options.limits;
+  auto& batcher = options.batcher;
+  app.add_option("--address", options.address, "listen address (default 127.0.0.1:50051)")->type_name("HOST:PORT");
+  app.add_option("--tls-cert", access.tls_cert, "serve TLS with this PEM certificate chain (and --tls-key)")
+      ->type_name("FILE");
+  app.add_option("--tls-key", access.tls_key, "the certificate's PEM private key")->type_name("FILE");
+  app.add_option("--tls-client-ca", access.tls_client_ca,
+                 "mutual TLS: clients must present a certificate this CA signed")
+      ->type_name("FILE");
+  app.add_option("--tokens", access.tokens_file,
+                 "every call but health needs a bearer token listed in FILE\n"
+                 "(lines 'TOKEN CLIENT CALLS'; reloaded on SIGHUP; needs TLS)")
+      ->type_name("FILE");
+  app.add_flag("--allow-plaintext-remote", access.allow_plaintext_remote,
+               "allow plaintext on an address other than loopback")
+      ->check(loomlight::cli::NoValue());
+  AddRepeatable(app, "--trusted-proxy", "ADDR[/BITS]",
+                "believe X-Forwarded-For from this proxy (repeatable): fair share and\n"
+                "per-client limits then count the client it forwards, not the proxy",
+                [&access](const std::string& block) { return access.trusted_proxies.Add(block); });
+  app.add_option("--platform", options.runtime.platform,
+                 "OpenCL platform substring (env LOOMLIGHT_PLATFORM; default PoCL)")
+      ->type_name("NAME");
+  app.add_option("--device", options.runtime.device,
+                 "OpenCL device substring (env LOOMLIGHT_DEVICE; default first CPU)")
+      ->type_name("NAME");
+  app.add_option("--cache-dir", options.runtime.cache_dir,
+                 "PoCL kernel cache (POCL_CACHE_DIR; default ~/.cache/loomlight/pocl)")
+      ->type_name("DIR");
+  AddNumber(app, "--vector-width", "queries per work-item in float kernels: 1, 2, 4, 8, 16 (default: device)",
+            [&options](Number n) { options.runtime.vector_width = static_cast<int>(std::min<Number>(n, 1024)); });
+  AddNumber(app, "--small-launch-queries",
+            "launches of at most N queries run on PoCL's single-threaded basic device,\n"
+            "on the launching thread (default 256; 0: every launch on the main device)",
+            [&options](Number n) { options.runtime.small_launch_queries = static_cast<size_t>(n); });
+  AddNumber(app, "--max-batch-queries", "queries per coalesced launch (default 1048576)",
+            [&batcher](Number n) { batcher.max_batch_queries = n; });
+  // Declared before --queue-policy: CLI11 applies options in this order, so one priority's policy overrides these.
+  AddNumber(app, "--max-queue-delay-us", "wait this long for a batch to fill (default 0; both priorities)",
+            [&batcher](Number n) {
+              batcher.interactive.max_queue_delay = batcher.bulk.max_queue_delay = std::chrono::microseconds(n);
+            });
+  AddNumber(app, "--max-queued-queries",
+            "queued queries per priority before RESOURCE_EXHAUSTED (default 8388608\n"
+            "interactive, 16777216 bulk)",
+            [&batcher](Number n) { batcher.interactive.max_queued_queries = batcher.bulk.max_queued_queries = n; });
+  AddRepeatable(app, "--queue-policy", "PRIORITY:KEY=VALUE[,KEY=VALUE...]",
+                "one priority's queue (interactive: Evaluate, Sample, TextureSlice;\n"
+                "bulk: Tabulate, Render); keys: max_queue_delay_us, max_queued_queries,\n"
+                "max_client_queued_queries (default 4194304, bulk 8388608), timeout_ms (default 0,\n"
+                "none), timeout_action: reject (a job queued longer than timeout_ms\n"
+                "fails RESOURCE_EXHAUSTED; the default) or delay (it goes behind every\n"
+                "job of its priority that has not timed out); repeatable, one priority each",
+                [&batcher](const std::string& text) {
+                  const std::string error = ParseQueuePolicy(text, &batcher);
+                  return error.empty() ? error : "--queue-policy: " + error;
+                });
+  app.add_flag_callback("--no-batching", [&batcher] { batcher.coalesce = false; }, "one request per launch")
+      ->check(loomlight::cli::NoValue());
+  app.add_option("--metrics-address", options.metrics_address,
+                 "serve Prometheus metrics at http://HOST:PORT/metrics (default: off)")
+      ->type_name("HOST:PORT");
+  app.add_option("--environment-dir", options.environment_dir,
+                 "environment maps clients may name (EXR/HDR files; default: none)")
+      ->type_name("DIR");
+  app.add_option("--data-dir", options.data_dir,
+                 "BTF assets live under DIR/btf (default $XDG_STATE_HOME/loomlight,\n"
+                 "else ~/.local/state/loomlight)")
+      ->type_name("DIR");
+  AddMebibytes(app, "--btf-store-mb", "all BTF assets together, in MiB (default 2048)", &options.btf_store_bytes);
+  AddNumber(app, "--btf-client-quota-mb", "one client's BTF assets, in MiB (default 1024; 0: the store's bound)",
+            [&options](Number n) { options.btf_client_quota_bytes = std::min(n, kMaxMebibytes) << 20; });
+  AddNumber(app, "--btf-sync-seconds",
+            "look for assets other replicas sharing --data-dir added, replaced or\n"
+            "deleted every N s (default 5; 0: only at start and on SIGHUP)",
+            [&options](Number n) { options.btf_sync_period = seconds(std::min(n, kDaySeconds)); });
+  AddMebibytes(app, "--memory-budget-mb", "bytes all calls' buffers may hold, in MiB (default 2048)",
+               &limits.memory_budget_bytes);
+  AddPositive(app, "--max-long-calls", "TextureSlice, Tabulate and Render calls at once (default 16)",
+              [&limits](Number n) { limits.max_long_running_calls = n; });
+  AddPositive(app, "--max-long-calls-per-client",
+              "of them, one client's (its token's name, else the address a\n"
+              "--trusted-proxy forwarded, else its address; default 8)",
+              [&limits](Number n) { limits.max_long_calls_per_client = n; });
+  AddMebibytes(app, "--max-memory-per-client-mb",
+               "of the memory budget, one client's calls together, in MiB\n"
+               "(default: half of --memory-budget-mb)",
+               &options.memory_per_client_bytes);
+  AddPositive(app, "--max-streams-per-connection", "calls open at once on one connection (default 100)",
+              [&options](Number n) { options.max_streams_per_connection = static_cast<int>(std::min(n, 1ULL << 20)); });
+  AddSeconds(app, "--keepalive-seconds", "ping a connection after N s without traffic (default 60)",
+             &options.keepalive_time, kDaySeconds);
+  AddSeconds(app, "--keepalive-timeout-seconds", "close a pinged connection whose answer takes N s (default 20)",
+             &options.keepalive_timeout, kDaySeconds);
+  AddSeconds(app, "--max-connection-age-seconds", "a connection is told to reconnect after N s (default 3600)",
+             &options.max_connection_age, kYearSeconds);
+  AddSeconds(app, "--max-connection-age-grace-seconds",
+             "an aged connection's calls may finish within N s (default: the bulk\n"
+             "--max-call-seconds)",
+             &options.max_connection_age_grace, kYearSeconds);
+  AddPositive(app, "--max-health-watches", "health Watch streams open at once (default 256)",
+              [&options](Number n) { options.max_health_watches = n; });
+  AddPositive(app, "--max-health-watches-per-client", "of them, one client's (default 8)",
+              [&options](Number n) { options.max_health_watches_per_client = n; });
+  AddMebibytes(app, "--material-cache-mb", "packed materials kept, in MiB (default 64)", &limits.material_cache_bytes);
+  AddMebibytes(app, "--fold-cache-mb", "BTF environment folds kept across renders, in MiB (default 128)",
+               &limits.fold_cache_bytes);
+  AddMebibytes(app, "--fiber-cache-mb",
+               "fiber scenes (fibers' BVH, tubes, openness) kept across calls, in MiB\n"
+               "(default 256)",
+               &limits.fiber_cache_bytes);
+  AddPositive(app, "--upload-idle-seconds", "an UploadBtf that sends nothing for N s is cancelled (default 60)",
+              [&limits](Number n) { limits.upload_idle_timeout = seconds(n); });
+  AddPositive(app, "--max-upload-seconds",
+              "an UploadBtf still sending N s after it started is cancelled\n"
+              "(default 1800)",
+              [&limits](Number n) { limits.upload_max_duration = seconds(n); });
+  AddMebibytes(app, "--environment-cache-mb", "decoded environment maps kept, in MiB (default 256)",
+               &options.environment_cache_bytes);
+  AddMebibytes(app, "--grpc-memory-mb", "gRPC's own buffers, in MiB (default 512)", &options.grpc_memory_bytes);
+  AddPositive(app, "--stall-seconds", "health NOT_SERVING while one task runs longer (default 20)",
+              [&options](Number n) { options.stall_limit = seconds(n); });
+  AddRepeatable(app, "--max-call-seconds", "[PRIORITY:]N",
+                "a call's deadline is its client's, at most N s (both priorities,\n"
+                "or interactive: Evaluate, Sample, TextureSlice; bulk: Tabulate, Render,\n"
+                "YarnGeometry, CreateBtf; repeatable; default interactive 120, bulk 3600)",
+                [&options](const std::string& text) { return ParseCallCap(text, &options); });
+  AddPositive(app, "--stall-write-seconds", "a stream whose client reads nothing for N s is cancelled (default 60)",
+              [&options](Number n) { options.stall_write_timeout = seconds(n); });
+  AddNumber(app, "--shutdown-grace", "on SIGTERM, in-flight calls may finish this long (default 30)",
+            [&options](Number n) { options.shutdown_grace = seconds(std::min(n, kYearSeconds)); })
+      ->type_name("SECONDS");
+}
 
 }  // namespace
 
 int main(int argc, char** argv) {
   loomlight::api::ServerOptions options;
   options.data_dir = loomlight::assets::BtfStore::DefaultDataDir();
-  for (int i = 1; i < argc; ++i) {
-    std::string arg = argv[i];
-    // "--name=value" is "--name value" (the form manifests and service files often use).
-    std::optional<std::string> attached;
-    if (const size_t equals = arg.find('='); arg.rfind("--", 0) == 0 && equals != std::string::npos) {
-      attached = arg.substr(equals + 1);
-      arg.resize(equals);
-    }
-    bool attached_taken = false;
-    auto value = [&]() -> std::string {
-      if (attached) {
-        attached_taken = true;
-        return *attached;
-      }
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "error: %s needs a value\n", arg.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    auto number = [&]() -> unsigned long long {
-      const std::string v = value();
-      char* end = nullptr;
-      const unsigned long long n = std::strtoull(v.c_str(), &end, 10);
-      if (v.empty() || *end) {
-        std::fprintf(stderr, "error: %s takes a whole number, got '%s'\n", arg.c_str(), v.c_str());
-        std::exit(2);
-      }
-      return n;
-    };
-    auto positive = [&]() -> unsigned long long {
-      const unsigned long long n = number();
-      if (n == 0) {
-        std::fprintf(stderr, "error: %s must be at least 1\n", arg.c_str());
-        std::exit(2);
-      }
-      return n;
-    };
-    auto mebibytes = [&]() -> size_t {
-      const unsigned long long n = positive();
-      if (n > (1ull << 24)) {
-        std::fprintf(stderr, "error: %s takes 1..16777216 MiB\n", arg.c_str());
-        std::exit(2);
-      }
-      return static_cast<size_t>(n) << 20;
-    };
-    if (arg == "--address") options.address = value();
-    else if (arg == "--tls-cert") options.access.tls_cert = value();
-    else if (arg == "--tls-key") options.access.tls_key = value();
-    else if (arg == "--tls-client-ca") options.access.tls_client_ca = value();
-    else if (arg == "--tokens") options.access.tokens_file = value();
-    else if (arg == "--allow-plaintext-remote") options.access.allow_plaintext_remote = true;
-    else if (arg == "--trusted-proxy") {
-      if (const std::string error = options.access.trusted_proxies.Add(value()); !error.empty()) {
-        std::fprintf(stderr, "error: %s\n", error.c_str());
-        return 2;
-      }
-    }
-    else if (arg == "--platform") options.runtime.platform = value();
-    else if (arg == "--device") options.runtime.device = value();
-    else if (arg == "--cache-dir") options.runtime.cache_dir = value();
-    else if (arg == "--vector-width") options.runtime.vector_width = static_cast<int>(number());
-    else if (arg == "--small-launch-queries") options.runtime.small_launch_queries = static_cast<size_t>(number());
-    else if (arg == "--max-batch-queries") options.batcher.max_batch_queries = number();
-    else if (arg == "--max-queue-delay-us")
-      options.batcher.interactive.max_queue_delay = options.batcher.bulk.max_queue_delay =
-          std::chrono::microseconds(number());
-    else if (arg == "--max-queued-queries")
-      options.batcher.interactive.max_queued_queries = options.batcher.bulk.max_queued_queries = number();
-    else if (arg == "--queue-policy") {
-      if (std::string error = ParseQueuePolicy(value(), &options.batcher); !error.empty()) {
-        std::fprintf(stderr, "error: --queue-policy: %s\n", error.c_str());
-        return 2;
-      }
-    }
-    else if (arg == "--no-batching") options.batcher.coalesce = false;
-    else if (arg == "--metrics-address") options.metrics_address = value();
-    else if (arg == "--environment-dir") options.environment_dir = value();
-    else if (arg == "--data-dir") options.data_dir = value();
-    else if (arg == "--btf-store-mb") options.btf_store_bytes = mebibytes();
-    else if (arg == "--btf-client-quota-mb") options.btf_client_quota_bytes = std::min(number(), 1ULL << 24) << 20;
-    else if (arg == "--btf-sync-seconds") options.btf_sync_period = std::chrono::seconds(std::min(number(), 86400ULL));
-    else if (arg == "--memory-budget-mb") options.limits.memory_budget_bytes = mebibytes();
-    else if (arg == "--max-long-calls") options.limits.max_long_running_calls = positive();
-    else if (arg == "--max-long-calls-per-client") options.limits.max_long_calls_per_client = positive();
-    else if (arg == "--max-memory-per-client-mb") options.memory_per_client_bytes = mebibytes();
-    else if (arg == "--max-streams-per-connection")
-      options.max_streams_per_connection = static_cast<int>(std::min(positive(), 1ULL << 20));
-    else if (arg == "--keepalive-seconds")
-      options.keepalive_time = std::chrono::seconds(std::min(positive(), 86400ULL));
-    else if (arg == "--keepalive-timeout-seconds")
-      options.keepalive_timeout = std::chrono::seconds(std::min(positive(), 86400ULL));
-    else if (arg == "--max-connection-age-seconds")
-      options.max_connection_age = std::chrono::seconds(std::min(positive(), 31536000ULL));
-    else if (arg == "--max-connection-age-grace-seconds")
-      options.max_connection_age_grace = std::chrono::seconds(std::min(positive(), 31536000ULL));
-    else if (arg == "--max-health-watches") options.max_health_watches = positive();
-    else if (arg == "--max-health-watches-per-client") options.max_health_watches_per_client = positive();
-    else if (arg == "--material-cache-mb") options.limits.material_cache_bytes = mebibytes();
-    else if (arg == "--fold-cache-mb") options.limits.fold_cache_bytes = mebibytes();
-    else if (arg == "--fiber-cache-mb") options.limits.fiber_cache_bytes = mebibytes();
-    else if (arg == "--upload-idle-seconds") options.limits.upload_idle_timeout = std::chrono::seconds(positive());
-    else if (arg == "--max-upload-seconds") options.limits.upload_max_duration = std::chrono::seconds(positive());
-    else if (arg == "--environment-cache-mb") options.environment_cache_bytes = mebibytes();
-    else if (arg == "--grpc-memory-mb") options.grpc_memory_bytes = mebibytes();
-    else if (arg == "--stall-seconds") options.stall_limit = std::chrono::seconds(positive());
-    else if (arg == "--max-call-seconds") {
-      // "N" caps both priorities, "interactive:N" or "bulk:N" one.
-      const std::string v = value();
-      const size_t colon = v.find(':');
-      const std::string priority = colon == std::string::npos ? "" : v.substr(0, colon);
-      const std::string n = v.substr(colon == std::string::npos ? 0 : colon + 1);
-      char* end = nullptr;
-      const unsigned long long seconds = std::strtoull(n.c_str(), &end, 10);
-      if ((colon != std::string::npos && priority != "interactive" && priority != "bulk") || n.empty() || *end ||
-          seconds == 0) {
-        std::fprintf(stderr, "error: --max-call-seconds takes N, interactive:N or bulk:N (N >= 1), got '%.80s'\n",
-                     v.c_str());
-        return 2;
-      }
-      const std::chrono::milliseconds cap = std::chrono::seconds(std::min(seconds, 31536000ULL));  // a year at most
-      if (priority != "bulk") options.call_caps.interactive = cap;
-      if (priority != "interactive") options.call_caps.bulk = cap;
-    }
-    else if (arg == "--stall-write-seconds") options.stall_write_timeout = std::chrono::seconds(positive());
-    else if (arg == "--shutdown-grace") options.shutdown_grace = std::chrono::seconds(number());
-    else if (arg == "--help" || arg == "-h") { Usage(); return 0; }
-    else { std::fprintf(stderr, "error: unknown option '%s'\n", arg.c_str()); Usage(); return 2; }
-    if (attached && !attached_taken) {
-      std::fprintf(stderr, "error: %s takes no value\n", arg.c_str());
-      return 2;
-    }
+  CLI::App app("Serves the Loomlight API on PoCL's CPU device (or any OpenCL device).", "loomlight-server");
+  loomlight::cli::Configure(app, kHelpColumnWidth);
+  AddOptions(app, options);
+  loomlight::cli::AddHelpFlag(app, "Options");
+  // "--name=value" is "--name value" (the form manifests and service files often use); an unknown option or a bad
+  // value is refused before --help is looked at, so `loomlight-server ARGS --help` checks ARGS.
+  std::string usage_error;
+  try {
+    app.parse(argc, argv);
+    const std::vector<std::string> extras = app.remaining();
+    if (const auto unknown = loomlight::cli::UnknownOption(extras)) usage_error = *unknown;
+    else if (!extras.empty()) usage_error = "unexpected argument '" + extras.front().substr(0, 80) + "'";
+  } catch (const CLI::ParseError& e) {
+    usage_error = e.what();
+  }
+  if (!usage_error.empty()) {
+    std::fprintf(stderr, "error: %s\nRun 'loomlight-server --help' for the options.\n", usage_error.c_str());
+    return 2;
+  }
+  if (app.get_option("--help")->count() > 0) {
+    std::cout << app.help();
+    return 0;
   }
   // Freed call buffers stay with the process, up to the budget calls may hold (server/runtime/allocator.h).
   if (!loomlight::runtime::KeepFreedMemory(options.limits.memory_budget_bytes))

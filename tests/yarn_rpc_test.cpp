@@ -14,6 +14,7 @@
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/server.h"
 #include "server/api/yarn_rpc.h"
+#include "server/yarn/geometry_stream.h"
 #include "tests/testing.h"
 
 namespace loomlight {
@@ -52,6 +53,51 @@ void SetParam(v1::YarnGeometryRequest* r, const std::string& name, double value)
   v1::Param* p = r->mutable_yarn()->add_params();
   p->set_name(name);
   p->add_values(value);
+}
+
+// The streamed batches (server/yarn/geometry_stream.h) on hand-made curves, where the server's stream is too
+// big to show the rules: every curve once, in order, across a yarn with no fibers; whole curves up to the
+// byte bound; a curve over the bound alone in its batch; the summary's box holds every point widened by half
+// its curve's width.
+TEST(CurveBatcher, BatchesWholeCurvesInOrderWithinTheBoundAndALongCurveAlone) {
+  const auto curve = [](int fiber, size_t points, double width) {
+    yarn::FiberCurve c;
+    c.fiber = fiber;
+    c.ply = fiber % 2;
+    c.width = width;
+    c.type = fiber < 0 ? yarn::FiberType::kCore : yarn::FiberType::kHair;
+    for (size_t k = 0; k < points; ++k) c.points.push_back({double(fiber), double(k), -double(k)});
+    return c;
+  };
+  std::vector<yarn::YarnGeometry> yarns(3);
+  yarns[0].fibers = {curve(-1, 3, 0.5), curve(0, 3, 0.25)};  // 60 bytes each
+  yarns[2].fibers = {curve(1, 10, 0.125), curve(2, 2, 1), curve(3, 2, 1)};  // 144, 48, 48
+  const size_t bound = 130;
+  yarn::CurveBatcher batcher(yarns);
+  std::vector<std::vector<int32_t>> batches;
+  std::vector<uint32_t> yarn_of;
+  while (!batcher.done()) {
+    yarn::CurveBatch batch;
+    batcher.Next(bound, &batch);
+    ASSERT_FALSE(batch.fibers.empty()) << "an empty batch before the end";
+    size_t bytes = 0, points = 0;
+    for (uint32_t n : batch.point_counts) bytes += 12 * n + 24, points += n;
+    if (batch.fibers.size() > 1) EXPECT_LE(bytes, bound);
+    EXPECT_EQ(batch.points.size(), 3 * points);
+    EXPECT_EQ(batch.widths.size(), batch.fibers.size());
+    yarn_of.insert(yarn_of.end(), batch.yarns.begin(), batch.yarns.end());
+    batches.push_back(batch.fibers);
+    ASSERT_LE(batches.size(), 5u);
+  }
+  EXPECT_EQ(batches, (std::vector<std::vector<int32_t>>{{-1, 0}, {1}, {2, 3}}));
+  EXPECT_EQ(yarn_of, (std::vector<uint32_t>{0, 0, 2, 2, 2}));
+  EXPECT_EQ(batcher.curves_done(), 5u);
+
+  const yarn::GeometrySummary summary = yarn::Summarise(yarns);
+  EXPECT_EQ(summary.fibers, 5u);
+  EXPECT_EQ(summary.bounds_min, (std::array<double, 3>{-1.25, -0.5, -9.0625}));
+  EXPECT_EQ(summary.bounds_max, (std::array<double, 3>{3.5, 9.0625, 0.5}));
+  EXPECT_EQ(yarn::Summarise({}).bounds_max, (std::array<double, 3>{0, 0, 0}));
 }
 
 // The fiber-scene cache: a job with the same fibers gets the scene built before (nothing admitted, the same

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <optional>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -12,6 +13,7 @@
 #include "server/api/stream_call.h"
 #include "server/models/material.h"
 #include "server/models/quote.h"
+#include "server/yarn/geometry_stream.h"
 #include "server/yarn/layout.h"
 #include "server/yarn/yarn_schema.h"
 
@@ -123,6 +125,7 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
           status_ = limit ? Invalid(error) : grpc::Status(grpc::StatusCode::INTERNAL, error);
       } else {
         geometry_ = geometry;
+        curves_.emplace(geometry_->yarns);
         generate_seconds_ = seconds;
       }
       Pump();
@@ -144,29 +147,15 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
   }
 
   void Summarise(v1::YarnGeometrySummary* s) const {
-    uint64_t fibers = 0, points = 0;
-    double lo[3] = {HUGE_VAL, HUGE_VAL, HUGE_VAL}, hi[3] = {-HUGE_VAL, -HUGE_VAL, -HUGE_VAL};
-    for (const yarn::YarnGeometry& g : geometry_->yarns) {
-      fibers += g.fibers.size();
-      points += static_cast<uint64_t>(g.control_points);
-      for (const yarn::FiberCurve& c : g.fibers)
-        for (const yarn::Vec3& p : c.points) {
-          const double v[3] = {p.x, p.y, p.z};
-          for (int k = 0; k < 3; ++k) {
-            lo[k] = std::min(lo[k], v[k] - 0.5 * c.width);
-            hi[k] = std::max(hi[k], v[k] + 0.5 * c.width);
-          }
-        }
-    }
-    if (fibers == 0) std::fill(lo, lo + 3, 0.0), std::fill(hi, hi + 3, 0.0);
-    s->set_fibers(fibers);
-    s->set_control_points(points);
+    const yarn::GeometrySummary summary = yarn::Summarise(geometry_->yarns);
+    s->set_fibers(summary.fibers);
+    s->set_control_points(summary.control_points);
     // Every yarn of one call has the same level of detail (one footprint, one yarn model).
     s->set_lambda(geometry_->yarns.front().lambda);
     s->set_points_per_twist(static_cast<uint32_t>(geometry_->yarns.front().points_per_twist));
     s->mutable_yarns()->Add(geometry_->laid.begin(), geometry_->laid.end());
-    s->mutable_bounds_min()->Add(lo, lo + 3);
-    s->mutable_bounds_max()->Add(hi, hi + 3);
+    s->mutable_bounds_min()->Add(summary.bounds_min.begin(), summary.bounds_min.end());
+    s->mutable_bounds_max()->Add(summary.bounds_max.begin(), summary.bounds_max.end());
     s->set_generate_seconds(generate_seconds_);
   }
 
@@ -178,36 +167,23 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
       sent_summary_ = true;
       Summarise(chunk_.mutable_summary());
     }
+    yarn::CurveBatch batch;
+    curves_->Next(kYarnChunkBytes, &batch);
     v1::FiberCurves* out = chunk_.mutable_curves();
-    size_t bytes = 0;
-    const auto& yarns = geometry_->yarns;
-    while (next_yarn_ < yarns.size()) {
-      if (next_fiber_ == yarns[next_yarn_].fibers.size()) {
-        ++next_yarn_, next_fiber_ = 0;
-        continue;
-      }
-      const yarn::FiberCurve& c = yarns[next_yarn_].fibers[next_fiber_];
-      const size_t need = 12 * c.points.size() + 24;
-      if (bytes > 0 && bytes + need > kYarnChunkBytes) break;
-      bytes += need;
-      out->add_point_counts(static_cast<uint32_t>(c.points.size()));
-      for (const yarn::Vec3& p : c.points) {
-        out->add_points(static_cast<float>(p.x));
-        out->add_points(static_cast<float>(p.y));
-        out->add_points(static_cast<float>(p.z));
-      }
-      out->add_widths(static_cast<float>(c.width));
-      out->add_types(ToProto(c.type));
-      out->add_yarns(static_cast<uint32_t>(next_yarn_));
-      out->add_plies(static_cast<uint32_t>(c.ply));
-      out->add_fibers(c.fiber);
-      ++next_fiber_;
-      ++fibers_sent_;
-    }
-    chunk_.set_fibers_sent(fibers_sent_);
-    if (next_yarn_ == yarns.size()) {
+    out->mutable_point_counts()->Add(batch.point_counts.begin(), batch.point_counts.end());
+    out->mutable_points()->Add(batch.points.begin(), batch.points.end());
+    out->mutable_widths()->Add(batch.widths.begin(), batch.widths.end());
+    std::transform(batch.types.begin(), batch.types.end(),
+                   google::protobuf::RepeatedFieldBackInserter(out->mutable_types()),
+                   [](yarn::FiberType type) { return ToProto(type); });
+    out->mutable_yarns()->Add(batch.yarns.begin(), batch.yarns.end());
+    out->mutable_plies()->Add(batch.plies.begin(), batch.plies.end());
+    out->mutable_fibers()->Add(batch.fibers.begin(), batch.fibers.end());
+    chunk_.set_fibers_sent(curves_->curves_done());
+    if (curves_->done()) {
       chunk_.set_total_seconds(SecondsSince(received_));
-      geometry_.reset();  // all sent: free it while the last write is in flight
+      curves_.reset();  // all sent: free the geometry while the last write is in flight
+      geometry_.reset();
       done_sending_ = true;
     }
     write_in_flight_ = true;
@@ -226,8 +202,7 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
   double generate_seconds_ = 0;
   bool sent_summary_ = false;
   bool done_sending_ = false;
-  size_t next_yarn_ = 0, next_fiber_ = 0;  // the next curve to send
-  uint64_t fibers_sent_ = 0;
+  std::optional<yarn::CurveBatcher> curves_;  // over geometry_'s curves, the next to send
   v1::YarnGeometryChunk chunk_;
 };
 
@@ -297,133 +272,22 @@ std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, co
   return "";
 }
 
-std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns, std::vector<LaidYarn>* laid) {
-  yarns->clear();
-  laid->clear();
-  std::string error;
-  if (job->woven) {
-    yarn::WovenLayout layout;
-    error = yarn::BuildLayout(job->pattern, job->layout, &layout);
-    yarn::LayoutGeometry fibers;
-    if (error.empty()) error = yarn::GenerateLayout(job->params, layout, job->detail, job->limits, &fibers);
-    if (error.empty()) {
-      *yarns = std::move(fibers.yarns);
-      for (const yarn::LayoutYarn& y : layout.yarns)
-        laid->push_back({y.warp, y.thread, y.curve.Length(), std::make_shared<yarn::PolylineYarnCurve>(y.curve)});
-    }
-  } else {
-    job->params.length = job->straight_length;
-    error = yarn::GenerateStraightYarn(job->params, job->detail, job->limits, &yarns->emplace_back());
-    laid->push_back({false, 0, job->straight_length, std::make_shared<yarn::StraightYarnCurve>(job->straight_length)});
-  }
-  if (!error.empty()) {
-    yarns->clear();
-    laid->clear();
-  }
-  return error;
-}
-
-bool SameFibers(const YarnJob& a, const YarnJob& b) {
-  return a.params == b.params && a.detail.SameOutput(b.detail) && a.limits == b.limits && a.woven == b.woven &&
-         (a.woven ? a.pattern == b.pattern && a.layout == b.layout : a.straight_length == b.straight_length);
-}
-
-bool FiberSceneCache::Find(const YarnJob& job, bool need_visibility, Scene* out) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  for (auto it = entries_.begin(); it != entries_.end(); ++it) {
-    if (!SameFibers(it->job, job) || (need_visibility && !it->scene.visibility)) continue;
-    entries_.splice(entries_.begin(), entries_, it);
-    *out = entries_.front().scene;
-    return true;
-  }
-  return false;
-}
-
-void FiberSceneCache::Keep(const YarnJob& job, Scene scene, size_t bytes) {
-  if (bytes > capacity_bytes_) return;
-  std::lock_guard<std::mutex> lock(mutex_);
-  entries_.remove_if([&](const Entry& e) {
-    const bool same = SameFibers(e.job, job);
-    if (same) bytes_ -= e.bytes;
-    return same;
-  });
-  while (!entries_.empty() && bytes_ + bytes > capacity_bytes_) {
-    bytes_ -= entries_.back().bytes;
-    entries_.pop_back();
-  }
-  Entry entry{job, std::move(scene), bytes};
-  entry.job.detail.stop = nullptr;  // it may reach into the call that built the scene
-  entries_.push_front(std::move(entry));
-  bytes_ += bytes;
-}
-
-size_t FiberSceneCache::bytes() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return bytes_;
-}
-
-size_t FiberSceneCache::entries() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return entries_.size();
-}
-
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
                              std::shared_ptr<const yarn::YarnVisibility>* visibility, FiberSceneCache* cache,
                              const std::string& yarn_field) {
-  if (FiberSceneCache::Scene found; cache && cache->Find(*job, visibility != nullptr, &found)) {
-    *scene = std::move(found.fibers);
-    if (visibility) *visibility = std::move(found.visibility);
-    return grpc::Status::OK;
+  const yarn::FiberSceneOutcome outcome =
+      yarn::BuildFiberScene(job, [stop] { return !stop().ok(); }, grow, scene, visibility, cache);
+  using Kind = yarn::FiberSceneOutcome::Kind;
+  switch (outcome.kind) {
+    case Kind::kOk: return grpc::Status::OK;
+    case Kind::kStopped: return stop();
+    case Kind::kLimits:
+      return Invalid(yarn_field + ": " + outcome.message + " (the fiber limits; README \"Render: fibers\")");
+    case Kind::kNoMemory: return {grpc::StatusCode::RESOURCE_EXHAUSTED, outcome.message};
+    case Kind::kInternal: break;
   }
-  const auto stopped = [stop] { return !stop().ok(); };  // a copy: job->detail keeps it
-  job->detail.stop = stopped;
-  std::vector<yarn::YarnGeometry> yarns;
-  std::vector<LaidYarn> laid;
-  if (std::string e = GenerateYarnJob(job, &yarns, &laid); !e.empty()) {
-    if (grpc::Status s = stop(); !s.ok()) return s;
-    return Invalid(yarn_field + ": " + e + " (the fiber limits; README \"Render: fibers\")");
-  }
-  std::vector<const yarn::YarnGeometry*> pointers;
-  for (const yarn::YarnGeometry& y : yarns) pointers.push_back(&y);
-  const yarn::FiberSceneEstimate estimate = yarn::EstimateFiberScene(pointers);
-  if (!grow(static_cast<size_t>(estimate.total_bytes)))
-    return {grpc::StatusCode::RESOURCE_EXHAUSTED, "bvh_memory: the fibers' BVH needs up to " +
-                                                      std::to_string(estimate.total_bytes) +
-                                                      " bytes, more than the server has free now"};
-  yarn::FiberSceneOptions options;
-  options.max_bytes = std::max<int64_t>(estimate.total_bytes, 1);
-  options.threads = 2;
-  options.cancel = stopped;
-  auto built = std::make_shared<yarn::FiberScene>();
-  if (std::string e = yarn::FiberScene::Build(pointers, options, built.get()); !e.empty()) {
-    if (grpc::Status s = stop(); !s.ok()) return s;
-    if (e.rfind("bvh_memory", 0) == 0) return {grpc::StatusCode::RESOURCE_EXHAUSTED, e};
-    return {grpc::StatusCode::INTERNAL, "building the fibers' BVH: " + e};
-  }
-  *scene = std::move(built);
-  if (!visibility) {
-    if (cache) cache->Keep(*job, {*scene, nullptr}, static_cast<size_t>(estimate.total_bytes));
-    return grpc::Status::OK;
-  }
-  // A few tubes and a shared cross-section (the other yarns as tubes of the layout's radius).
-  std::vector<std::shared_ptr<const yarn::YarnCurve>> centres;
-  for (const LaidYarn& l : laid) centres.push_back(l.centre);
-  const double tube_radius = job->woven ? job->layout.yarn_radius : job->params.yarn_radius;
-  auto made = std::make_shared<yarn::YarnVisibility>();
-  if (std::string v = yarn::YarnVisibility::Make(job->params, std::move(centres), tube_radius, {}, stopped, made.get());
-      !v.empty()) {
-    if (grpc::Status s = stop(); !s.ok()) return s;
-    return {grpc::StatusCode::INTERNAL, "the yarn's cross-section: " + v};
-  }
-  // The other yarns' openness table (at most YarnVisibility::kMaxOpennessBytes), filled while rendering.
-  if (!grow(made->openness_bytes()))
-    return {grpc::StatusCode::RESOURCE_EXHAUSTED, "bvh_memory: the other yarns' openness table needs " +
-                                                      std::to_string(made->openness_bytes()) +
-                                                      " bytes, more than the server has free now"};
-  if (cache) cache->Keep(*job, {*scene, made}, static_cast<size_t>(estimate.total_bytes) + made->openness_bytes() + job->layout_bytes);
-  *visibility = std::move(made);
-  return grpc::Status::OK;
+  return {grpc::StatusCode::INTERNAL, outcome.message};
 }
 
 grpc::ServerWriteReactor<v1::YarnGeometryChunk>* HandleYarnGeometry(const ServiceDeps& deps,

@@ -1,24 +1,25 @@
 // The YarnGeometry RPC: the fiber curves of a procedural yarn (server/yarn/), straight or laid out as the warp
 // and weft of a weave, streamed to the client. The request is checked on the gRPC thread (cheap: parameters,
 // layout, limits); the curves are generated on the service's geometry worker (deadline and cancellation stop
-// it between fibers), then converted to float and written in ~1 MiB chunks from the host worker, one write in
-// flight (server/api/stream_call.h).
+// it between fibers; server/yarn/yarn_job.h), then converted to float in batches of whole curves
+// (server/yarn/geometry_stream.h) and written in ~1 MiB chunks from the host worker, one write in flight
+// (server/api/stream_call.h).
 #pragma once
 
 #include <cstdint>
 #include <functional>
-#include <list>
 #include <memory>
-#include <mutex>
 #include <string>
 
 #include "loomlight/v1/loomlight.grpc.pb.h"
 #include "server/api/service.h"
 #include "server/models/registry.h"
 #include "server/yarn/fiber_scene.h"
+#include "server/yarn/fiber_scene_cache.h"
 #include "server/yarn/layout.h"
 #include "server/yarn/visibility.h"
 #include "server/yarn/yarn.h"
+#include "server/yarn/yarn_job.h"
 
 namespace loomlight::api {
 
@@ -38,18 +39,12 @@ constexpr size_t kYarnChunkBytes = size_t{1} << 20;
 // "yarn.field: reason".
 std::string YarnParamsOf(const v1::Yarn& yarn, yarn::YarnParams* out);
 
-// What a validated yarn request asks for (YarnGeometry, Render's yarn scenes): everything GenerateYarn or
-// GenerateLayout needs.
-struct YarnJob {
-  yarn::YarnParams params;
-  yarn::DetailOptions detail;
-  yarn::YarnLimits limits;
-  double straight_length = 1;
-  bool woven = false;  // else one straight yarn
-  models::weave::WeavePattern pattern;
-  yarn::LayoutParams layout;
-  size_t layout_bytes = 0;  // the centre polylines' estimated size
-};
+// What a validated yarn request asks for, and its generation (server/yarn/yarn_job.h); Render and CreateBtf
+// name them through this header.
+using yarn::GenerateYarnJob;
+using yarn::LaidYarn;
+using yarn::SameFibers;
+using yarn::YarnJob;
 
 // The yarn of a request and its layout: a woven patch (`woven` not null; fields under "woven.") or one
 // straight yarn of `straight_length` (0 = 1; "straight.length"). Detail and limits are the caller's. Returns ""
@@ -57,58 +52,19 @@ struct YarnJob {
 std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const v1::WovenYarnLayout* woven,
                       double straight_length, YarnJob* job);
 
-// One generated yarn of a job: a layout's warp or weft, or the straight yarn.
-struct LaidYarn {
-  bool warp = false;
-  int thread = 0;
-  double length = 0;
-  std::shared_ptr<const yarn::YarnCurve> centre;  // the centre curve its fibers were generated along
-};
-// Generates a job's fibers (GenerateLayout or GenerateStraightYarn): one YarnGeometry per yarn. Returns "" or
-// their error ("cancelled", "max_fibers: ...", ...), leaving both outputs empty.
-std::string GenerateYarnJob(YarnJob* job, std::vector<yarn::YarnGeometry>* yarns, std::vector<LaidYarn>* laid);
-
-// Fiber scenes kept across calls (Render's fiber scenes, CreateBtf's fiber source): generating a woven patch's
-// fibers and building their BVH takes about a tenth of a second, and an editor renders the same patch again
-// under another light or from another side (the same detail); the openness nodes one render traced serve the
-// next. Least recently used first out, bounded in bytes (the BVH's estimate and the openness table); an entry
-// matches a job with the same yarn, layout, pattern, detail and limits (SameFibers).
-class FiberSceneCache {
+// Fiber scenes kept across calls (server/yarn/fiber_scene_cache.h), by the name service.h declares.
+class FiberSceneCache final : public yarn::FiberSceneCache {
  public:
-  explicit FiberSceneCache(size_t capacity_bytes) : capacity_bytes_(capacity_bytes) {}
-  struct Scene {
-    std::shared_ptr<const yarn::FiberScene> fibers;
-    std::shared_ptr<const yarn::YarnVisibility> visibility;  // null where it was built without
-  };
-  // The scene built for a job with the same fibers (with its visibility when `need_visibility`); false if none.
-  bool Find(const YarnJob& job, bool need_visibility, Scene* out);
-  // Keeps `scene` for `job` (replacing an entry for the same fibers) unless it alone is over the bound.
-  void Keep(const YarnJob& job, Scene scene, size_t bytes);
-  size_t bytes() const;
-  size_t entries() const;
-
- private:
-  struct Entry {
-    YarnJob job;  // its stop predicate cleared
-    Scene scene;
-    size_t bytes = 0;
-  };
-  const size_t capacity_bytes_;
-  mutable std::mutex mutex_;
-  std::list<Entry> entries_;  // most recently used first
-  size_t bytes_ = 0;
+  using yarn::FiberSceneCache::FiberSceneCache;
 };
-
-// Whether two jobs generate the same fibers along the same centres.
-bool SameFibers(const YarnJob& a, const YarnJob& b);
 
 // A job's fibers in an Embree BVH, for ray tracing them (Render's fiber scenes, CreateBtf's fiber source):
 // generates them, admits the BVH's estimated bytes through `grow` (RESOURCE_EXHAUSTED when it refuses) before
 // building it bounded by them, and with `visibility` not null also builds the yarns' cheap visibility
-// (cross-section slices and occlusion, other yarns as tubes). `stop` says why to stop (deadline, cancellation;
-// OK to go on) and is asked between fibers and during the build. OK, INVALID_ARGUMENT for the yarn's limits
-// ("<yarn_field>: ..."), or why it stopped. With a `cache`, a scene it holds for the same fibers is used as it
-// is (nothing generated, built or admitted), and a scene built here is kept there.
+// (cross-section slices and occlusion, other yarns as tubes): yarn::BuildFiberScene with `stop` saying why to
+// stop (deadline, cancellation; OK to go on). OK, INVALID_ARGUMENT for the yarn's limits ("<yarn_field>: ..."),
+// RESOURCE_EXHAUSTED where memory is short, or why it stopped. With a `cache`, a scene it holds for the same
+// fibers is used as it is (nothing generated, built or admitted), and a scene built here is kept there.
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
                              std::shared_ptr<const yarn::YarnVisibility>* visibility, FiberSceneCache* cache,

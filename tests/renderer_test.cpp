@@ -109,8 +109,9 @@ Rendered RenderWith(render::RenderInputs in, LambertianEvaluator* evaluator,
   Rendered run;
   render::Renderer renderer(std::move(in), evaluator, std::move(stop), [&run] { ++run.progress; });
   EXPECT_TRUE(renderer.Plan().ok());
-  if (renderer.NeedsBuild())
+  if (renderer.NeedsBuild()) {
     EXPECT_TRUE(renderer.Build([] { return false; }, [](uint64_t) { return true; }).ok());
+  }
   renderer.Start();
   evaluator->RunUntilIdle();
   EXPECT_FALSE(renderer.InFlight());

@@ -13,10 +13,10 @@
 #include "server/api/yarn_rpc.h"
 #include "server/assets/btf_store.h"
 #include "server/imaging/image_encode.h"
+#include "server/models/btf/uploaded_images.h"
 #include "server/models/material_plan.h"
 #include "server/models/quote.h"
-#include "server/render/btf_capture.h"
-#include "server/render/renderer.h"
+#include "server/render/btf_synthesis.h"
 
 namespace loomlight::api {
 namespace {
@@ -140,11 +140,6 @@ constexpr uint32_t kDefaultFiberSamples = 4;
 constexpr uint32_t kMaxFiberSamples = 64;
 // The patch traced: this many weave repeats per side, the tile the central one (Scene::tiling needs 3).
 constexpr int kFiberTileRepeats = 3;
-// Queries traced and evaluated at a time (a piece of a view: a run of its texels); each costs its wi, wo, axis,
-// weight and tag, the kernel's result and, while the tracing threads' parts are joined, a second copy.
-constexpr size_t kFiberPieceQueries = size_t{1} << 18;
-constexpr size_t kFiberBytesPerQuery = 2 * 52 + 12;
-
 // The request's fiber source: its yarn on its weave (cotton_twill by default), laid out 3 x 3 repeats, at full
 // detail within Render's fiber limits. "" or "fibers.field: reason".
 std::string FiberSourceOf(const models::Registry& registry, const v1::FiberBtfSource& f, FiberSource* out) {
@@ -173,61 +168,49 @@ std::string FiberSourceOf(const models::Registry& registry, const v1::FiberBtfSo
 // admitted once estimated), the layout's polylines and one piece's queries.
 size_t FiberSourceBytes(const FiberSource& f) {
   return kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber + f.yarn.layout_bytes +
-         kFiberPieceQueries * kFiberBytesPerQuery;
+         render::kBtfPieceQueries * render::kBtfBytesPerPieceQuery;
 }
 
-// One CreateBtf call: the material prepared on the geometry worker; one view's images in flight on the batcher
-// at a time (every light and texel of the view: a bulk job; from fibers, a piece of the view's texels traced on
-// the geometry worker, then its queries); then compression and storing on the geometry worker; progress written
-// from the host worker, one write in flight.
+// One CreateBtf call: the material prepared on the geometry worker; its images synthesised view by view
+// (render::BtfSynthesis: every light and texel of a view as bulk batcher jobs; from fibers, a piece of a view's
+// texels traced on the geometry worker, then its queries), one evaluation in flight; then compression and
+// storing on the geometry worker; progress written from the host worker, one write in flight.
 class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
  public:
   CreateBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, BtfJob job, v1::Material material,
                 std::unique_ptr<FiberSource> fibers, Admission admission, Clock::time_point received)
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), job_(std::move(job)),
-        material_(std::move(material)), fibers_(std::move(fibers)) {
+        material_(std::move(material)), fibers_(std::move(fibers)),
+        evaluator_({deps_.batcher, deps_.metrics, false, deadline_, context_, client_,
+                    [this](std::function<void()> task) { Post(std::move(task)); }, [this] { Pump(); }, false}) {
     deps_.geometry->Post([this] { Prepare(); }, client_);
   }
 
  private:
   enum class Stage { kPreparing, kSynthesis, kCompression, kDone };
 
-  // On the geometry worker: the material packed, and the directions every view shares.
+  // On the geometry worker: the material packed, the fibers built when the source is fibers, and the synthesis
+  // set up (its images allocated, the directions every view shares).
   void Prepare() {
     std::shared_ptr<const models::PreparedMaterial> prepared;
+    std::unique_ptr<render::BtfCapture> capture;
     grpc::Status s = PrepareMaterial(deps_, material_, &prepared);
-    if (s.ok() && fibers_) s = PrepareFibers(*prepared);
+    if (s.ok() && fibers_) s = PrepareFibers(*prepared, &capture);
     else if (s.ok() && !prepared->model->spatially_varying())
       s = Invalid("material: model " + models::Quote(prepared->model->name()) +
                   " does not vary over the surface (a BTF needs one that does, e.g. woven)");
     if (s.ok() && prepared->transmission) s = Invalid("material.transmission: a BTF asset is a reflection model");
+    std::unique_ptr<render::BtfSynthesis> synthesis;
     if (s.ok()) {
-      const size_t n = job_.grid.size();
-      images_.grid = job_.grid;
-      images_.width = job_.width;
-      images_.height = job_.height;
-      images_.f.assign(n * n * images_.image_values(), 0.0f);
+      const auto stop = [this] { return FromGrpc(StopStatus(context_, deadline_)); };
+      const auto progress = [this] { Pump(); };
+      synthesis = capture ? std::make_unique<render::BtfSynthesis>(prepared, std::move(capture), &evaluator_, stop, progress)
+                          : std::make_unique<render::BtfSynthesis>(prepared, job_.grid, job_.width, job_.height,
+                                                                   &evaluator_, stop, progress);
     }
-    if (s.ok() && !capture_) {
-      const size_t n = job_.grid.size(), texels = size_t(job_.width) * job_.height;
-      // Query (light l, texel t) of a view: wi the light's direction, uv the texel's centre.
-      wi_.resize(3 * n * texels);
-      uv_.resize(2 * n * texels);
-      wo_.resize(3 * n * texels);
-      for (size_t l = 0; l < n; ++l) {
-        double w[3];
-        job_.grid.Direction(l, w);
-        for (size_t t = 0; t < texels; ++t) {
-          const size_t q = l * texels + t;
-          for (int c = 0; c < 3; ++c) wi_[3 * q + c] = float(w[c]);
-          uv_[2 * q] = float((double(t % job_.width) + 0.5) / job_.width);
-          uv_[2 * q + 1] = float((double(t / job_.width) + 0.5) / job_.height);
-        }
-      }
-    }
-    Post([this, s, prepared] {
+    Post([this, s, prepared, synthesis = std::shared_ptr<render::BtfSynthesis>(std::move(synthesis))] {
       prepared_ = prepared;
-      fiber_evaluator_ = {prepared_.get(), false, false, true};
+      synthesis_ = synthesis;
       if (!s.ok() && status_.ok()) status_ = s;
       stage_ = Stage::kSynthesis;
       Pump();
@@ -237,9 +220,11 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   void Pump() override {
     if (finished_ || stage_ == Stage::kPreparing) return;  // OnCancel's pump waits for the worker's step
     NoticeStop();
+    if (status_.ok() && synthesis_ && !synthesis_->status().ok()) status_ = ToGrpc(synthesis_->status());
     if (status_.ok()) MaybeSubmitView();
     if (!status_.ok()) {
-      if (!job_in_flight_ && !compressing_ && !tracing_ && !write_in_flight_) FinishCall(status_);
+      const bool in_flight = synthesis_ && synthesis_->InFlight();
+      if (!in_flight && !compressing_ && !tracing_ && !write_in_flight_) FinishCall(status_);
       return;
     }
     if (write_in_flight_) return;
@@ -248,7 +233,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   }
 
   std::tuple<Stage, size_t> Progress() const {
-    return {stage_, stage_ == Stage::kSynthesis ? views_done_ : stage_ == Stage::kCompression ? compressed_ : 0};
+    return {stage_, stage_ == Stage::kSynthesis ? synthesis_->views_done() : stage_ == Stage::kCompression ? compressed_ : 0};
   }
 
   void WriteProgress() {
@@ -259,7 +244,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     switch (stage_) {
       case Stage::kSynthesis:
         message_.set_stage("synthesis");
-        message_.set_views_done(uint32_t(views_done_));
+        message_.set_views_done(uint32_t(synthesis_->views_done()));
         break;
       case Stage::kCompression:
         message_.set_stage("compression");
@@ -276,7 +261,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   }
 
   // On the geometry worker: the fiber model checked, the patch's fibers generated and built, the capture set up.
-  grpc::Status PrepareFibers(const models::PreparedMaterial& prepared) {
+  grpc::Status PrepareFibers(const models::PreparedMaterial& prepared, std::unique_ptr<render::BtfCapture>* capture) {
     if (prepared.model->fiber_axis_param().empty() || prepared.transmission)
       return Invalid("material: a fiber source shades each fiber with a fiber model (e.g. preset cotton), not " +
                      models::Quote(prepared.model->name()) + (prepared.transmission ? " with a layer" : ""));
@@ -290,81 +275,29 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     const double spacing = y.layout.spacing;
     const render::Scene::Tiling tile{y.pattern.warps * spacing, y.pattern.picks * spacing, y.pattern.warps * spacing,
                                       y.pattern.picks * spacing};
-    capture_ = std::make_unique<render::BtfCapture>(scene, tile, job_.grid, job_.width, job_.height, fibers_->samples,
+    *capture = std::make_unique<render::BtfCapture>(scene, tile, job_.grid, job_.width, job_.height, fibers_->samples,
                                                     fibers_->yarn.params.seed);
-    const size_t texels = size_t(job_.width) * job_.height;
-    // Texels per piece: as many as keep a piece's queries within kFiberPieceQueries at most.
-    piece_texels_ = std::clamp<size_t>(kFiberPieceQueries * texels / std::max<size_t>(capture_->MaxQueriesPerView(), 1),
-                                       1, texels);
     return grpc::Status::OK;
   }
 
-  // The next view's images to the batcher when none is in flight; after the last, compression.
+  // The next view (or piece of one) to the batcher when none is in flight; after the last, compression.
   void MaybeSubmitView() {
-    if (stage_ != Stage::kSynthesis || job_in_flight_ || compressing_ || tracing_) return;
-    const size_t n = job_.grid.size(), texels = size_t(job_.width) * job_.height;
-    if (next_view_ == n) return StartCompression();
-    if (capture_) return TracePiece();
-    const size_t v = next_view_++;
-    double w[3];
-    job_.grid.Direction(v, w);
-    for (size_t q = 0; q < n * texels; ++q)
-      for (int c = 0; c < 3; ++c) wo_[3 * q + c] = float(w[c]);
-    plan_ = std::make_unique<models::EvaluationPlan>(*prepared_, wi_.data(), wo_.data(), uv_.data(), n * texels);
-    job_in_flight_ = plan_->parts();
-    SubmitPlan(deps_.batcher, *plan_, runtime::ResultSink{.f32 = images_.image(v, 0)}, false,
-               batching::Priority::kBulk, deadline_, context_, client_, [this](size_t k, batching::JobResult result) {
-                 Post([this, k, result = std::move(result)] { OnViewDone(k, result); });
-               });
-  }
-
-  void OnViewDone(size_t part, const batching::JobResult& result) {
-    --job_in_flight_;
-    if (result.status != batching::JobStatus::kOk) {
-      if (status_.ok()) status_ = ToStatus(result);
-    } else if (result.batch_queries > 0) {
-      deps_.metrics->Evaluated(plan_->model(part).name(), false, plan_->size(part), result.batch_queries,
-                               result.batch_requests, result.queue_seconds, result.kernel_seconds);
-    }
-    if (job_in_flight_ == 0 && status_.ok()) {
-      if (!capture_) {
-        ++views_done_;
-      } else {
-        render::BtfCapture::Accumulate(bucket_, f_.data(), images_.image(next_view_, 0));
-        if (piece_begin_ == size_t(job_.width) * job_.height) {  // the view's last piece
-          ++views_done_;
-          ++next_view_;
-          piece_begin_ = 0;
-        }
-      }
-    }
-    Pump();
+    if (stage_ != Stage::kSynthesis || synthesis_->InFlight() || compressing_ || tracing_) return;
+    if (synthesis_->done()) return StartCompression();
+    if (synthesis_->NeedsTrace()) return TracePiece();
+    synthesis_->Submit();
   }
 
   // The fiber source: the next piece of the current view traced on the geometry worker (two threads), then its
-  // queries to the batcher; their results are added into the view's images as they come back.
+  // queries to the batcher.
   void TracePiece() {
     tracing_ = true;
-    const size_t texels = size_t(job_.width) * job_.height;
-    const size_t begin = piece_begin_, end = std::min(texels, begin + piece_texels_);
-    deps_.geometry->Post([this, begin, end] {
-      const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
-      capture_->TraceView(next_view_, begin, end, int(render::kTraceThreads), stop, &bucket_);
-      Post([this, end] {
+    deps_.geometry->Post([this] {
+      synthesis_->Trace(ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); }));
+      Post([this] {
         tracing_ = false;
-        piece_begin_ = end;
-        if (!status_.ok() || !StopStatus(context_, deadline_).ok()) return Pump();
-        f_.assign(3 * bucket_.size(), 0.0f);
-        if (bucket_.size() == 0) {  // nothing seen or lit in this piece
-          job_in_flight_ = 1;
-          return OnViewDone(0, batching::JobResult{});
-        }
-        plan_ = render::PlanOf(fiber_evaluator_, bucket_);
-        job_in_flight_ = plan_->parts();
-        SubmitPlan(deps_.batcher, *plan_, runtime::ResultSink{.f32 = f_.data()}, false, batching::Priority::kBulk,
-                   deadline_, context_, client_, [this](size_t k, batching::JobResult result) {
-                     Post([this, k, result = std::move(result)] { OnViewDone(k, result); });
-                   });
+        if (status_.ok()) synthesis_->Submit();  // does nothing once the call is to stop
+        Pump();
       });
     }, client_);
   }
@@ -373,20 +306,16 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   void StartCompression() {
     compressing_ = true;
     stage_ = Stage::kCompression;
-    bucket_ = {};  // the synthesis' queries and results, not needed any more
-    f_ = {};
-    wi_ = {};
-    wo_ = {};
-    uv_ = {};
-    plan_.reset();
+    synthesis_->ReleaseQueries();  // the synthesis' queries and results, not needed any more
     synthesis_seconds_ = SecondsSince(received_);
     deps_.geometry->Post([this] {
       std::shared_ptr<models::btf::BtfAsset> asset;
+      models::btf::BtfImages& images = synthesis_->images();
       grpc::Status s = CompressAndStore(
-          deps_, images_, job_, {Describe(), synthesis_seconds_, ThreadsPerTile()},
+          deps_, images, job_, {Describe(), synthesis_seconds_, ThreadsPerTile()},
           [this](size_t done) { Post([this, done] { compressed_ = done; Pump(); }); },
           ReportingProgress([this] { return StopStatus(context_, deadline_); }), &asset);
-      images_.f = {};  // the call's biggest buffer, not needed to answer
+      images.f = {};  // the call's biggest buffer, not needed to answer
       Post([this, s, asset] {
         compressing_ = false;
         if (!s.ok()) {
@@ -404,7 +333,7 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     const models::Model& m = *prepared_->model;
     std::string s = material_.preset().empty() ? "model " + m.name() : m.name() + " preset " + material_.preset();
     if (material_.params_size() > 0) s += " with " + std::to_string(material_.params_size()) + " parameters set";
-    if (!capture_) return s + ", synthesised at texel centres";
+    if (!fibers_) return s + ", synthesised at texel centres";
     const YarnJob& y = fibers_->yarn;
     char text[200];
     std::snprintf(text, sizeof text, "fibers: %d x %d weave, spacing %.4g, crimp %.3g, yarn seed %llu, shaded by ",
@@ -414,27 +343,19 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
   }
 
   double ThreadsPerTile() const {
-    if (capture_) return std::max(fibers_->yarn.pattern.warps, fibers_->yarn.pattern.picks);
+    if (fibers_) return std::max(fibers_->yarn.pattern.warps, fibers_->yarn.pattern.picks);
     return prepared_->model->ThreadsPerRepeat(prepared_->values);
   }
 
   BtfJob job_;
   const v1::Material material_;
-  // The fiber source (null: the material's own f at texel centres): its patch, the capture of it, the piece of a
-  // view in flight (its queries, their results, its texels) and the texels a piece takes.
-  const std::unique_ptr<FiberSource> fibers_;
-  std::unique_ptr<render::BtfCapture> capture_;
-  render::Evaluator fiber_evaluator_;
-  render::QueryBucket bucket_;
-  std::vector<float> f_;
-  size_t piece_begin_ = 0, piece_texels_ = 1;
-  bool tracing_ = false;
+  const std::unique_ptr<FiberSource> fibers_;  // the fiber source (null: the material's own f at texel centres)
+  BatcherEvaluator evaluator_;
+  std::shared_ptr<render::BtfSynthesis> synthesis_;  // set once prepared
+  bool tracing_ = false;  // the geometry worker traces a piece of a view
   Stage stage_ = Stage::kPreparing;
   std::shared_ptr<const models::PreparedMaterial> prepared_;
-  models::btf::BtfImages images_;
-  std::vector<float> wi_, wo_, uv_;
-  std::unique_ptr<models::EvaluationPlan> plan_;
-  size_t next_view_ = 0, views_done_ = 0, compressed_ = 0, job_in_flight_ = 0;
+  size_t compressed_ = 0;
   bool compressing_ = false, final_sent_ = false;
   double synthesis_seconds_ = 0;
   std::shared_ptr<models::btf::BtfAsset> asset_;
@@ -582,17 +503,8 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
         !e.empty())
       return {over_budget ? grpc::StatusCode::RESOURCE_EXHAUSTED : grpc::StatusCode::INVALID_ARGUMENT,
               field + ".data: " + e};
-    // The file's top row is v = 1; the images' row iv = 0 is v = 0.
-    std::vector<float>& out = pairs_[pair];
-    out.resize(images_.image_values());
-    for (int row = 0; row < job_.height; ++row)
-      for (int col = 0; col < job_.width; ++col)
-        for (int c = 0; c < 3; ++c) {
-          const double v = scale_ * decoded.rgb[(size_t(row) * job_.width + col) * 3 + c];
-          if (!std::isfinite(v) || v < 0)
-            return Invalid(field + ".data: a value that is negative or not finite (f is >= 0)");
-          out[(size_t(job_.height - 1 - row) * job_.width + col) * 3 + c] = float(v);
-        }
+    if (!models::btf::StoreUploadedImage(decoded.rgb.data(), job_.width, job_.height, scale_, &pairs_[pair]))
+      return Invalid(field + ".data: a value that is negative or not finite (f is >= 0)");
     ++filled_count_;
     return grpc::Status::OK;
   }
@@ -626,13 +538,8 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
       return Finish(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
                                  "the server's memory budget cannot hold the compression of " +
                                      std::to_string(n * n) + " images now; retry later"));
-    deps_.geometry->Post([this, n] {
-      // One buffer, view-major, as Compress reads it; each pair's image freed once copied.
-      images_.f.resize(n * n * images_.image_values());
-      for (size_t pair = 0; pair < n * n; ++pair) {
-        std::copy(pairs_[pair].begin(), pairs_[pair].end(), images_.f.begin() + pair * images_.image_values());
-        pairs_[pair] = {};
-      }
+    deps_.geometry->Post([this] {
+      models::btf::GatherPairs(&pairs_, &images_);  // one buffer, view-major, as Compress reads it
       std::shared_ptr<models::btf::BtfAsset> asset;
       grpc::Status s = CompressAndStore(deps_, images_, job_, {"upload", 0, threads_per_tile_}, nullptr,
                                         ReportingProgress([this] { return StopStatus(context_, deadline_); }), &asset);

@@ -158,20 +158,6 @@ void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderS
   }
 }
 
-render::Status FromGrpc(const grpc::Status& s) {
-  using batching::JobStatus;
-  switch (s.error_code()) {
-    case grpc::StatusCode::OK: return {};
-    case grpc::StatusCode::DEADLINE_EXCEEDED: return {JobStatus::kDeadlineExceeded, s.error_message()};
-    case grpc::StatusCode::CANCELLED: return {JobStatus::kCancelled, s.error_message()};
-    case grpc::StatusCode::UNAVAILABLE: return {JobStatus::kUnavailable, s.error_message()};
-    case grpc::StatusCode::RESOURCE_EXHAUSTED: return {JobStatus::kResourceExhausted, s.error_message()};
-    default: return {JobStatus::kInternal, s.error_message()};
-  }
-}
-
-grpc::Status ToGrpc(const render::Status& s) { return ToStatus(batching::JobResult{s.code, s.message}); }
-
 // The renderer's inputs from a validated request: its scene (fibers as generated), camera, lights, environment
 // (`map`: the loaded one; null: the built-in sky), texture and sampling; the material is the caller's.
 render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, std::shared_ptr<const render::Environment> map) {
@@ -224,10 +210,10 @@ render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, std::shared_ptr<
 
 // One Render call in flight, on the host worker (server/api/stream_call.h): it loads what the renderer needs
 // (the environment map, the fiber geometry, the material), runs the renderer (server/render/renderer.h) there,
-// sends its chunks to the batcher as the renderer's QueryEvaluator (completions post back to the worker), and
+// its chunks going to the batcher through a BatcherEvaluator (completions post back to the worker), and
 // streams progress and the encoded image. The call is finished only when no batcher job and no write is
 // outstanding.
-class RenderCall final : public WorkerStreamCall<v1::RenderUpdate>, public render::QueryEvaluator {
+class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
  public:
   RenderCall(const RenderDeps& deps, grpc::CallbackServerContext* context, const v1::RenderRequest& request,
              std::shared_ptr<const models::PreparedMaterial> material, FiberJobs fiber_jobs,
@@ -235,7 +221,9 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate>, public rende
       : WorkerStreamCall(deps, context, kRpc, received, std::move(admission)), request_(request),
         material_(std::move(material)), fp64_(request.precision() == v1::PRECISION_FP64),
         fiber_job_(std::move(fiber_jobs.chosen)), full_fiber_job_(std::move(fiber_jobs.full)),
-        fiber_detail_(std::move(fiber_detail)) {
+        fiber_detail_(std::move(fiber_detail)),
+        evaluator_({deps_.batcher, deps_.metrics, fp64_, deadline_, context_, client_,
+                    [this](std::function<void()> task) { Post(std::move(task)); }, [this] { Pump(); }, true}) {
     const v1::RenderEnvironment& env = request_.environment();
     const bool map = !env.name().empty() || !env.data().empty();
     if (map || fiber_job_) {
@@ -261,48 +249,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate>, public rende
     });
   }
 
-  // render::QueryEvaluator: a chunk's plans as bulk batcher jobs, one per part; the outcome once all returned.
-  void Submit(std::vector<render::ShadingWork> work, std::function<void(const render::ShadingOutcome&)> done) override {
-    auto chunk = std::make_shared<ChunkJobs>();
-    chunk->done = std::move(done);
-    for (const render::ShadingWork& w : work) chunk->remaining += w.plan->parts();
-    if (chunk->remaining == 0) {  // nothing to evaluate (e.g. only background): done at once, in the worker's turn
-      Post([chunk] { chunk->done(chunk->outcome); });
-      return;
-    }
-    for (const render::ShadingWork& w : work) {
-      const models::EvaluationPlan* plan = w.plan;
-      SubmitPlan(deps_.batcher, *plan, w.sink, fp64_, batching::Priority::kBulk, deadline_, context_, client_,
-                 [this, chunk, plan](size_t k, batching::JobResult r) {
-                   Post([this, chunk, plan, k, r = std::move(r)] { OnJobDone(*chunk, *plan, k, r); });
-                 });
-    }
-  }
-
  private:
-  // A chunk's jobs with the batcher.
-  struct ChunkJobs {
-    std::function<void(const render::ShadingOutcome&)> done;
-    size_t remaining = 0;
-    render::ShadingOutcome outcome;
-  };
-
-  void OnJobDone(ChunkJobs& chunk, const models::EvaluationPlan& plan, size_t part, const batching::JobResult& result) {
-    if (result.status != batching::JobStatus::kOk) {
-      if (chunk.outcome.status.ok()) chunk.outcome.status = {result.status, result.message};
-    } else {
-      const size_t n = plan.size(part);
-      if (result.batch_queries > 0)
-        deps_.metrics->Evaluated(plan.model(part).name(), fp64_, n, result.batch_queries, result.batch_requests,
-                                 result.queue_seconds, result.kernel_seconds);
-      deps_.metrics->Rendered(n);
-      chunk.outcome.queries += n;
-      chunk.outcome.kernel_seconds += result.kernel_seconds;
-    }
-    if (--chunk.remaining == 0) return chunk.done(chunk.outcome);  // the renderer pumps
-    Pump();
-  }
-
   // On the asset loader: the request's map (by name or from its bytes) into environment_, within the call's
   // deadline, while the client is there, and within the memory budget.
   grpc::Status LoadEnvironment() {
@@ -362,7 +309,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate>, public rende
     in.materials = deps_.materials;
     in.folds = deps_.folds;
     renderer_ = std::make_unique<render::Renderer>(
-        std::move(in), this, [this] { return FromGrpc(StopStatus(context_, deadline_, stream_broken_)); },
+        std::move(in), &evaluator_, [this] { return FromGrpc(StopStatus(context_, deadline_, stream_broken_)); },
         [this] { Pump(); });
     if (render::Status s = renderer_->Plan(); !s.ok()) {
       status_ = ToGrpc(s);
@@ -488,6 +435,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate>, public rende
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
   bool loading_ = false;  // the asset loader or geometry worker is loading or building for this call
 
+  BatcherEvaluator evaluator_;
   std::unique_ptr<render::Renderer> renderer_;  // set by SetUp
   uint64_t samples_sent_ = 0;
   double setup_seconds_ = 0;
@@ -497,6 +445,61 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate>, public rende
 };
 
 }  // namespace
+
+render::Status FromGrpc(const grpc::Status& s) {
+  using batching::JobStatus;
+  switch (s.error_code()) {
+    case grpc::StatusCode::OK: return {};
+    case grpc::StatusCode::DEADLINE_EXCEEDED: return {JobStatus::kDeadlineExceeded, s.error_message()};
+    case grpc::StatusCode::CANCELLED: return {JobStatus::kCancelled, s.error_message()};
+    case grpc::StatusCode::UNAVAILABLE: return {JobStatus::kUnavailable, s.error_message()};
+    case grpc::StatusCode::RESOURCE_EXHAUSTED: return {JobStatus::kResourceExhausted, s.error_message()};
+    default: return {JobStatus::kInternal, s.error_message()};
+  }
+}
+
+grpc::Status ToGrpc(const render::Status& s) { return ToStatus(batching::JobResult{s.code, s.message}); }
+
+struct BatcherEvaluator::ChunkJobs {
+  std::function<void(const render::ShadingOutcome&)> done;
+  size_t remaining = 0;
+  render::ShadingOutcome outcome;
+};
+
+void BatcherEvaluator::Submit(std::vector<render::ShadingWork> work,
+                              std::function<void(const render::ShadingOutcome&)> done) {
+  auto chunk = std::make_shared<ChunkJobs>();
+  chunk->done = std::move(done);
+  for (const render::ShadingWork& w : work) chunk->remaining += w.plan->parts();
+  if (chunk->remaining == 0) {  // nothing to evaluate (e.g. only background): done at once, in the call's turn
+    call_.post([chunk] { chunk->done(chunk->outcome); });
+    return;
+  }
+  for (const render::ShadingWork& w : work) {
+    const models::EvaluationPlan* plan = w.plan;
+    SubmitPlan(call_.batcher, *plan, w.sink, call_.fp64, batching::Priority::kBulk, call_.deadline, call_.context,
+               call_.client, [this, chunk, plan](size_t k, batching::JobResult r) {
+                 call_.post([this, chunk, plan, k, r = std::move(r)] { OnJobDone(*chunk, *plan, k, r); });
+               });
+  }
+}
+
+void BatcherEvaluator::OnJobDone(ChunkJobs& chunk, const models::EvaluationPlan& plan, size_t part,
+                                 const batching::JobResult& result) {
+  if (result.status != batching::JobStatus::kOk) {
+    if (chunk.outcome.status.ok()) chunk.outcome.status = {result.status, result.message};
+  } else {
+    const size_t n = plan.size(part);
+    if (result.batch_queries > 0)
+      call_.metrics->Evaluated(plan.model(part).name(), call_.fp64, n, result.batch_queries, result.batch_requests,
+                               result.queue_seconds, result.kernel_seconds);
+    if (call_.count_rendered) call_.metrics->Rendered(n);
+    chunk.outcome.queries += n;
+    chunk.outcome.kernel_seconds += result.kernel_seconds;
+  }
+  if (--chunk.remaining == 0) return chunk.done(chunk.outcome);  // the renderer pumps
+  call_.pump();
+}
 
 size_t RenderBytes(const v1::RenderRequest& r) {
   const size_t pixels = size_t{r.width()} * r.height();

@@ -15,6 +15,7 @@
 #include "server/api/yarn_rpc.h"
 #include "server/batching/batcher.h"
 #include "server/models/registry.h"
+#include "server/render/renderer.h"
 #include "server/render/shading.h"
 
 namespace loomlight::api {
@@ -35,6 +36,36 @@ constexpr uint64_t kMaxRenderFibers = 100'000;
 constexpr uint64_t kMaxRenderFiberPoints = 2'000'000;
 
 using RenderDeps = ServiceDeps;
+
+// The renderer's status as the call's, and the call's stop (deadline, cancellation) as the renderer's token.
+grpc::Status ToGrpc(const render::Status& status);
+render::Status FromGrpc(const grpc::Status& status);
+
+// The renderer's (and CreateBtf's synthesis') QueryEvaluator over the batcher, for one call: each plan of a
+// chunk as bulk jobs, one per part, stopped by the call's deadline or cancellation; each part's launch in the
+// metrics (and its queries as rendered, `count_rendered`); the chunk's outcome posted to the call's turn on the
+// host worker once every part has returned, `pump` after each part before then.
+class BatcherEvaluator final : public render::QueryEvaluator {
+ public:
+  struct Call {
+    batching::Batcher* batcher = nullptr;
+    Metrics* metrics = nullptr;
+    bool fp64 = false;
+    batching::Clock::time_point deadline;
+    grpc::CallbackServerContext* context = nullptr;
+    std::string client;  // FairShareKey
+    std::function<void(std::function<void()>)> post;  // runs a task in the call's turn on the host worker
+    std::function<void()> pump;
+    bool count_rendered = false;
+  };
+  explicit BatcherEvaluator(Call call) : call_(std::move(call)) {}
+  void Submit(std::vector<render::ShadingWork> work, std::function<void(const render::ShadingOutcome&)> done) override;
+
+ private:
+  struct ChunkJobs;
+  void OnJobDone(ChunkJobs& chunk, const models::EvaluationPlan& plan, size_t part, const batching::JobResult& result);
+  const Call call_;
+};
 
 // Checks every field except the material, whether a named environment map exists and device support.
 // Returns "" or "field: reason".

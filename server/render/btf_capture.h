@@ -37,6 +37,9 @@ class BtfCapture {
 
   // The most queries one view can give (every sample of every texel sees every light).
   size_t MaxQueriesPerView() const;
+  const models::btf::DirectionGrid& grid() const { return grid_; }
+  int width() const { return width_; }
+  int height() const { return height_; }
 
   // The queries of texels [begin, end) of view `view` for the fiber model (wi, wo, axis; weight: the light's
   // weight over samples x cos theta_i; tag: light * texels + texel, so f x weight adds to

@@ -14,6 +14,8 @@ Conventions (docs/contributing.md, "Docs"):
   own temporary data directory and the shipped environment maps; LOOMLIGHT_SERVER names it to the client.
 - An image a doc shows, `![... (WxH)](path.png)`, must be a committed PNG that decodes to W x H pixels, and a
   command of the same doc must write a PNG of that file name and size (the picture's own command).
+- Every relative link (`[text](docs/x.md#anchor)`, images too) names a file that exists and, for a Markdown file,
+  a heading of it (GitHub's anchors: lower case, punctuation dropped, spaces as hyphens).
 - A command written as an indented code block (four spaces then build/, ./scripts/ or loomlight) fails the test:
   it would escape the run.
 
@@ -37,6 +39,9 @@ FENCE = re.compile(r"^(\s*)```\s*([A-Za-z0-9_+-]*)\s*$")
 IMAGE = re.compile(r"!\[[^\]]*\((\d+)x(\d+)\)\]\(([^)\s]+\.png)\)")
 INDENTED_COMMAND = re.compile(r"^    (build/|\./scripts/|scripts/|loomlight )")
 BUILD_PATH = re.compile(r"(?<![\w./-])build/")
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+INLINE_CODE = re.compile(r"`+[^`]*`+")
+HEADING = re.compile(r"^#+ (.+)$", re.M)
 LINKED_FOLDERS = ("deploy", "docs", "proto", "tests")
 COMMAND_TIMEOUT_S = 600
 
@@ -91,6 +96,40 @@ def parse(path, text, problems):
     if block is not None:
         problems.append(f"{path}:{block.line}: a fenced block is never closed")
     return blocks
+
+
+def anchor(heading):
+    """GitHub's anchor of a Markdown heading."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def prose_lines(text):
+    """The lines outside fenced blocks, with inline code removed: where links are links."""
+    inside = False
+    for number, line in enumerate(text.split("\n"), start=1):
+        if FENCE.match(line):
+            inside = not inside
+            continue
+        if not inside:
+            yield number, INLINE_CODE.sub("", line)
+
+
+def check_links(root, name, text, problems):
+    for number, line in prose_lines(text):
+        for match in LINK.finditer(line):
+            link = match.group(1)
+            if re.match(r"^[a-z]+:", link):
+                continue
+            path, _, fragment = link.partition("#")
+            target = os.path.normpath(os.path.join(root, os.path.dirname(name), path)) if path else \
+                os.path.join(root, name)
+            if not os.path.exists(target):
+                problems.append(f"{name}:{number}: the link {link} names no file")
+            elif fragment and target.endswith(".md"):
+                with open(target, encoding="utf-8") as f:
+                    headings = {anchor(h) for h in HEADING.findall(f.read())}
+                if fragment not in headings:
+                    problems.append(f"{name}:{number}: the link {link} names no heading of {path or name}")
 
 
 def png_size(path):
@@ -175,6 +214,7 @@ def main():
         with open(os.path.join(root, name), encoding="utf-8") as f:
             text = f.read()
         blocks += parse(name, text, problems)
+        check_links(root, name, text, problems)
         for match in IMAGE.finditer(text):
             width, height, image = int(match.group(1)), int(match.group(2)), match.group(3)
             pictures.append((name, os.path.basename(image), width, height))

@@ -16,6 +16,8 @@ Conventions (docs/contributing.md, "Docs"):
   command of the same doc must write a PNG of that file name and size (the picture's own command).
 - Every relative link (`[text](docs/x.md#anchor)`, images too) names a file that exists and, for a Markdown file,
   a heading of it (GitHub's anchors: lower case, punctuation dropped, spaces as hyphens).
+- Every path of the source tree a doc names (`server/...`, `tests/...`, `bench/report.md`, ...) exists, but for
+  placeholders (a segment in capitals such as NAME, or a `*`/`{...}` pattern, which must match something).
 - A command written as an indented code block (four spaces then build/, ./scripts/ or loomlight) fails the test:
   it would escape the run.
 
@@ -23,6 +25,7 @@ usage: docs_test.py --build-dir DIR --source-dir DIR [--only FILE...] [--keep] [
 """
 
 import argparse
+import glob
 import os
 import re
 import shutil
@@ -42,6 +45,8 @@ BUILD_PATH = re.compile(r"(?<![\w./-])build/")
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 INLINE_CODE = re.compile(r"`+[^`]*`+")
 HEADING = re.compile(r"^#+ (.+)$", re.M)
+SOURCE_PATH = re.compile(r"(?<![\w./$-])((?:bench|client|cmake|deploy|docs|kernels|proto|scripts|server|tests)/"
+                         r"[\w./*{},-]*[\w*}/])")
 LINKED_FOLDERS = ("deploy", "docs", "proto", "tests")
 COMMAND_TIMEOUT_S = 600
 
@@ -132,6 +137,20 @@ def check_links(root, name, text, problems):
                     problems.append(f"{name}:{number}: the link {link} names no heading of {path or name}")
 
 
+def check_paths(root, name, text, problems):
+    for number, line in enumerate(text.split("\n"), start=1):
+        for match in SOURCE_PATH.finditer(line):
+            path = match.group(1).rstrip("./")
+            if any(segment.isupper() for segment in re.split(r"[/.]", path)):
+                continue  # a placeholder: kernels/models/NAME.h
+            if "*" in path or "{" in path:
+                pattern = re.sub(r"\{[^}]*\}", "*", path)
+                if not glob.glob(os.path.join(root, pattern)):
+                    problems.append(f"{name}:{number}: nothing matches {path}")
+            elif not os.path.exists(os.path.join(root, path)):
+                problems.append(f"{name}:{number}: {path} does not exist")
+
+
 def png_size(path):
     """(width, height) of a PNG whose pixel data decodes whole; raises ValueError otherwise."""
     with open(path, "rb") as f:
@@ -215,6 +234,7 @@ def main():
             text = f.read()
         blocks += parse(name, text, problems)
         check_links(root, name, text, problems)
+        check_paths(root, name, text, problems)
         for match in IMAGE.finditer(text):
             width, height, image = int(match.group(1)), int(match.group(2)), match.group(3)
             pictures.append((name, os.path.basename(image), width, height))

@@ -5,6 +5,7 @@
 #include <exception>
 #include <iostream>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -75,7 +76,7 @@ class HelpFormatter : public CLI::Formatter {
 class CommandLine {
  public:
   CommandLine() {
-    app_.formatter(std::make_shared<HelpFormatter>(&commands_));
+    app_.formatter(formatter_);
     cli::Configure(app_, kHelpColumnWidth);
     app_.require_subcommand(0, 1);  // a word after the command is its argument, not another command
     add_options(app_, connection_options(), "options");
@@ -87,12 +88,14 @@ class CommandLine {
     app_.footer("Run 'loomlight COMMAND --help' for the options of a command.");
   }
 
-  // The command the arguments named (the member, in a family), or null; set as soon as CLI11 has seen it, so that
-  // a usage error can show the nearest synopsis.
-  const Command* command() const {
-    const CLI::App* app = chosen_app();
-    const auto found = commands_.find(app);
-    return found == commands_.end() ? nullptr : found->second;
+  // What a usage error shows after its message: the usage line of the command named (the member, in a family;
+  // CLI11 records it as soon as it sees it, also when parsing fails later) and where its options are, else the
+  // program's help.
+  std::string usage_hint() const {
+    const CLI::App& app = *chosen_apps().back();
+    if (!commands_.contains(&app)) return help_text(app_);
+    const std::string name = full_name(app);
+    return formatter_->make_usage(&app, name) + "Run '" + name + " --help' for the options.\n";
   }
 
   int run(int argc, char** argv) {
@@ -105,14 +108,14 @@ class CommandLine {
     const std::vector<std::string> extras = app_.remaining();
     if (const auto unknown = cli::UnknownOption(extras)) throw UsageError(*unknown);
     if (!extras.empty()) throw UsageError("unknown command '" + extras.front() + "'");
-    const Command* chosen = command();
-    if (chosen == nullptr) {
+    const std::vector<const CLI::App*> apps = chosen_apps();
+    const auto found = commands_.find(apps.back());
+    if (found == commands_.end()) {
       if (app_.get_option("--help")->count() == 0) throw UsageError("no command given");
       std::cout << help_text(app_);
       return 0;
     }
-    std::vector<const CLI::App*> apps = {&app_};
-    for (const CLI::App* app = &app_; !app->get_subcommands().empty();) apps.push_back(app = app->get_subcommands()[0]);
+    const Command* chosen = found->second;
     const ParsedOptions options = collect_options(apps);
     if (options.has("help")) {
       std::cout << help_text(*apps.back());
@@ -128,8 +131,6 @@ class CommandLine {
     if (options.positional.size() < chosen->min_arguments) throw UsageError("missing arguments");
     return chosen->run(options);
   }
-
-  std::string usage() const { return help_text(app_); }
 
  private:
   void add_command(CLI::App& parent, const Command& command, std::string_view word) {
@@ -151,19 +152,23 @@ class CommandLine {
     cli::AddHelpFlag(*app, "common options");
   }
 
-  // The deepest command CLI11 has seen, or the program.
-  const CLI::App* chosen_app() const {
-    const CLI::App* app = &app_;
-    while (!app->get_subcommands().empty()) app = app->get_subcommands()[0];
-    return app;
+  // The program and the commands CLI11 has seen: [program], [program, command] or [program, family, member].
+  std::vector<const CLI::App*> chosen_apps() const {
+    std::vector<const CLI::App*> apps = {&app_};
+    while (!apps.back()->get_subcommands().empty()) apps.push_back(apps.back()->get_subcommands()[0]);
+    return apps;
   }
 
-  // The help of the program or a command, its usage line naming the command whole ("loomlight btf create").
-  // (App::help would show the help of a subcommand parsed, `help` included.)
-  std::string help_text(const CLI::App& app) const {
+  // "loomlight btf create".
+  std::string full_name(const CLI::App& app) const {
     std::string name;
     for (const CLI::App* at = &app; at != &app_; at = at->get_parent()) name = " " + at->get_name() + name;
-    return app.get_formatter()->make_help(&app, "loomlight" + name, CLI::AppFormatMode::Normal);
+    return "loomlight" + name;
+  }
+
+  // The help of the program or a command (App::help would show the help of a subcommand parsed, `help` included).
+  std::string help_text(const CLI::App& app) const {
+    return formatter_->make_help(&app, full_name(app), CLI::AppFormatMode::Normal);
   }
 
   // `loomlight help [COMMAND [MEMBER]]`.
@@ -182,9 +187,10 @@ class CommandLine {
     return 0;
   }
 
+  std::map<const CLI::App*, const Command*> commands_;
+  std::shared_ptr<HelpFormatter> formatter_ = std::make_shared<HelpFormatter>(&commands_);
   CLI::App app_{"", "loomlight"};
   CLI::App* help_ = nullptr;
-  std::map<const CLI::App*, const Command*> commands_;
 };
 
 }  // namespace
@@ -196,13 +202,7 @@ int main(int argc, char** argv) {
   try {
     return command_line.run(argc, argv);
   } catch (const UsageError& e) {
-    std::cerr << "error: " << e.what() << "\n\n";
-    if (const Command* command = command_line.command()) {
-      std::cerr << "usage: loomlight " << command->name << ' ' << command->synopsis << '\n'
-                << "Run 'loomlight " << command->name << " --help' for the options.\n";
-    } else {
-      std::cerr << command_line.usage();
-    }
+    std::cerr << "error: " << e.what() << "\n\n" << command_line.usage_hint();
     return kExitUsage;
   } catch (const std::exception& e) {
     // RpcError's message is "<STATUS_CODE_NAME>: <message>".

@@ -27,6 +27,7 @@ Renderer::Renderer(RenderInputs inputs, QueryEvaluator* evaluator, std::function
                    std::function<void()> progress)
     : in_(std::move(inputs)), setup_(in_.setup), evaluator_(evaluator), stop_(std::move(stop)),
       progress_(std::move(progress)), error_target_(in_.error_target), chunks_(new Chunk[2]) {
+  if (in_.views.empty()) return;  // Plan says so
   const RenderView& first = in_.views.front();
   setup_.camera = PinholeCamera(first.camera, first.width, first.height);
   setup_.width = first.width;
@@ -36,6 +37,7 @@ Renderer::Renderer(RenderInputs inputs, QueryEvaluator* evaluator, std::function
 Renderer::~Renderer() = default;
 
 Status Renderer::Plan() {
+  if (in_.views.empty()) return status_ = {batching::JobStatus::kInternal, "a render needs at least one view"};
   RenderSetup& s = setup_;
   MaterialInfo info;
   info.model = in_.material->model;

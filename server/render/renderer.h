@@ -131,7 +131,7 @@ class Renderer {
   bool InFlight() const;                   // a chunk is with the evaluator (the renderer must outlive it)
   bool done() const { return done_; }      // every view rendered: images() is complete
   uint64_t samples_done() const { return samples_done_; }
-  uint64_t samples_total() const { return samples_total_; }  // of the view being rendered (adaptive: once known)
+  uint64_t samples_total() const { return samples_total_; }  // of every view (an adaptive view's once allocated)
   double error_target() const { return error_target_; }
   const std::vector<ObjectFidelity>& fidelity() const { return plan_.fidelity; }  // set by Plan and Build
   const std::vector<RenderedImage>& images() const { return images_; }

@@ -225,8 +225,8 @@ v1::EvaluateResponse Client::evaluate(const v1::EvaluateRequest& request) {
   prepare(context);
   v1::EvaluateResponse response;
   check(stub_->Evaluate(&context, request, &response));
-  // A short answer would silently misalign rows with their directions.
-  const int queries = request.wi_size() / 3;
+  // A short answer would silently misalign rows with their directions. AMBIENT queries have no wi: one per wo.
+  const int queries = (request.quantity() == v1::QUANTITY_AMBIENT ? request.wo_size() : request.wi_size()) / 3;
   if (response.f_size() != 3 * queries)
     throw std::runtime_error("server returned " + std::to_string(response.f_size()) + " values for " +
                              std::to_string(queries) + " queries (expected " + std::to_string(3 * queries) + ")");

@@ -7,7 +7,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdio>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -225,6 +227,29 @@ TEST_F(CliServer, EqualsAndSpaceFormsGiveTheSameResult) {
   ASSERT_EQ(std::count(spaced.output.begin(), spaced.output.end(), '\n'), 3) << spaced.output;
   EXPECT_NE(spaced.output.find("\n0,0,1,0.6"), std::string::npos) << spaced.output;
   EXPECT_LT(spaced.output.find("\n0.5,"), spaced.output.find("\n0,0,1,")) << spaced.output;
+}
+
+// --ambient sends wo alone (QUANTITY_AMBIENT): the client counted its queries from wi, found none, and refused
+// the server's answer ("3 values for 0 queries").
+TEST_F(CliServer, AmbientPrintsOneRowPerWo) {
+  const Result ambient = Client("--server " + server_->address() +
+                                " eval --preset cotton --ambient --wo 0,0,1 --wo-deg 60,90 --timeout 60");
+  ASSERT_EQ(ambient.exit_code, 0) << ambient.output;
+  std::istringstream lines(ambient.output);
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line, "wox,woy,woz,r,g,b");
+  int rows = 0;
+  while (std::getline(lines, line)) {
+    std::vector<double> values;
+    std::istringstream cells(line);
+    for (std::string cell; std::getline(cells, cell, ',');) values.push_back(std::stod(cell));
+    ASSERT_EQ(values.size(), 6u) << line;
+    for (int c = 3; c < 6; ++c) EXPECT_TRUE(std::isfinite(values[c]) && values[c] > 0) << line;
+    ++rows;
+  }
+  EXPECT_EQ(rows, 2) << ambient.output;
+  EXPECT_NE(ambient.output.find("\n0,0,1,"), std::string::npos) << ambient.output;
 }
 
 TEST_F(CliServer, ServerComesFromTheEnvironmentWhenNotGiven) {

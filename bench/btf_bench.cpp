@@ -30,6 +30,7 @@ using models::PackedMaterial;
 using models::btf::BtfAsset;
 using models::btf::BtfImages;
 using models::btf::DirectionGrid;
+using models::btf::ViewQueries;
 
 constexpr const char* kPreset = "cotton_twill";
 constexpr int kMaxComponents = 32;
@@ -40,42 +41,23 @@ const Model& FindModel(const std::string& name) { return *models::Registry::Glob
 
 double MiB(uint64_t bytes) { return double(bytes) / (1024.0 * 1024.0); }
 
-// The queries of one view's images, as CreateBtf builds them: (light l, texel t) at q = l * texels + t, wi the
-// light, uv the texel's centre, wo the view (rewritten per view). Query order is the images' order, so a
-// view's results land in BtfImages::image(view, 0) as they are.
+// One view's images through the model's fp32 uv kernel, one launch, as CreateBtf asks for them (ViewQueries,
+// the server's own query order).
 struct GridQueries {
   const DirectionGrid& grid;
-  int side;
-  std::vector<float> wi, wo, uv;
+  ViewQueries queries;
 
-  GridQueries(const DirectionGrid& g, int texels_per_side) : grid(g), side(texels_per_side) {
-    const size_t n = grid.size(), texels = size_t(side) * side;
-    wi.resize(3 * n * texels);
-    wo.resize(3 * n * texels);
-    uv.resize(2 * n * texels);
-    for (size_t l = 0; l < n; ++l) {
-      double w[3];
-      grid.Direction(l, w);
-      for (size_t t = 0; t < texels; ++t) {
-        const size_t q = l * texels + t;
-        for (int c = 0; c < 3; ++c) wi[3 * q + c] = float(w[c]);
-        uv[2 * q] = float((double(t % side) + 0.5) / side);
-        uv[2 * q + 1] = float((double(t / side) + 0.5) / side);
-      }
-    }
-  }
-  size_t size() const { return uv.size() / 2; }
+  GridQueries(const DirectionGrid& g, int texels_per_side) : grid(g), queries(g, texels_per_side, texels_per_side) {}
+  size_t size() const { return queries.size(); }
 
   // The view's images through the model's fp32 uv kernel, one launch, written as float to out (3 per query).
   void Evaluate(runtime::ClRuntime& rt, const Model& model, const PackedMaterial& m, size_t view, float* out) {
-    double w[3];
-    grid.Direction(view, w);
-    for (size_t q = 0; q < size(); ++q)
-      for (int c = 0; c < 3; ++c) wo[3 * q + c] = float(w[c]);
+    queries.SetView(grid, view);
     const std::vector<int> index(size(), 0);
     const std::vector<const PackedMaterial*> materials = {&m};
     const runtime::LaunchArgs args{.model = &model, .fp64 = false, .uniform = m.uniform, .materials = &materials,
-                                   .material_index = &index, .wi = wi.data(), .wo = wo.data(), .uv = uv.data(),
+                                   .material_index = &index, .wi = queries.wi.data(), .wo = queries.wo.data(),
+                                   .uv = queries.uv.data(),
                                    .n = size()};
     runtime::LaunchResults results;
     std::string error;

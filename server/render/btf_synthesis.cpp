@@ -9,24 +9,11 @@ BtfSynthesis::BtfSynthesis(std::shared_ptr<const models::PreparedMaterial> mater
                            std::function<Status()> stop, std::function<void()> progress)
     : material_(std::move(material)), evaluator_(evaluator), stop_(std::move(stop)), progress_(std::move(progress)),
       grid_size_(grid.size()) {
-  const size_t n = grid.size(), texels = size_t(width) * height;
   images_.grid = grid;
   images_.width = width;
   images_.height = height;
-  images_.f.assign(n * n * images_.image_values(), 0.0f);
-  wi_.resize(3 * n * texels);
-  uv_.resize(2 * n * texels);
-  wo_.resize(3 * n * texels);
-  for (size_t l = 0; l < n; ++l) {
-    double w[3];
-    grid.Direction(l, w);
-    for (size_t t = 0; t < texels; ++t) {
-      const size_t q = l * texels + t;
-      for (int c = 0; c < 3; ++c) wi_[3 * q + c] = float(w[c]);
-      uv_[2 * q] = float((double(t % width) + 0.5) / width);
-      uv_[2 * q + 1] = float((double(t / width) + 0.5) / height);
-    }
-  }
+  images_.f.assign(grid_size_ * grid_size_ * images_.image_values(), 0.0f);
+  queries_.emplace(grid, width, height);
 }
 
 BtfSynthesis::BtfSynthesis(std::shared_ptr<const models::PreparedMaterial> material,
@@ -59,13 +46,10 @@ void BtfSynthesis::Submit() {
   in_flight_ = true;
   const auto done = [this](const ShadingOutcome& outcome) { OnDone(outcome); };
   if (!capture_) {
-    const size_t v = next_view_, n = grid_size_, queries = n * images_.texels();
-    double w[3];
-    images_.grid.Direction(v, w);
-    for (size_t q = 0; q < queries; ++q)
-      for (int c = 0; c < 3; ++c) wo_[3 * q + c] = float(w[c]);
-    plan_ = std::make_unique<models::EvaluationPlan>(*material_, wi_.data(), wo_.data(), uv_.data(), queries);
-    return evaluator_->Submit({{plan_.get(), runtime::ResultSink{.f32 = images_.image(v, 0)}}}, done);
+    queries_->SetView(images_.grid, next_view_);
+    plan_ = std::make_unique<models::EvaluationPlan>(*material_, queries_->wi.data(), queries_->wo.data(),
+                                                     queries_->uv.data(), queries_->size());
+    return evaluator_->Submit({{plan_.get(), runtime::ResultSink{.f32 = images_.image(next_view_, 0)}}}, done);
   }
   f_.assign(3 * bucket_.size(), 0.0f);
   if (bucket_.size() == 0) {  // nothing seen or lit in this piece: the evaluator answers at once
@@ -99,9 +83,7 @@ void BtfSynthesis::OnDone(const ShadingOutcome& outcome) {
 void BtfSynthesis::ReleaseQueries() {
   bucket_ = {};
   f_ = {};
-  wi_ = {};
-  wo_ = {};
-  uv_ = {};
+  queries_.reset();
   plan_.reset();
 }
 

@@ -1,4 +1,4 @@
-// CreateBtf's synthesis (README "BTF assets"): every (view, light) image of a BTF on a direction grid, evaluated
+// CreateBtf's synthesis (docs/btf-assets.md): every (view, light) image of a BTF on a direction grid, evaluated
 // through the renderer's QueryEvaluator (render/renderer.h; the API's is the batcher), one evaluation in flight:
 // - from a spatially varying material: its own f at texel centres, a whole view (every light and texel) at a time;
 // - from fibers (render/btf_capture.h): a piece of a view (a run of its texels, at most kBtfPieceQueries queries)
@@ -11,6 +11,7 @@
 #include <cstddef>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "server/models/btf/btf_asset.h"
@@ -66,9 +67,7 @@ class BtfSynthesis {
   bool in_flight_ = false;
   size_t next_view_ = 0, views_done_ = 0;
   std::unique_ptr<models::EvaluationPlan> plan_;
-  // From the material: query (light l, texel t) of a view is l * texels + t: wi the light's direction, uv the
-  // texel's centre, wo the view's.
-  std::vector<float> wi_, wo_, uv_;
+  std::optional<models::btf::ViewQueries> queries_;  // from the material
   // From fibers: the piece traced ([piece_begin_, piece_end_) of the view's texels), its queries and results.
   Evaluator fiber_evaluator_;
   QueryBucket bucket_;

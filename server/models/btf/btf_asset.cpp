@@ -80,6 +80,30 @@ void DirectionGrid::Direction(size_t i, double xyz[3]) const {
   xyz[0] = xyz[1] = 0, xyz[2] = 1;
 }
 
+ViewQueries::ViewQueries(const DirectionGrid& grid, int width, int height) {
+  const size_t n = grid.size(), texels = size_t(width) * height;
+  wi.resize(3 * n * texels);
+  wo.resize(3 * n * texels);
+  uv.resize(2 * n * texels);
+  for (size_t l = 0; l < n; ++l) {
+    double w[3];
+    grid.Direction(l, w);
+    for (size_t t = 0; t < texels; ++t) {
+      const size_t q = l * texels + t;
+      for (int c = 0; c < 3; ++c) wi[3 * q + c] = float(w[c]);
+      uv[2 * q] = float((double(t % width) + 0.5) / width);
+      uv[2 * q + 1] = float((double(t / width) + 0.5) / height);
+    }
+  }
+}
+
+void ViewQueries::SetView(const DirectionGrid& grid, size_t view) {
+  double w[3];
+  grid.Direction(view, w);
+  for (size_t q = 0; q < size(); ++q)
+    for (int c = 0; c < 3; ++c) wo[3 * q + c] = float(w[c]);
+}
+
 int DirectionGrid::Find(const double w[3], double tolerance_deg) const {
   const double min_cos = std::cos(tolerance_deg * kDeg);
   int best = -1;

@@ -58,6 +58,15 @@ struct BtfImages {
   }
 };
 
+// The queries whose results, in order, are one view's images (BtfImages::image(view, 0) onward): query (light l,
+// texel t) at q = l * texels + t, wi the light's direction, uv the texel's centre, wo the view's (SetView).
+struct ViewQueries {
+  std::vector<float> wi, wo, uv;
+  ViewQueries(const DirectionGrid& grid, int width, int height);
+  size_t size() const { return uv.size() / 2; }
+  void SetView(const DirectionGrid& grid, size_t view);
+};
+
 struct CompressionOptions {
   int max_components = 16;
   double target_psnr_db = 0;  // > 0: the fewest components (up to max_components) reaching it

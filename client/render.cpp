@@ -248,8 +248,8 @@ const Command& render_command() {
       "The server traces the scene, chooses per object the cheapest model fidelity within --error-target\n"
       "(BTF or BRDF, tangent samples, transmission) and shades through the batched kernels. PNG and JPEG\n"
       "are tone-mapped (exposure, ACES filmic, sRGB); EXR holds linear radiance. With no --light and no --env\n"
-      "the scene's default lighting is used (README \"Render\"). A progress bar is drawn on stderr (plain\n"
-      "lines when it is not a terminal); the chosen fidelity is printed at the end.\n"
+      "the scene's default lighting is used (docs/thumbnails.md \"Lights\"). A progress bar is drawn on\n"
+      "stderr (plain lines when it is not a terminal); the chosen fidelity is printed at the end.\n"
       "Example: loomlight render --preset polyester_satin_charmeuse_front --scene cylinders --size 512x256 \\\n"
       "           --spp 64 --out satin.png\n"
       "Fibers: loomlight render --preset cotton --scene yarn --yarn cotton1 --size 512x256 --out yarn.png",

@@ -117,7 +117,8 @@ const Command& sample_command() {
       "MATERIAL (--wo X,Y,Z | --wo-deg THETA,PHI)... [--count N] [--seed S] [--uv U,V] [--out FILE]\n"
       "  MATERIAL: " LOOMLIGHT_MATERIAL_SYNOPSIS,
       "importance-sample wi for outgoing directions: wi, pdf and weight f |cos| / pdf",
-      "The server draws wi from the material's sampling density (README \"Sample\"), deterministic per --seed.\n"
+      "The server draws wi from the material's sampling density (docs/api.md \"Sample\"),\n"
+      "deterministic per --seed.\n"
       "Output: CSV wox,woy,woz,wix,wiy,wiz,pdf,weight_r,weight_g,weight_b,f_r,f_g,f_b, one row per sample\n"
       "(pdf per steradian; weight = f |cos| / pdf, whose mean estimates the directional albedo). With --out\n"
       "the CSV goes to FILE and one line per direction gives the mean weight and its standard error.\n"

@@ -200,7 +200,7 @@ const Command& tab_command() {
       "tabulate f on a grid of directions into a RAW, EXR, MERL .binary or CSV file",
       "The server evaluates the grid in batches and streams the file; a progress bar is drawn on stderr\n"
       "when it is a terminal, and one summary line is printed at the end. Bin centres and file layouts are\n"
-      "in the README (\"Tabulate\"). Large tables may need a longer --timeout (0 = none).\n"
+      "in docs/tabulation.md. Large tables may need a longer --timeout (0 = none).\n"
       "Example: loomlight tab --preset silk_shot --grid merl --out silk_shot.binary",
       tab_options(),
       run_tab,

@@ -164,9 +164,9 @@ const Command& yarn_command() {
       "--out FILE.pbrt [--yarn PRESET] [--yarn-param NAME=V]... [--length L | --weave PRESET [layout options]]\n"
       "  [--footprint W] [--no-core] [--core-radius R] [--points-per-twist N] [--seed N]",
       "write a procedural yarn's fiber curves as pbrt-v4 curve shapes",
-      "The server generates the yarn (plies, fibers, flyaways, core fibers; README \"Yarn geometry\") and\n"
-      "streams the curves; each becomes a pbrt-v4 \"curve\" shape (cylinder, cubic B-spline). Include the file\n"
-      "from a pbrt-v4 scene. Example: loomlight yarn --yarn silk1 --length 2 --out silk1.pbrt",
+      "The server generates the yarn (plies, fibers, flyaways, core fibers; docs/fibers.md \"Yarn geometry\")\n"
+      "and streams the curves; each becomes a pbrt-v4 \"curve\" shape (cylinder, cubic B-spline). Include the\n"
+      "file from a pbrt-v4 scene. Example: loomlight yarn --yarn silk1 --length 2 --out silk1.pbrt",
       yarn_options(),
       run_yarn,
   };

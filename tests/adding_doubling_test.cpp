@@ -1,7 +1,7 @@
 // The thin layer's all-orders mode (issue 4 item 6): the adding-doubling slab solver
 // (server/models/slab/adding_doubling.h) against the Monte Carlo slab counting every order, its limits
 // (single scattering as tau or albedo -> 0), energy and reciprocity; the kernel's tables against the solver
-// (fp32 and fp64, on and off the table's nodes); and the single-scattering error map for the README.
+// (fp32 and fp64, on and off the table's nodes); and the single-scattering error map for docs/models.md.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -285,10 +285,10 @@ TEST(AddingDoubling, KernelHardCasesFiniteAndReciprocal) {
   }
 }
 
-// The single-scattering error map for the README (markdown rows): tau x albedo, (a) the maximum relative error
-// of single scattering against all orders over the table's nodes with mu, mu0 >= 0.1 (the thin layer's
-// KnobErrors()[0], here recomputed from a separate solve); (b) the deficit of the reflected and the diffusely transmitted
-// fraction at normal incidence. Also Pack's time per preset.
+// The single-scattering error map for docs/models.md "The thin layer: all scattering orders" (markdown rows): tau x
+// albedo, (a) the maximum relative error of single scattering against all orders over the table's nodes with mu,
+// mu0 >= 0.1 (the thin layer's KnobErrors()[0], here recomputed from a separate solve); (b) the deficit of the
+// reflected and the diffusely transmitted fraction at normal incidence. Also Pack's time per preset.
 TEST(AddingDoubling, SingleScatteringErrorMap) {
   const double taus[] = {0.01, 0.05, 0.2, 1.0, 5.0};
   const double albedos[] = {0.1, 0.3, 0.6, 0.9, 1.0};

@@ -413,7 +413,7 @@ TEST_F(ApiTest, ThinLayerReportsDirectTransmittance) {
   EvaluateResponse resp;
   ASSERT_TRUE(Call(*stub, req, &resp).ok());
   ASSERT_EQ(resp.transmittance_size(), 1000);
-  const double tau = 0.8;  // the preset's (README)
+  const double tau = 0.8;  // the preset's (its description, server/models/plugins/thin_layer.cpp)
   for (int q = 0; q < 1000; ++q)
     EXPECT_NEAR(resp.transmittance(q), std::exp(-tau / std::fabs(req.wo(3 * q + 2))), 1e-6) << q;
   EvaluateResponse reflective;

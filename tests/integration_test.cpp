@@ -325,7 +325,7 @@ TEST_F(Integration, ClientPlotOfACurtainShowsTheLayersTransmission) {
     EXPECT_EQ(with_layer["transmission"][i].value, of_layer["transmission"][i].value) << i;
     EXPECT_EQ(with_layer["transmission"][i].angle, of_layer["transmission"][i].angle) << i;
     EXPECT_EQ(without["transmission"][i].value, 0.0) << i;
-    // The layer's direct transmission leaves less light to reflect (README "Curtains").
+    // The layer's direct transmission leaves less light to reflect (docs/models.md "Curtains").
     EXPECT_GT(without["reflection"][i].value, with_layer["reflection"][i].value) << i;
     EXPECT_GT(with_layer["reflection"][i].value, 0.0) << i;
   }

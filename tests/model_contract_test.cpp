@@ -73,10 +73,10 @@ constexpr double kFp64Floor = 1e-30;
 // ~1e-5 expected, bounded by 1/2000 of the values); the other values meet the fp32 bounds above.
 constexpr double kFlipRelative = 1e-4;
 constexpr double kMaxFlipShare = 1.0 / 2000;
-// Directions within a float rounding of the horizon (SPEC.md section 1, README: n.w <= 1e-7 lies in the surface,
-// LL_HORIZON_EPS in kernels/common/shim.h) may land on either side after renormalisation in float or double:
-// there the kernel and the reference may disagree between 0 and the lit value. They are still checked for
-// finiteness and sign, and excluded from the comparisons.
+// Directions within a float rounding of the horizon (SPEC.md section 1, docs/models.md "The microcylinder model":
+// n.w <= 1e-7 lies in the surface, LL_HORIZON_EPS in kernels/common/shim.h) may land on either side after
+// renormalisation in float or double: there the kernel and the reference may disagree between 0 and the lit value.
+// They are still checked for finiteness and sign, and excluded from the comparisons.
 constexpr double kHorizonBandLow = 0.5e-7, kHorizonBandHigh = 2e-7;
 // Reciprocity of the double reference: a symmetric formula evaluated in another order differs by a few double
 // roundings amplified by lobe sharpness: 1e-12 relative (woven_model_test and thin_layer_test find it exact).
@@ -95,8 +95,8 @@ constexpr double kIsotropyFloor = 1e-12;
 // up to 64 strata (each at most jump / 2). The albedo's integrand f |cos theta_o| is continuous (it vanishes at
 // the horizon, where reflection meets transmission), so it needs no such term. The albedo may exceed 1 by a
 // tabulated mode's documented accuracy too (the thin layer's all-orders tables: within 0.5% of the exact f,
-// README; measured 1.0006 for albedo 1 at grazing light); the BTF mean may differ by 1e-9 relative (double
-// rounding).
+// docs/models.md "The thin layer: all scattering orders"; measured 1.0006 for albedo 1 at grazing light); the BTF
+// mean may differ by 1e-9 relative (double rounding).
 constexpr double kSigmas = 4;
 constexpr double kFewStrata = 16;
 constexpr double kEnergySlack = 5e-3;

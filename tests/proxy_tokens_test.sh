@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Tokens through a proxy (issue 44, part 9): two clients with their own bearer tokens call one replica through
-# HAProxy, with TLS on both sides (the README's recipe: the shipped deploy/haproxy/loomlight.cfg with `ssl crt`
-# on the bind line, `ssl verify required ca-file ... alpn h2` on the replicas and `tcp-check connect ssl`).
+# HAProxy, with TLS on both sides (as docs/operations.md "Scale out" and the cfg's own comments describe: the
+# shipped deploy/haproxy/loomlight.cfg with `ssl crt` on the bind line, `ssl verify required ca-file ... alpn h2` on
+# the replicas and `tcp-check connect ssl`).
 # HAProxy sends different clients' calls over one backend connection (`http-reuse always` here makes that
 # certain; its default, `safe`, does it too once a connection is idle), so a replica that took a connection for
 # one client would refuse the other. Checked:

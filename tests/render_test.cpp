@@ -686,8 +686,8 @@ TEST_F(RenderTest, FiberScenesRenderDeterministicallyWithTheirDetailReported) {
 
 // Shadows and occlusion by the yarn cross-section's approximations (Wu and Yuksel Sec. 4.1-4.2): obeyed when
 // requested, each reported with its pilot error against the traced rays; AUTO takes them only within the
-// target, force_full_fidelity never. Their image is within 15% of the traced one's mean (measured: see README
-// "Render: fibers").
+// target, force_full_fidelity never. Their image is within 15% of the traced one's mean (measured: see
+// docs/fibers.md "Shadows, ambient occlusion and level of detail").
 TEST_F(RenderTest, FiberShadowAndOcclusionApproximationsAreChosenAndReported) {
   const auto render = [&](const RenderRequest& r, std::string* shadows, std::string* occlusion, double* mean) {
     const Rendered out = Render(*stub_, r);
@@ -768,11 +768,11 @@ TEST_F(RenderTest, CoresShadeLambertianFibersLikeTheFibersTheyStandFor) {
   EXPECT_NEAR(mean[1] / mean[0], 1.0, 0.15);
 }
 
-// AUTO's level of detail is checked against full detail (the pilot's radiance through both): on the distant
-// woven patch of the render benchmark, cotton's thinned fibers are brighter than full detail by more than the
-// 2% target (README "Render: fibers": their R highlight), so AUTO renders full detail and says why; with a loose
-// target it keeps the thinning and reports the estimate, which agrees in sign and size with the images' own
-// difference (LOD against FULL, rendered).
+// AUTO's level of detail is checked against full detail (the pilot's radiance through both): on the distant woven
+// patch of the render benchmark, cotton's thinned fibers are brighter than full detail by more than the 2% target
+// (docs/fibers.md "Shadows, ambient occlusion and level of detail": their R highlight), so AUTO renders full detail
+// and says why; with a loose target it keeps the thinning and reports the estimate, which agrees in sign and size
+// with the images' own difference (LOD against FULL, rendered).
 TEST_F(RenderTest, AutoFiberDetailIsCheckedAgainstFullDetail) {
   RenderRequest request = Request("cotton", v1::SCENE_WOVEN_PATCH, 96, 96, 8);
   Append(request.mutable_camera()->mutable_position(), {0.51, 0.2, 3.0});

@@ -34,7 +34,7 @@ namespace {
 
 using Vec = std::array<double, 3>;
 
-// ---- Directions at the documented bin centres, written here from the README, not from the server ----
+// ---- Directions at the documented bin centres, written here from docs/tabulation.md, not from the server ----
 
 double Rad(double deg) { return deg * std::numbers::pi / 180.0; }
 Vec Spherical(double theta_deg, double phi_deg) {

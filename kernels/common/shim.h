@@ -2,7 +2,8 @@
 //
 // OpenCL: the .cl entry file includes this first. `real` is the arithmetic type of one work-item: float,
 // or floatN when LL_WIDTH = N > 1 (each work-item evaluates N queries as explicit vectors: PoCL 3.1's own
-// work-item-loop vectorizer gives up on this model, see README), or double / doubleN with LL_FP64.
+// work-item-loop vectorizer gives up on this model, see docs/models.md
+// "The microcylinder model"), or double / doubleN with LL_FP64.
 // `scalar` is the element type of material data, `mask` the type of a comparison of reals.
 // C++: include <cmath>, open a namespace, `typedef double real;` (or float) and include this file and the
 // model headers inside it, so one source gives the double reference and the float native baseline.

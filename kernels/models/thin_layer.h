@@ -26,7 +26,8 @@
 #define TL_SCATTERING_SINGLE 0
 #define TL_SCATTERING_ALL 1
 // Nodes uniform in sqrt(mu): they crowd toward grazing, where f changes fastest (on the scale tau of a thin
-// layer, and like mu log mu for any layer); with 33 bilinear lookup stays within 5e-3 of f, p99 4e-3 (README).
+// layer, and like mu log mu for any layer); with 33 bilinear lookup stays within 5e-3 of f, p99 4e-3
+// (docs/models.md "The thin layer: all scattering orders").
 #define TL_TABLE_NODES 33
 #define TL_TABLE_SIZE (TL_TABLE_NODES * TL_TABLE_NODES)
 #define TL_PACKED_SIZE (TL_MATERIAL_SIZE + 6 * TL_TABLE_SIZE)
@@ -62,7 +63,8 @@ LL_INLINE real tl_single_scattering(scalar tau, real mu0, real mu, mask same_sid
 // swapping wi and wo gives bit-identical values. Grazing (mu -> 0) reads the edge node, which holds the true
 // limit of the multiply scattered f at mu = 0 (finite); only at mu = mu0 = 0, where it diverges like
 // log(1 / mu), the corner node holds its diagonal neighbour's value instead (there single scattering's
-// 1 / (mu + mu0) outweighs it over 100 times, README).
+// 1 / (mu + mu0) outweighs it over 100 times, docs/models.md
+// "The thin layer: all scattering orders").
 LL_INLINE real tl_table_lookup(LL_GLOBAL const scalar* mat, real base, real mu0, real mu) {
   const real last = R(1.0) * (TL_TABLE_NODES - 1);
   const real hi = sqrt(LL_FMAX(mu0, mu)) * last, lo = sqrt(LL_FMIN(mu0, mu)) * last;

@@ -1,7 +1,7 @@
 // Who may call: transport security (TLS, optionally mutual) and per-client bearer tokens from a file the
 // operator manages. gRPC's auth metadata processor checks every call, reflection and all, before any handler
 // runs; the client's name it finds is what fair share, per-client limits and the metrics know the client by
-// (README "Security").
+// (docs/operations.md "Security: TLS, tokens, who may call what").
 #pragma once
 
 #include <grpcpp/grpcpp.h>

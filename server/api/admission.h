@@ -2,8 +2,8 @@
 // its buffers will need from the service's memory budget; long-running calls (TextureSlice, Tabulate,
 // Render) also take one of a fixed number of slots. What does not fit is answered RESOURCE_EXHAUSTED at
 // once, instead of growing the process or queueing behind everyone else; a call that could never fit is
-// FAILED_PRECONDITION, and no call holds what it was admitted with past its priority's cap (CallCaps) (README
-// "Limits and admission").
+// FAILED_PRECONDITION, and no call holds what it was admitted with past its priority's cap (CallCaps)
+// (docs/operations.md "Limits and admission").
 #pragma once
 
 #include <grpcpp/grpcpp.h>

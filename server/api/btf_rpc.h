@@ -1,7 +1,8 @@
-// The BTF asset RPCs (README "BTF assets"): UploadBtf takes a client's images; CreateBtf synthesises a BTF from a spatially varying material on a
-// direction grid (view by view, as bulk batcher jobs), compresses it (models::btf::Compress, on the geometry
-// worker) and stores it (assets::BtfStore), streaming progress; ListBtfs and DeleteBtf. Requests are checked
-// on the gRPC thread; asset names are checked before anything touches the store.
+// The BTF asset RPCs (docs/btf-assets.md): UploadBtf takes a client's images; CreateBtf synthesises a BTF from a
+// spatially varying material on a direction grid (view by view, as bulk batcher jobs), compresses it
+// (models::btf::Compress, on the geometry worker) and stores it (assets::BtfStore), streaming progress; ListBtfs
+// and DeleteBtf. Requests are checked on the gRPC thread; asset names are checked before anything touches the
+// store.
 #pragma once
 
 #include <cstddef>
@@ -14,7 +15,7 @@
 
 namespace loomlight::api {
 
-// Documented limits (README "BTF assets").
+// Documented limits (docs/btf-assets.md "Limits").
 constexpr uint32_t kDefaultBtfTexels = 64;
 constexpr uint32_t kMaxBtfTexels = 128;  // per side: 81 x 81 images of 128 x 128 are 1.3 GB in float
 constexpr uint32_t kDefaultBtfComponents = 16;
@@ -30,7 +31,7 @@ struct BtfJob {
   bool admin = false;  // its token lists `admin`: it may replace another client's asset
 };
 
-// A CreateBtf fiber source (README "BTF assets: from fibers"): the patch's yarn and layout, rays per texel.
+// A CreateBtf fiber source (docs/btf-assets.md "From fibers"): the patch's yarn and layout, rays per texel.
 struct FiberSource {
   YarnJob yarn;
   int samples = 1;

@@ -1,7 +1,8 @@
 // Streams must keep moving: the server's watchdog cancels a client-streaming call (UploadBtf) that has sent
 // nothing for the service's limit, and a server-streaming one (Tabulate, Render, ...) whose write has waited on a
 // client that reads nothing for --stall-write-seconds, so a client that stalls gives back its long-call slot and
-// the bytes it was charged instead of holding them until its deadline (README "Limits and admission").
+// the bytes it was charged instead of holding them until its deadline
+// (docs/operations.md "Limits and admission").
 #pragma once
 
 #include <grpcpp/grpcpp.h>

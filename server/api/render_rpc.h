@@ -20,7 +20,7 @@
 
 namespace loomlight::api {
 
-// Documented limits (README "Render").
+// Documented limits (docs/thumbnails.md "Limits").
 constexpr uint32_t kMaxRenderSide = 2048;                      // width and height, pixels
 constexpr uint32_t kMaxRenderSamplesPerPixel = 1024;
 constexpr uint32_t kDefaultRenderSamplesPerPixel = 16;          // samples_per_pixel 0

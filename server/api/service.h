@@ -25,7 +25,7 @@ namespace loomlight::api {
 
 class FiberSceneCache;  // server/api/yarn_rpc.h
 
-// Documented limits (README "Limits").
+// Documented limits (docs/api.md#input-rules-shared-by-evaluate-sample-tabulate-textureslice-and-render).
 constexpr size_t kMaxQueriesPerCall = size_t{1} << 20;  // 1,048,576 direction pairs
 constexpr double kUnitTolerance = 1e-4;                 // | |w| - 1 | accepted (then renormalised)
 constexpr int kMaxMessageBytes = 64 << 20;              // gRPC send/receive limit
@@ -39,7 +39,7 @@ constexpr size_t kEvaluateBytesPerQuery = 192;
 // (microseconds); larger ones, and every call that must pack a material, on the service's preparer worker.
 constexpr size_t kInlineEvaluateQueries = 4096;
 
-// Limits of one service (README "Limits and admission").
+// Limits of one service (docs/operations.md "Limits and admission").
 struct ServiceLimits {
   size_t memory_budget_bytes = size_t{2} << 30;  // every call's buffers, cached environment maps
   size_t max_long_running_calls = 16;            // TextureSlice, Tabulate and Render calls at once

@@ -23,7 +23,7 @@
 
 namespace loomlight::api {
 
-// Documented limits (README "Limits").
+// Documented limits (docs/tabulation.md "Limits").
 constexpr uint64_t kMaxTabulateQueries = uint64_t{1} << 25;  // cells x queries per cell (MERL phi_h samples)
 constexpr uint64_t kMaxExrCells = uint64_t{1} << 22;         // the EXR is encoded in memory at the end
 constexpr uint64_t kMaxCsvCells = uint64_t{1} << 16;         // text: about 50 bytes per cell

@@ -18,7 +18,7 @@
 
 namespace loomlight::api {
 
-// Documented limits (README "Limits").
+// Documented limits (docs/api.md "TextureSlice").
 constexpr uint32_t kMaxSliceSide = 2048;                   // width and height, pixels
 constexpr uint32_t kMaxSamplesPerPixel = 256;
 constexpr uint64_t kMaxSliceSamples = uint64_t{1} << 24;   // width x height x samples per pixel, per call

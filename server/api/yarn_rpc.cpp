@@ -283,7 +283,8 @@ grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& 
     case Kind::kOk: return grpc::Status::OK;
     case Kind::kStopped: return stop();
     case Kind::kLimits:
-      return Invalid(yarn_field + ": " + outcome.message + " (the fiber limits; README \"Render: fibers\")");
+      return Invalid(yarn_field + ": " + outcome.message +
+                     " (the fiber limits; docs/fibers.md#shadows-ambient-occlusion-and-level-of-detail)");
     case Kind::kNoMemory: return {grpc::StatusCode::RESOURCE_EXHAUSTED, outcome.message};
     case Kind::kInternal: break;
   }

@@ -23,7 +23,7 @@
 
 namespace loomlight::api {
 
-// Documented limits (README "Yarn geometry"): a call's curves are bounded by these, or by the request's own
+// Documented limits (docs/fibers.md "Yarn geometry"): a call's curves are bounded by these, or by the request's own
 // lower max_fibers and max_control_points. The geometry is held in double until it is sent: about 24 bytes
 // per control point and 64 per curve, charged to the memory budget at the call's limits.
 constexpr uint64_t kMaxYarnFibers = 200'000;

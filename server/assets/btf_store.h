@@ -1,4 +1,4 @@
-// BTF assets on disk, by name, under the operator's data directory (README "BTF assets"):
+// BTF assets on disk, by name, under the operator's data directory (docs/btf-assets.md "Storage"):
 //   DATA_DIR/btf/name               a symbolic link to the asset's version directory, .v-TAG; the name in lower
 //                                   case (names that differ only in case are one name, on every volume)
 //   DATA_DIR/btf/.v-TAG/manifest.pb  the asset's BtfAssetInfo (binary protobuf: name as given, grid, tile, ...)

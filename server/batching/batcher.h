@@ -70,7 +70,7 @@ struct Job {
   Clock::time_point enqueued;
 };
 
-// One priority's queue (README "Queue policy").
+// One priority's queue (docs/operations.md "Limits and admission": queue policy).
 struct QueuePolicy {
   std::chrono::microseconds max_queue_delay{0};  // 0: batch whatever queued while the last launch ran
   size_t max_queued_queries = size_t{1} << 23;   // beyond this Submit refuses (RESOURCE_EXHAUSTED)

@@ -2,10 +2,10 @@
 // thin layer behind it: a curtain) is evaluated by the kernels. Defined once here and used by every RPC:
 // which queries go to which kernel, on which directions, and how the kernels' results combine into f.
 //
-// A curtain (README "Curtains"): pairs on one side of the cloth go to the reflection model (a pair below the
-// cloth is mirrored to the front: the cloth is two-sided), pairs on opposite sides to the layer; reflection
-// is scaled by sqrt((1 - T(wi)) (1 - T(wo))), T the layer's direct transmittance, because light the layer
-// lets straight through cannot be reflected (symmetric, so the curtain stays reciprocal).
+// A curtain (docs/models.md "Curtains"): pairs on one side of the cloth go to the reflection model (a pair below
+// the cloth is mirrored to the front: the cloth is two-sided), pairs on opposite sides to the layer; reflection is
+// scaled by sqrt((1 - T(wi)) (1 - T(wo))), T the layer's direct transmittance, because light the layer lets
+// straight through cannot be reflected (symmetric, so the curtain stays reciprocal).
 #pragma once
 
 #include <atomic>

@@ -22,8 +22,8 @@ namespace loomlight::render {
 
 class Environment {
  public:
-  // Documented limits (README "Limits"): encoded bytes, and pixels checked from the header before any pixel
-  // is decoded (a small file can declare a huge image). Non-finite or negative values read as 0.
+  // Documented limits (docs/thumbnails.md "Limits"): encoded bytes, and pixels checked from the header before any
+  // pixel is decoded (a small file can declare a huge image). Non-finite or negative values read as 0.
   static constexpr size_t kMaxEncodedBytes = size_t{32} << 20;
   static constexpr long long kMaxPixels = 1LL << 22;  // e.g. 2048 x 2048 or 4096 x 1024: ~80 MB decoded
   // Maps of at least these sizes (a pixel at most pi / 16 across) find drawn directions from tabled pixel-centre

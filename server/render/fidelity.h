@@ -1,6 +1,6 @@
-// The Render RPC's fidelity chooser: per object, the cheapest model path whose estimated error stays within
-// the request's target (README "Render: fidelity"). Its decisions, each measured on a pilot (a sparse grid
-// of pixel centres traced with the render's own code and evaluated on the host with the native build of the
+// The Render RPC's fidelity chooser: per object, the cheapest model path whose estimated error stays within the
+// request's target (docs/thumbnails.md "The fidelity chooser"). Its decisions, each measured on a pilot (a sparse
+// grid of pixel centres traced with the render's own code and evaluated on the host with the native build of the
 // kernels' source):
 // - path: a spatially varying model's BTF where its threads span more than a pixel, else its analytic BRDF
 //   (the BTF's mean) when the texture the pixel would average away is within the target;

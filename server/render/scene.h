@@ -1,6 +1,6 @@
 // The Render RPC's scenes: analytic shapes (sphere, y-axis cylinders, quads) with texture coordinates whose
 // axes are the thread directions, a pinhole camera and analytic lights; ray casting on the host. World
-// space is right-handed, +y up, lengths in scene units (README "Render").
+// space is right-handed, +y up, lengths in scene units (docs/thumbnails.md "Scenes").
 #pragma once
 
 #include <cstdint>

@@ -116,7 +116,8 @@ class MicrocylinderModel : public Model {
   const std::vector<ParamSpec>& params() const override { return schema_; }
   const std::vector<PresetSpec>& presets() const override { return presets_; }
   AccuracyKnob accuracy_knob() const override {
-    // Tangent curve samples per thread: 9% at 16 and 1% at 32 against 256 (README).
+    // Tangent curve samples per thread: 9% at 16 and 1% at 32 against 256 (the satin front:
+    // bench/report-kernel.md, section 2).
     return {"tangent_samples", {8, 16, 32, 64, 128, kMaxTangentSamples},
             "Evaluate: relative L1 of the double reference against the last setting over fixed direction pairs "
             "(accuracy::MeasureKnobErrors); Render: relative L1 of the pilot radiance against the last setting",

@@ -20,7 +20,7 @@ void AppendLe64(uint64_t v, std::string* out) {
 void AppendFloat(float v, std::string* out) { AppendLe32(std::bit_cast<uint32_t>(v), out); }
 void AppendDouble(double v, std::string* out) { AppendLe64(std::bit_cast<uint64_t>(v), out); }
 
-// RAW: the "LLTB" header (README "Tabulate"), then float32 R, G, B per cell in grid order.
+// RAW: the "LLTB" header (docs/tabulation.md "Formats"), then float32 R, G, B per cell in grid order.
 class RawEncoder final : public TableEncoder {
  public:
   explicit RawEncoder(const Grid& grid) : grid_(grid) {}

@@ -19,6 +19,8 @@ std::string triple(const google::protobuf::RepeatedField<double>& v) {
 
 void print_scene(std::ostream& out, const v1::SceneInfo& scene) {
   out << "\nscene " << scene.name() << " (render --scene " << scene.name() << "): " << scene.description() << '\n';
+  // Only scenes that have a ScenePreset value name one (an absent preset is not SCENE_SPHERE, the enum's 0).
+  if (scene.has_preset()) out << "  preset: " << v1::ScenePreset_Name(scene.preset()) << " (RenderRequest.scene)\n";
   out << "  shows: " << (scene.fibers() ? "fibers (needs a fiber model; render --yarn)" : "surfaces")
       << (scene.needs_uv() ? ", a material's pattern" : "") << (scene.shows_transmission() ? ", transmission" : "")
       << '\n';

@@ -275,7 +275,9 @@ TEST(ListScenesContract, ListsEachRegisteredSceneOnceWithItsDeclarations) {
     EXPECT_FALSE(scene.fibers() && scene.needs_uv()) << "fibers have no texture coordinates";
     const render::SceneSpec* spec = render::SceneRegistry::Global().Find(scene.name());
     ASSERT_NE(spec, nullptr);
-    if (spec->preset != render::SceneSpec::kNoPreset) {
+    // The preset is present exactly when the scene declares one (an absent one must not read as SCENE_SPHERE).
+    EXPECT_EQ(scene.has_preset(), spec->preset != render::SceneSpec::kNoPreset);
+    if (scene.has_preset()) {
       EXPECT_EQ(scene.preset(), spec->preset);
       const render::SceneSpec* by_preset = render::SceneRegistry::Global().FindPreset(scene.preset());
       ASSERT_NE(by_preset, nullptr);
@@ -300,6 +302,10 @@ TEST(ListScenesContract, ListsEachRegisteredSceneOnceWithItsDeclarations) {
     }
   }
   EXPECT_EQ(listed, RegisteredScenes()) << "ListScenes lists the registry's scenes once each, in its order";
+  // Every ScenePreset value (the older RenderRequest.scene) is a listed scene's preset, present (has_preset()).
+  const auto* preset_values = v1::ScenePreset_descriptor();
+  for (int i = 0; i < preset_values->value_count(); ++i)
+    EXPECT_EQ(presets.count(preset_values->value(i)->number()), 1u) << preset_values->value(i)->name();
   std::vector<std::string> sorted = listed;
   std::sort(sorted.begin(), sorted.end());
   EXPECT_EQ(std::adjacent_find(sorted.begin(), sorted.end()), sorted.end()) << "a scene name listed twice";

@@ -59,8 +59,8 @@ void SetTriple(render::Vec3 v, google::protobuf::RepeatedField<double>* out) {
 void DescribeScene(const render::SceneSpec& spec, v1::SceneInfo* info) {
   const render::Scene scene = spec.build(models::DefaultValues(spec.params));
   info->set_name(spec.name);
-  // A scene without a ScenePreset value leaves it unset (the proto's 0 is SCENE_SPHERE: such a scene is named by
-  // scene_name only).
+  // A scene without a ScenePreset value leaves `preset` absent (has_preset() false; the enum's 0 is SCENE_SPHERE):
+  // such a scene is named by scene_name only.
   if (spec.preset != render::SceneSpec::kNoPreset) info->set_preset(static_cast<v1::ScenePreset>(spec.preset));
   info->set_description(spec.description);
   AddSchema(spec.params, info->mutable_params());

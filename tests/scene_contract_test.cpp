@@ -297,7 +297,9 @@ TEST(ListScenesContract, ListsEachRegisteredSceneOnceWithItsDeclarations) {
       for (double v : p.default_values()) {
         EXPECT_LE(p.min(), v);
         EXPECT_LE(v, p.max());
-        if (p.type() == v1::ParamSchema::TYPE_INT) EXPECT_EQ(v, std::floor(v));
+        if (p.type() == v1::ParamSchema::TYPE_INT) {
+          EXPECT_EQ(v, std::floor(v));
+        }
       }
     }
   }

@@ -1,6 +1,12 @@
 #include "server/api/metrics.h"
 
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <chrono>
 #include <cmath>
+#include <thread>
 
 namespace loomlight::api {
 namespace {
@@ -142,6 +148,30 @@ std::string Metrics::Serve(const std::string& address, const AccessOptions& acce
         },
         "loomlight metrics");
   return "";
+}
+
+// civetweb (under prometheus::Exposer) polls its listening socket in 2 s quanta and sees a stop only between them,
+// so destroying the exposer took up to 2 s: every test server's end. A connection (closed at once: the worker that
+// takes it reads end of file) wakes the poll; one every few ms until the exposer is gone.
+Metrics::~Metrics() {
+  if (!exposer_) return;
+  const int port = this->port();
+  std::atomic<bool> stopped{false};
+  std::thread waker([port, &stopped] {
+    while (!stopped) {
+      const int fd = socket(AF_INET, SOCK_STREAM, 0);
+      sockaddr_in addr{};
+      addr.sin_family = AF_INET;
+      addr.sin_port = htons(static_cast<uint16_t>(port));
+      addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);  // an exposer on another address stops as before
+      connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
+      close(fd);
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+  });
+  exposer_.reset();
+  stopped = true;
+  waker.join();
 }
 
 std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> Metrics::ClientCallCounter() {

@@ -32,6 +32,7 @@ struct ResourceSample {
 class Metrics {
  public:
   Metrics();
+  ~Metrics();  // stops the HTTP endpoint at once (metrics.cpp)
   // Starts the HTTP endpoint ("host:port", port 0 picks one); "" on success, else the reason. Only on loopback
   // unless plaintext on other addresses is allowed; with tokens a scraper authenticates by HTTP basic auth
   // (user: a client, password: its token, which must list `metrics` itself: `*` does not include it).

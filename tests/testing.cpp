@@ -13,6 +13,8 @@
 #include <thread>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 
@@ -22,6 +24,35 @@
 #include <OpenImageIO/imageio.h>
 
 namespace loomlight::testing {
+namespace {
+
+// Each test process writes under a temporary directory of its own, removed when it exits: gtest's TempDir() reads
+// TEST_TMPDIR, so a test's "lobe.png" or "environment_test.exr" cannot meet the same name written by a test beside
+// it (`ctest -j`) or by another checkout's run; and the servers it starts keep their default data directory
+// (XDG_STATE_HOME/loomlight) there, not in the user's home. Before main, so before any test asks.
+// (loomlight_testing is an object library: this is linked into every test, whether or not it calls anything else.)
+class PrivateTempDir {
+ public:
+  PrivateTempDir() {
+    const char* base = std::getenv("TEST_TMPDIR");
+    std::string path = std::string(base && *base ? base : "/tmp") + "/loomlight-test-XXXXXX";
+    if (!mkdtemp(path.data())) return;  // then TempDir() stays the shared one
+    path_ = path;
+    setenv("TEST_TMPDIR", path_.c_str(), 1);
+    setenv("XDG_STATE_HOME", (path_ + "/state").c_str(), 1);
+  }
+  ~PrivateTempDir() {
+    std::error_code ec;
+    if (!path_.empty() && getpid() == owner_) std::filesystem::remove_all(path_, ec);  // not in a forked child
+  }
+
+ private:
+  std::string path_;
+  const pid_t owner_ = getpid();
+};
+const PrivateTempDir private_temp_dir;
+
+}  // namespace
 
 runtime::ClRuntime& SharedRuntime() {
   static std::unique_ptr<runtime::ClRuntime> rt = [] {

@@ -21,7 +21,7 @@
 #include "server/models/direction_sampler.h"
 #include "server/models/material_cache.h"
 #include "server/models/registry.h"
-#include "server/render/rng.h"
+#include "server/models/rng.h"
 #include "tests/testing.h"
 
 namespace loomlight {
@@ -246,7 +246,7 @@ TEST_F(SampleRpcTest, SameRequestSameBytesAndSeedEqualsItsRandomNumbers) {
     explicit_random.set_seed(99);  // ignored when random numbers are given
     const int n = request.wo_size() / 3;
     for (int q = 0; q < n; ++q) {
-      const render::CounterRng rng(request.seed(), uint64_t(q));
+      const models::CounterRng rng(request.seed(), uint64_t(q));
       for (int d = 0; d < 3; ++d) explicit_random.add_random(std::min(float(rng.Uniform(d)), 0x1.fffffep-1f));
     }
     v1::SampleResponse c;

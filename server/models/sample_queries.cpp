@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "server/render/rng.h"
+#include "server/models/rng.h"
 
 namespace loomlight::models {
 
@@ -14,7 +14,7 @@ void DrawSampleQueries(const DirectionSampler& sampler, const float* wo, const f
     if (random) {
       for (int d = 0; d < 3; ++d) u[d] = random[3 * q + d];
     } else {  // the numbers a client would send: floats (below 1)
-      const render::CounterRng rng(seed, q);
+      const CounterRng rng(seed, q);
       for (int d = 0; d < 3; ++d) u[d] = std::min(static_cast<float>(rng.Uniform(d)), 0x1.fffffep-1f);
     }
     const double x = wo[3 * q], y = wo[3 * q + 1], z = wo[3 * q + 2];

@@ -3,7 +3,7 @@
 #include <cmath>
 
 #include "server/models/query_means.h"
-#include "server/render/rng.h"
+#include "server/models/rng.h"
 
 namespace loomlight::models {
 namespace {
@@ -15,7 +15,7 @@ double Fraction(double t) { return t - std::floor(t); }  // exact, so always < 1
 
 // The Cranley-Patterson rotation of a pixel's sample set: two numbers in [0, 1) from a hash of its index.
 std::array<double, 2> PixelRotation(uint64_t pixel) {
-  const uint64_t h = render::Mix64(pixel);  // a fixed, well-mixed hash of the pixel index
+  const uint64_t h = Mix64(pixel);  // a fixed, well-mixed hash of the pixel index
   return {static_cast<double>(h >> 40) * 0x1p-24, static_cast<double>((h >> 16) & 0xffffff) * 0x1p-24};
 }
 

@@ -10,7 +10,7 @@
 #include <array>
 #include <cstdint>
 
-#include "server/render/rng.h"
+#include "server/models/rng.h"
 
 namespace loomlight::render {
 
@@ -66,14 +66,15 @@ inline std::array<uint32_t, 2> Sobol2D(uint32_t index) {
 
 class SamplePoints {
  public:
-  SamplePoints(uint64_t seed, uint64_t pixel, uint32_t sample) : key_(Mix64(seed ^ Mix64(pixel))), sample_(sample) {}
+  SamplePoints(uint64_t seed, uint64_t pixel, uint32_t sample)
+      : key_(models::Mix64(seed ^ models::Mix64(pixel))), sample_(sample) {}
 
   // The sample's point in dimension pair `pair`, both coordinates in [0, 1).
   std::array<double, 2> Get2D(uint32_t pair) const {
     const uint64_t h = PairHash(pair);
     const std::array<uint32_t, 2> p = sobol::Sobol2D(ShuffledIndex(h));
     const uint32_t x = sobol::OwenScramble(p[0], static_cast<uint32_t>(h >> 32));
-    const uint32_t y = sobol::OwenScramble(p[1], static_cast<uint32_t>(Mix64(h)));
+    const uint32_t y = sobol::OwenScramble(p[1], static_cast<uint32_t>(models::Mix64(h)));
     // 32 bits each, so always < 1.
     return {x * 0x1p-32, y * 0x1p-32};
   }
@@ -95,7 +96,7 @@ class SamplePoints {
 
  private:
   // The pair's scrambling seeds (low half: the index's shuffle, high half: x's scramble).
-  uint64_t PairHash(uint32_t pair) const { return Mix64(key_ + 0x9e3779b97f4a7c15ull * (pair + 1)); }
+  uint64_t PairHash(uint32_t pair) const { return models::Mix64(key_ + 0x9e3779b97f4a7c15ull * (pair + 1)); }
   // The shuffled index: samples 0..2^k-1 of the pixel become one aligned block of 2^k Sobol indices.
   uint32_t ShuffledIndex(uint64_t h) const { return sobol::OwenScramble(sample_, static_cast<uint32_t>(h)); }
 

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include "server/models/rng.h"
+
 namespace loomlight::yarn {
 namespace {
 
@@ -13,13 +15,6 @@ std::string Number(double v) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.6g", v);
   return buf;
-}
-
-uint64_t SplitMix64(uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
 }
 
 Vec3 Normalized(Vec3 v) { return (1 / Norm(v)) * v; }
@@ -151,7 +146,7 @@ std::string BuildLayout(const models::weave::WeavePattern& pattern, const Layout
   return "";
 }
 
-uint64_t LayoutYarnSeed(uint64_t seed, uint64_t seed_offset) { return SplitMix64(SplitMix64(seed) ^ seed_offset); }
+uint64_t LayoutYarnSeed(uint64_t seed, uint64_t seed_offset) { return models::Mix64(models::Mix64(seed) ^ seed_offset); }
 
 std::string GenerateLayout(const YarnParams& yarn, const WovenLayout& layout, const DetailOptions& options,
                            const YarnLimits& limits, LayoutGeometry* out) {

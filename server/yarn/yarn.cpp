@@ -7,6 +7,7 @@
 #include <random>
 
 #include "server/models/quote.h"
+#include "server/models/rng.h"
 #include "server/runtime/parallel_for.h"
 
 namespace loomlight::yarn {
@@ -52,14 +53,7 @@ std::string IntInRange(const char* name, int64_t v, int64_t lo, int64_t hi) {
 // Counter-based: each (fiber, stream) has its own SplitMix64 sequence, keyed by (seed, ply, fiber, stream),
 // so a fiber's draws depend neither on which other fibers were drawn first nor on which thread builds it,
 // and a generator is 8 bytes (a std::mt19937_64 per fiber would be 2.5 KB, 250 MB at the fiber limit).
-// SplitMix64 (Steele, Lea and Flood 2014) passes BigCrush.
-
-uint64_t SplitMix64(uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
+// SplitMix64 (models::Mix64 is its output function) passes BigCrush.
 
 // The draws of one fiber: kCrossSection for its place in the ply (R_i, theta_i, theta_i^0), kFlyaways for
 // its loops and hairs, so changing a density changes no fiber's place.
@@ -68,20 +62,19 @@ enum Stream : uint64_t { kCrossSection = 0, kFlyaways = 1 };
 class FiberRandom {
  public:
   FiberRandom(uint64_t seed, int ply, int fiber, Stream stream)
-      : state_(SplitMix64(seed ^ SplitMix64((uint64_t(uint32_t(ply)) << 40) | (uint64_t(uint32_t(fiber)) << 8) |
-                                            stream))) {}
+      : state_(models::Mix64(seed ^ models::Mix64((uint64_t(uint32_t(ply)) << 40) |
+                                                  (uint64_t(uint32_t(fiber)) << 8) | stream))) {}
   // Uniform in [0, 1) from the top 53 bits (the same on every standard library, unlike
   // std::uniform_real_distribution).
   double Uniform() { return double(Next() >> 11) * 0x1.0p-53; }
   double Uniform(double lo, double hi) { return lo + (hi - lo) * Uniform(); }
 
  private:
+  // SplitMix64's step: the state advances by its increment, and the output is Mix64 of the state before.
   uint64_t Next() {
+    const uint64_t z = models::Mix64(state_);
     state_ += 0x9E3779B97F4A7C15ull;
-    uint64_t z = state_;
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
+    return z;
   }
   uint64_t state_;
 };

@@ -4,9 +4,10 @@
 
 #include <cstdint>
 
-namespace loomlight::render {
+namespace loomlight::models {
 
-// splitmix64's finaliser: a bijective, well-mixed 64-bit hash.
+// splitmix64's finaliser (Steele, Lea and Flood 2014; passes BigCrush): a bijective, well-mixed 64-bit hash.
+// The one copy: render samples, Sample's seeds, texture slices' pixel offsets and the yarns' fibers use it.
 inline uint64_t Mix64(uint64_t x) {
   x += 0x9e3779b97f4a7c15ull;
   x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
@@ -27,4 +28,4 @@ class CounterRng {
   uint64_t key_;
 };
 
-}  // namespace loomlight::render
+}  // namespace loomlight::models

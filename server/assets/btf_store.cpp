@@ -22,6 +22,8 @@ using models::btf::BtfAsset;
 
 namespace {
 constexpr uint64_t kMaxManifestBytes = 1 << 20;
+// Tries of a load whose version was replaced (and removed) while it read (BtfStore::Load).
+constexpr int kLoadAttempts = 8;
 
 // Why a system call failed, for the operator: what was done, to which file of the store, and errno's text.
 std::string Failure(const std::string& what, const fs::path& path) {
@@ -301,14 +303,30 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log) {
 }
 
 std::string BtfStore::Load(const std::string& entry, std::shared_ptr<BtfAsset>* out) const {
-  // Every file from one version: the link is followed once (a replacement may flip it meanwhile).
-  const int dir_fd = ::open((fs::path(dir_) / entry).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dir_fd < 0) return std::string("cannot open its directory: ") + std::strerror(errno);
+  // Every file from one version, named by the link read once. A replacement publishes its link before it removes
+  // the version it replaced, so a file gone from the version read means the link has moved on: read it again
+  // (each further try lost to one more replacement in between; a few are plenty).
+  const fs::path path = fs::path(dir_) / entry;
   std::string bytes, data, owner;
-  const bool manifest_read = ReadFileAt(dir_fd, "manifest.pb", kMaxManifestBytes, &bytes);
-  const bool tables_read = manifest_read && ReadFileAt(dir_fd, "tables.f32", max_bytes_, &data);
-  if (!ReadFileAt(dir_fd, "owner", 1024, &owner)) owner.clear();  // none: stored before assets had owners
-  ::close(dir_fd);
+  bool manifest_read = false, tables_read = false;
+  for (int attempt = 0;; ++attempt) {
+    const std::string version = VersionOf(path);  // "": an older server's plain directory, or gone
+    const int dir_fd = ::open((version.empty() ? path : fs::path(dir_) / version).c_str(),
+                              O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    const int open_errno = errno;
+    bool gone = dir_fd < 0 && open_errno == ENOENT;
+    if (dir_fd >= 0) {
+      manifest_read = ReadFileAt(dir_fd, "manifest.pb", kMaxManifestBytes, &bytes);
+      gone = !manifest_read && errno == ENOENT;
+      tables_read = manifest_read && ReadFileAt(dir_fd, "tables.f32", max_bytes_, &data);
+      gone = gone || (manifest_read && !tables_read && errno == ENOENT);
+      if (!ReadFileAt(dir_fd, "owner", 1024, &owner)) owner.clear();  // none: stored before assets had owners
+      ::close(dir_fd);
+    }
+    if (gone && !version.empty() && attempt < kLoadAttempts && VersionOf(path) != version) continue;
+    if (dir_fd < 0) return std::string("cannot open its directory: ") + std::strerror(open_errno);
+    break;
+  }
   v1::BtfAssetInfo info;
   if (!manifest_read || !info.ParseFromString(bytes)) return "manifest.pb missing or unreadable";
   auto asset = std::make_shared<BtfAsset>();

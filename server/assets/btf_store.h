@@ -71,13 +71,14 @@ class BtfStore {
   uint64_t bytes() const;
   uint64_t max_bytes() const { return max_bytes_; }
   const std::string& directory() const { return dir_; }
+  // Reads the directory entry DATA_DIR/btf/ENTRY (what Sync loads) into *asset, all from one version even while
+  // other servers replace it; "" or why not. Reads only the disk: safe beside any other call.
+  std::string Load(const std::string& entry, std::shared_ptr<models::btf::BtfAsset>* asset) const;
   // Tests only: runs just before Put publishes a written version (where another writer may get in first).
   void set_before_publish_for_test(std::function<void()> f) { before_publish_for_test_ = std::move(f); }
 
  private:
   BtfStore(std::string dir, uint64_t max_bytes) : dir_(std::move(dir)), max_bytes_(max_bytes) {}
-  // Reads the directory entry DATA_DIR/btf/ENTRY into *asset; "" or why not.
-  std::string Load(const std::string& entry, std::shared_ptr<models::btf::BtfAsset>* asset) const;
   // The directory entry holding `name` in any case: the lower-case link, else an older server's entry spelled
   // otherwise; "" when there is none.
   std::string EntryOf(const std::string& name) const;

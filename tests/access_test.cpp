@@ -722,7 +722,9 @@ TEST(OneClient, AConnectionOpensAtMostItsBoundOfStreams) {
   std::vector<std::thread> threads;
   // Four Watch streams on connection a, then two on b.
   for (int i = 0; i < 6; ++i) {
-    if (i == 4) EXPECT_TRUE(Eventually([&] { return started == 2; })) << started;
+    if (i == 4) {
+      EXPECT_TRUE(Eventually([&] { return started == 2; })) << started;
+    }
     threads.emplace_back([&, i] {
       watches[static_cast<size_t>(i)] = std::make_unique<HeldWatch>(i < 4 ? a : b, "");
       if (watches[static_cast<size_t>(i)]->admitted) ++started;

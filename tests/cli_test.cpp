@@ -190,7 +190,7 @@ TEST(Cli, ServerRefusalsExitTwoNamingTheOption) {
     EXPECT_NE(result.output.find("error: " + message), std::string::npos) << args << "\n" << result.output;
   }
   // Both forms of every kind of option are accepted.
-  for (const std::string& args :
+  for (const char* args :
        {"--address=127.0.0.1:0 --max-long-calls=4 --memory-budget-mb=512 --max-call-seconds=bulk:60 "
         "--trusted-proxy=10.0.0.0/8 --queue-policy=bulk:timeout_ms=5 --no-batching",
         "--address 127.0.0.1:0 --max-long-calls 4 --memory-budget-mb 512 --max-call-seconds bulk:60 "

@@ -82,7 +82,9 @@ TEST(CurveBatcher, BatchesWholeCurvesInOrderWithinTheBoundAndALongCurveAlone) {
     ASSERT_FALSE(batch.fibers.empty()) << "an empty batch before the end";
     size_t bytes = 0, points = 0;
     for (uint32_t n : batch.point_counts) bytes += 12 * n + 24, points += n;
-    if (batch.fibers.size() > 1) EXPECT_LE(bytes, bound);
+    if (batch.fibers.size() > 1) {
+      EXPECT_LE(bytes, bound);
+    }
     EXPECT_EQ(batch.points.size(), 3 * points);
     EXPECT_EQ(batch.widths.size(), batch.fibers.size());
     yarn_of.insert(yarn_of.end(), batch.yarns.begin(), batch.yarns.end());

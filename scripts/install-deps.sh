@@ -15,6 +15,7 @@ packages=(
   libgtest-dev libgmock-dev
   fonts-dejavu-core
   haproxy
+  python3
 )
 case "${1:-}" in
   --fuzz) packages+=(clang libclang-rt-14-dev llvm-14) ;;

@@ -116,7 +116,7 @@ std::string FiberRows(v1::Loomlight::Stub& stub, const Sizes& sizes) {
         lines += "Target: the 512x512 woven-patch close-up at 16 samples per pixel in at most 2 s: full detail, traced: " +
                  Fixed(r.client_seconds, 2) + " s, " + (r.client_seconds <= 2 ? "reached" : "not reached");
       if (!distant && !sizes.quick && &config == &configs[2]) {
-        // The timed calls find the scene kept by the calls before (api::FiberSceneCache); a yarn of another seed
+        // The timed calls find the scene kept by the calls before (yarn::FiberSceneCache); a yarn of another seed
         // is generated, built and tabulated afresh, as a first render of a patch is.
         v1::RenderRequest fresh = FiberRequest(side, spp, config, 1, distant);
         fresh.mutable_yarn()->set_seed(2);

@@ -120,14 +120,14 @@ TEST(FiberSceneCache, FindsTheSameFibersOnlyAndBoundsItsBytes) {
     std::shared_ptr<const yarn::FiberScene> fibers;
     std::shared_ptr<const yarn::YarnVisibility> visibility;
   };
-  const auto build = [](api::YarnJob j, api::FiberSceneCache* cache, bool visibility) {
+  const auto build = [](api::YarnJob j, yarn::FiberSceneCache* cache, bool visibility) {
     Built b;
     b.status = api::BuildFiberScene(
         &j, [] { return grpc::Status::OK; }, [&b](size_t bytes) { return b.admitted += bytes, true; }, &b.fibers,
         visibility ? &b.visibility : nullptr, cache);
     return b;
   };
-  api::FiberSceneCache cache(size_t{1} << 30);
+  yarn::FiberSceneCache cache(size_t{1} << 30);
   const Built first = build(job(1, 0, 0.2), &cache, true);
   ASSERT_TRUE(first.status.ok()) << first.status.error_message();
   EXPECT_GT(first.admitted, 0u);
@@ -156,14 +156,14 @@ TEST(FiberSceneCache, FindsTheSameFibersOnlyAndBoundsItsBytes) {
 
   // Bounded: room for one scene keeps the last; a scene over the bound is not kept.
   const size_t one = cache.bytes() / cache.entries();
-  api::FiberSceneCache small(one + one / 2);
+  yarn::FiberSceneCache small(one + one / 2);
   ASSERT_TRUE(build(job(1, 0, 0.2), &small, true).status.ok());
   ASSERT_TRUE(build(job(2, 0, 0.2), &small, true).status.ok());
   EXPECT_EQ(small.entries(), 1u);
   EXPECT_LE(small.bytes(), one + one / 2);
   EXPECT_EQ(build(job(2, 0, 0.2), &small, true).admitted, 0u);
   EXPECT_GT(build(job(1, 0, 0.2), &small, true).admitted, 0u);
-  api::FiberSceneCache tiny(16);
+  yarn::FiberSceneCache tiny(16);
   ASSERT_TRUE(build(job(1, 0, 0.2), &tiny, true).status.ok());
   EXPECT_EQ(tiny.entries(), 0u);
 }

@@ -139,7 +139,7 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
     : deps_(deps),
       materials_(limits.material_cache_bytes),
       folds_(limits.fold_cache_bytes),
-      fiber_scenes_(std::make_unique<FiberSceneCache>(limits.fiber_cache_bytes)),
+      fiber_scenes_(std::make_unique<yarn::FiberSceneCache>(limits.fiber_cache_bytes)),
       client_long_calls_(limits.max_long_calls_per_client),
       idle_uploads_(limits.upload_idle_timeout) {
   deps_.materials = &materials_;

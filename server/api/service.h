@@ -21,9 +21,11 @@
 #include "server/models/registry.h"
 #include "server/render/folded_environment.h"
 
-namespace loomlight::api {
+namespace loomlight::yarn {
+class FiberSceneCache;  // server/yarn/fiber_scene_cache.h
+}
 
-class FiberSceneCache;  // server/api/yarn_rpc.h
+namespace loomlight::api {
 
 // Documented limits (docs/api.md#input-rules-shared-by-evaluate-sample-tabulate-textureslice-and-render).
 constexpr size_t kMaxQueriesPerCall = size_t{1} << 20;  // 1,048,576 direction pairs
@@ -62,7 +64,7 @@ struct ServiceDeps {
   Metrics* metrics = nullptr;
   models::MaterialCache* materials = nullptr;
   render::FoldCache* folds = nullptr;  // BTF environment folds (render::FoldCache), kept across Render calls
-  FiberSceneCache* fiber_scenes = nullptr;  // built fiber scenes (server/api/yarn_rpc.h), kept across calls
+  yarn::FiberSceneCache* fiber_scenes = nullptr;  // built fiber scenes, kept across calls
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
   HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
   HostWorker* geometry = nullptr;  // generating yarn geometry, off the host worker
@@ -167,7 +169,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   ServiceDeps deps_;
   models::MaterialCache materials_;
   render::FoldCache folds_;
-  std::unique_ptr<FiberSceneCache> fiber_scenes_;
+  std::unique_ptr<yarn::FiberSceneCache> fiber_scenes_;
   ClientSlots client_long_calls_;
   IdleStreams idle_uploads_;
   std::atomic<bool> serving_{false};

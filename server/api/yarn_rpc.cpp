@@ -274,7 +274,7 @@ std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, co
 
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
-                             std::shared_ptr<const yarn::YarnVisibility>* visibility, FiberSceneCache* cache,
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility, yarn::FiberSceneCache* cache,
                              const std::string& yarn_field) {
   const yarn::FiberSceneOutcome outcome =
       yarn::BuildFiberScene(job, [stop] { return !stop().ok(); }, grow, scene, visibility, cache);

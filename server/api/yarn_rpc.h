@@ -52,12 +52,6 @@ using yarn::YarnJob;
 std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const v1::WovenYarnLayout* woven,
                       double straight_length, YarnJob* job);
 
-// Fiber scenes kept across calls (server/yarn/fiber_scene_cache.h), by the name service.h declares.
-class FiberSceneCache final : public yarn::FiberSceneCache {
- public:
-  using yarn::FiberSceneCache::FiberSceneCache;
-};
-
 // A job's fibers in an Embree BVH, for ray tracing them (Render's fiber scenes, CreateBtf's fiber source):
 // generates them, admits the BVH's estimated bytes through `grow` (RESOURCE_EXHAUSTED when it refuses) before
 // building it bounded by them, and with `visibility` not null also builds the yarns' cheap visibility
@@ -67,7 +61,7 @@ class FiberSceneCache final : public yarn::FiberSceneCache {
 // fibers is used as it is (nothing generated, built or admitted), and a scene built here is kept there.
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
                              const std::function<bool(size_t)>& grow, std::shared_ptr<const yarn::FiberScene>* scene,
-                             std::shared_ptr<const yarn::YarnVisibility>* visibility, FiberSceneCache* cache,
+                             std::shared_ptr<const yarn::YarnVisibility>* visibility, yarn::FiberSceneCache* cache,
                              const std::string& yarn_field = "yarn");
 
 // The schema and presets ListModels reports under `yarn`.

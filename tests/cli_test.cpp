@@ -1,9 +1,6 @@
 // The command lines of the real binaries, parsed by CLI11: every command's and the server's --help lists its
 // options; "--name=value" means "--name value"; an unknown option or a bad value exits 2 naming the option; the
 // client's --server defaults to $LOOMLIGHT_SERVER.
-#include <arpa/inet.h>
-#include <netinet/in.h>
-#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -46,19 +43,6 @@ Result Client(const std::string& args, const std::string& server_env = "") {
 // starts serving).
 Result ServerHelp(const std::string& args) {
   return Run(std::string(LOOMLIGHT_SERVER_BINARY) + " " + args + " --help");
-}
-
-// A loopback port nobody listens on: bound, noted and closed (nothing else binds ephemeral loopback ports here).
-int ClosedPort() {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t length = sizeof addr;
-  EXPECT_EQ(bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
-  EXPECT_EQ(getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &length), 0);
-  close(fd);
-  return ntohs(addr.sin_port);
 }
 
 bool Lists(const std::string& help, const std::string& option) {
@@ -254,7 +238,7 @@ TEST_F(CliServer, AmbientPrintsOneRowPerWo) {
 
 TEST_F(CliServer, ServerComesFromTheEnvironmentWhenNotGiven) {
   const std::string address = server_->address();
-  const std::string closed = "127.0.0.1:" + std::to_string(ClosedPort());
+  const std::string closed = "127.0.0.1:" + std::to_string(testing::ClosedLoopbackPort());
   const Result models = Client("models", address);
   ASSERT_EQ(models.exit_code, 0) << models.output;
   EXPECT_NE(models.output.find("\nmodel "), std::string::npos) << models.output;

@@ -3,9 +3,6 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
-#include <arpa/inet.h>
-#include <netinet/in.h>
-#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -381,17 +378,8 @@ TEST_F(Integration, ClientHealthPrintsServingAndFailsWhereNobodyListens) {
   EXPECT_EQ(out, "SERVING\n");
   EXPECT_EQ(testing::RunClient(server_->address(), "health --service no.such.Service", &out), 1) << out;
   EXPECT_NE(out.find("NOT_FOUND"), std::string::npos) << out;
-  // A port nobody listens on: bind one, note it, close it (nothing else binds ephemeral loopback ports here).
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  ASSERT_GE(fd, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t length = sizeof addr;
-  ASSERT_EQ(bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
-  ASSERT_EQ(getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &length), 0);
-  const int closed_port = ntohs(addr.sin_port);
-  close(fd);
+  const int closed_port = testing::ClosedLoopbackPort();
+  ASSERT_GT(closed_port, 0);
   EXPECT_EQ(testing::RunClient(closed_port, "health --timeout 10", &out), 1) << out;
   EXPECT_NE(out.find("error: UNAVAILABLE"), std::string::npos) << out;
   EXPECT_EQ(out.find("SERVING"), std::string::npos) << out;

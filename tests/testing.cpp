@@ -122,6 +122,23 @@ int RunClient(int port, const std::string& args, std::string* output) {
   return RunClient("127.0.0.1:" + std::to_string(port), args, output);
 }
 
+int ClosedLoopbackPort() {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  if (fd < 0) {
+    ADD_FAILURE() << "socket: " << std::strerror(errno);
+    return 0;
+  }
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t length = sizeof addr;
+  const bool bound = bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0 &&
+                     getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &length) == 0;
+  if (!bound) ADD_FAILURE() << "bind: " << std::strerror(errno);
+  close(fd);
+  return bound ? ntohs(addr.sin_port) : 0;
+}
+
 DecodedImage DecodeImage(const std::string& bytes, const char* name) {
   DecodedImage d;
   OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());

@@ -40,6 +40,9 @@ std::shared_ptr<grpc::Channel> OwnChannel(const std::string& address);
 // and stderr in *output.
 int RunClient(const std::string& address, const std::string& args, std::string* output);
 int RunClient(int port, const std::string& args, std::string* output);  // 127.0.0.1:port
+// A loopback port nobody listens on: bound, noted and closed (nothing else binds ephemeral loopback ports here);
+// 0 (with a test failure) when none could be bound.
+int ClosedLoopbackPort();
 
 // GET http://127.0.0.1:port/path (e.g. the metrics endpoint) with extra header lines ("Name: value\r\n" each);
 // the body, or "" on failure.

@@ -10,6 +10,7 @@ packages=(
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev
   libembree-dev
+  libtinygltf-dev libtinyobjloader-dev
   libeigen3-dev
   libcli11-dev
   libgtest-dev libgmock-dev

@@ -1,21 +1,13 @@
-// BTF assets on disk, by name, under the operator's data directory (docs/btf-assets.md "Storage"):
-//   DATA_DIR/btf/name               a symbolic link to the asset's version directory, .v-TAG; the name in lower
-//                                   case (names that differ only in case are one name, on every volume)
+// BTF assets on disk, by name, under the operator's data directory (docs/btf-assets.md "Storage"), in the
+// versioned directory the asset stores share (server/assets/versioned_store.h: versions written whole and synced,
+// published by one atomic link, names case-insensitive, replicas sharing the directory kept up to date by Sync):
+//   DATA_DIR/btf/name               a symbolic link to the asset's version directory, .v-TAG
 //   DATA_DIR/btf/.v-TAG/manifest.pb  the asset's BtfAssetInfo (binary protobuf: name as given, grid, tile, ...)
 //   DATA_DIR/btf/.v-TAG/tables.f32   its compressed tables, float32 little-endian (kernels/models/btf.h's layout)
 //   DATA_DIR/btf/.v-TAG/owner        the client that stored it (BtfAsset::owner); absent: stored before owners
-// (NAME may also be a plain directory holding the two files, as servers before the links wrote it.) A version is
-// written whole and synced before one atomic step publishes it: symlink(2), which fails when NAME exists, for a
-// new asset, and rename(2) of a new link over NAME for a replacement, so a crash or a second writer leaves the
-// old asset or the new one, never half of one, nothing, or the loser's bytes under the winner's name. Links and
-// renames are atomic on every POSIX filesystem, NFS included. Names are checked before any path is made from
-// them; nothing a client sends becomes a path otherwise. Loaded assets are registered with models::btf::Assets
-// (what the `btf` model reads).
-//
-// Several servers may share one data directory (replicas on a shared volume): each writes under names unique to
-// its host and process, cannot overwrite an asset another wrote unless asked to replace it, and Sync brings
-// its registry up to date with the directory (assets another added, replaced or deleted), keyed by each asset's
-// files (inode, size, modification time); an asset that does not load is tried again later.
+// (NAME may also be a plain directory holding the two files, as servers before the links wrote it.) Loaded
+// assets are registered with models::btf::Assets (what the `btf` model reads). Another server sharing the
+// directory cannot overwrite an asset this one wrote unless asked to replace it.
 #pragma once
 
 #include <chrono>
@@ -28,12 +20,10 @@
 #include <vector>
 
 #include "loomlight/v1/loomlight.pb.h"
+#include "server/assets/versioned_store.h"
 #include "server/models/btf/btf_asset.h"
 
 namespace loomlight::assets {
-
-// "" or why `name` cannot name an asset: 1-64 of [A-Za-z0-9_.-], not starting with '.'.
-std::string ValidateAssetName(const std::string& name);
 
 // The directions of a request's grid (a preset or rings); "" or "field: reason" (field under `field`).
 std::string GridOf(const v1::BtfGrid& grid, const std::string& field, models::btf::DirectionGrid* out);
@@ -70,40 +60,21 @@ class BtfStore {
   std::vector<std::shared_ptr<const models::btf::BtfAsset>> List() const;
   uint64_t bytes() const;
   uint64_t max_bytes() const { return max_bytes_; }
-  const std::string& directory() const { return dir_; }
+  const std::string& directory() const { return dir_->path(); }
   // Reads the directory entry DATA_DIR/btf/ENTRY (what Sync loads) into *asset, all from one version even while
   // other servers replace it; "" or why not. Reads only the disk: safe beside any other call.
   std::string Load(const std::string& entry, std::shared_ptr<models::btf::BtfAsset>* asset) const;
   // Tests only: runs just before Put publishes a written version (where another writer may get in first).
-  void set_before_publish_for_test(std::function<void()> f) { before_publish_for_test_ = std::move(f); }
+  void set_before_publish_for_test(std::function<void()> f) { dir_->set_before_publish_for_test(std::move(f)); }
 
  private:
-  BtfStore(std::string dir, uint64_t max_bytes) : dir_(std::move(dir)), max_bytes_(max_bytes) {}
-  // The directory entry holding `name` in any case: the lower-case link, else an older server's entry spelled
-  // otherwise; "" when there is none.
-  std::string EntryOf(const std::string& name) const;
-  // Which version of NAME's files the directory holds (inode, size and modification time of its manifest and
-  // tables; empty when there is no manifest).
-  std::string StampOf(const std::string& name) const;
-  // A name for a hidden directory no other server sharing the directory uses (host, process, counter).
-  std::string UniqueTag();
+  BtfStore(std::unique_ptr<VersionedDirectory> dir, uint64_t max_bytes) : dir_(std::move(dir)), max_bytes_(max_bytes) {}
+  int Sync(const std::function<void(const std::string&)>& log, bool opening);
 
-  const std::string dir_;  // DATA_DIR/btf
+  const std::unique_ptr<VersionedDirectory> dir_;  // DATA_DIR/btf
   const uint64_t max_bytes_;
-  mutable std::mutex mutex_;  // one writer at a time; names -> ids live in models::btf::Assets
+  mutable std::mutex mutex_;  // one writer at a time (and dir_'s bookkeeping); names -> ids live in models::btf::Assets
   uint64_t client_quota_ = 0;
-  // Keyed by the name in lower case:
-  std::map<std::string, std::string> stamps_;  // per registered asset: StampOf when it was loaded or written
-  // Per asset on disk that did not load: its stamp and reason then, and when Sync tries it again (at once when
-  // its files change; else after a delay that doubles, for a reason that is not in the files: a read error, the
-  // store's bound).
-  struct Failed {
-    std::string stamp, why;
-    std::chrono::steady_clock::time_point retry;
-    std::chrono::seconds delay{0};
-  };
-  std::map<std::string, Failed> failed_;
-  std::function<void()> before_publish_for_test_;
 };
 
 }  // namespace loomlight::assets

@@ -2,6 +2,7 @@
 
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
+#include <webp/encode.h>
 
 #include <algorithm>
 #include <array>
@@ -30,13 +31,22 @@ const std::array<double, 255>& SrgbCodeThresholds() {
   return thresholds;
 }
 
-std::vector<unsigned char> ToSrgb8(const LinearRgbImage& image, double exposure) {
+// Pixels of `channels` 8-bit values each: RGB sRGB codes of image x exposure, with kWhite blended over 255 by
+// coverage, and with kTransparent (channels 4) an alpha of round(255 coverage). See EncodeImage.
+std::vector<unsigned char> ToSrgb8(const LinearRgbImage& image, double exposure, Background background,
+                                   const std::vector<float>* coverage, int channels) {
   const std::array<double, 255>& thresholds = SrgbCodeThresholds();
-  std::vector<unsigned char> out(image.rgb.size());
-  for (size_t i = 0; i < image.rgb.size(); ++i) {
-    const double scaled = static_cast<double>(FiniteOrZero(image.rgb[i])) * exposure;  // clamped by the search
-    out[i] = static_cast<unsigned char>(std::upper_bound(thresholds.begin(), thresholds.end(), scaled) -
-                                        thresholds.begin());
+  const size_t pixels = image.rgb.size() / 3;
+  std::vector<unsigned char> out(pixels * channels);
+  for (size_t p = 0; p < pixels; ++p) {
+    const double alpha = background == Background::kScene ? 1.0 : ClampedCoverage((*coverage)[p]);
+    for (int c = 0; c < 3; ++c) {
+      const double scaled = static_cast<double>(FiniteOrZero(image.rgb[3 * p + c])) * exposure;  // clamped below
+      const long code = std::upper_bound(thresholds.begin(), thresholds.end(), scaled) - thresholds.begin();
+      out[p * channels + c] = static_cast<unsigned char>(
+          background == Background::kWhite ? std::lround(code * alpha + 255.0 * (1.0 - alpha)) : code);
+    }
+    if (channels == 4) out[p * channels + 3] = static_cast<unsigned char>(std::lround(255.0 * alpha));
   }
   return out;
 }
@@ -47,6 +57,53 @@ const std::vector<float>& FinitePixels(const LinearRgbImage& image, std::vector<
   storage->resize(image.rgb.size());
   std::transform(image.rgb.begin(), image.rgb.end(), storage->begin(), FiniteOrZero);
   return *storage;
+}
+
+// The linear pixels EXR and raw write, `channels` floats each: the image itself with kScene (no copy unless a
+// value is not finite); with kWhite colour x coverage + (1 - coverage); with kTransparent (channels 4) colour x
+// coverage and the coverage (associated alpha).
+const std::vector<float>& LinearPixels(const LinearRgbImage& image, Background background,
+                                       const std::vector<float>* coverage, int channels, std::vector<float>* storage) {
+  if (background == Background::kScene) return FinitePixels(image, storage);
+  const size_t pixels = image.rgb.size() / 3;
+  storage->resize(pixels * channels);
+  for (size_t p = 0; p < pixels; ++p) {
+    const float alpha = ClampedCoverage((*coverage)[p]);
+    const float behind = background == Background::kWhite ? 1.0f - alpha : 0.0f;
+    for (int c = 0; c < 3; ++c) (*storage)[p * channels + c] = FiniteOrZero(image.rgb[3 * p + c]) * alpha + behind;
+    if (channels == 4) (*storage)[p * channels + 3] = alpha;
+  }
+  return *storage;
+}
+
+// Lossy WebP of quality 90 through libwebp itself: OpenImageIO 2.4's WebP writer takes four channels as
+// associated alpha and unassociates them through 8-bit intermediates (x^2.2 first, which turns every code
+// below 15 into 0), so the product's dark colours came out black. Its alpha is compressed losslessly (libwebp's
+// default alpha_quality 100), so it reads back exactly.
+std::string EncodeWebp(const std::vector<unsigned char>& pixels, int width, int height, int channels,
+                       std::string* bytes) {
+  struct Encoding {  // zeroed, so freeing is safe whatever step failed
+    WebPConfig config{};
+    WebPPicture picture{};
+    WebPMemoryWriter writer{};
+    ~Encoding() {
+      WebPPictureFree(&picture);
+      WebPMemoryWriterClear(&writer);
+    }
+  } e;
+  if (!WebPConfigInit(&e.config) || !WebPPictureInit(&e.picture)) return "libwebp version mismatch";
+  e.config.quality = 90;
+  e.picture.width = width;
+  e.picture.height = height;
+  WebPMemoryWriterInit(&e.writer);
+  e.picture.writer = WebPMemoryWrite;
+  e.picture.custom_ptr = &e.writer;
+  const int imported = channels == 4 ? WebPPictureImportRGBA(&e.picture, pixels.data(), width * 4)
+                                     : WebPPictureImportRGB(&e.picture, pixels.data(), width * 3);
+  if (!imported || !WebPEncode(&e.config, &e.picture))
+    return "cannot encode image.webp: libwebp error " + std::to_string(static_cast<int>(e.picture.error_code));
+  bytes->assign(reinterpret_cast<const char*>(e.writer.mem), e.writer.size);
+  return "";
 }
 
 // Little-endian whatever the host's byte order.
@@ -89,30 +146,49 @@ double AutomaticExposure(const LinearRgbImage& image) {
   return p99 > 0.0 && std::isfinite(exposure) ? exposure : 1.0;
 }
 
-std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double exposure, std::string* bytes) {
+float ClampedCoverage(float coverage) { return std::isfinite(coverage) ? std::clamp(coverage, 0.0f, 1.0f) : 0.0f; }
+
+std::string CheckBackground(ImageFormat format, Background background) {
+  if (background == Background::kTransparent && (format == ImageFormat::kJpeg || format == ImageFormat::kRaw))
+    return std::string(format == ImageFormat::kJpeg ? "JPEG" : "raw") +
+           " has no alpha channel: a transparent background needs PNG, WebP or EXR";
+  return "";
+}
+
+std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double exposure, std::string* bytes,
+                        Background background, const std::vector<float>* coverage) {
   if (image.width <= 0 || image.height <= 0 || image.rgb.size() != size_t(image.width) * image.height * 3)
     return "image size does not match its pixels";
+  if (std::string error = CheckBackground(format, background); !error.empty()) return error;
+  if (background != Background::kScene && (!coverage || coverage->size() != size_t(image.width) * image.height))
+    return "the coverage does not match the image";
+  const int channels = background == Background::kTransparent ? 4 : 3;
   std::vector<float> storage;
   switch (format) {
     case ImageFormat::kRaw:
-      *bytes = RawFloats(FinitePixels(image, &storage));
+      *bytes = RawFloats(LinearPixels(image, background, coverage, channels, &storage));
       return "";
     case ImageFormat::kExr: {
-      OIIO::ImageSpec spec(image.width, image.height, 3, OIIO::TypeDesc::FLOAT);
+      OIIO::ImageSpec spec(image.width, image.height, channels, OIIO::TypeDesc::FLOAT);  // RGB or RGBA
       spec.attribute("compression", "zip");
       spec.attribute("oiio:ColorSpace", "Linear");
       // OpenImageIO's EXR writer stamps the wall-clock time (capDate) when DateTime is not given, so identical
       // images would differ by the second they were encoded; an empty DateTime keeps the bytes a function of
       // the pixels (the PNG and JPEG writers add no date of their own).
       spec.attribute("DateTime", "");
-      return WriteInMemory("image.exr", spec, OIIO::TypeDesc::FLOAT, FinitePixels(image, &storage).data(), bytes);
+      return WriteInMemory("image.exr", spec, OIIO::TypeDesc::FLOAT,
+                           LinearPixels(image, background, coverage, channels, &storage).data(), bytes);
     }
     case ImageFormat::kPng:
-    case ImageFormat::kJpeg: {
-      OIIO::ImageSpec spec(image.width, image.height, 3, OIIO::TypeDesc::UINT8);
+    case ImageFormat::kJpeg:
+    case ImageFormat::kWebp: {
+      const std::vector<unsigned char> srgb = ToSrgb8(image, exposure, background, coverage, channels);
+      if (format == ImageFormat::kWebp) return EncodeWebp(srgb, image.width, image.height, channels, bytes);
+      OIIO::ImageSpec spec(image.width, image.height, channels, OIIO::TypeDesc::UINT8);
       spec.attribute("oiio:ColorSpace", "sRGB");
+      // Written as given: the PNG writer would otherwise take the alpha as associated and unassociate it.
+      if (channels == 4) spec.attribute("oiio:UnassociatedAlpha", 1);
       if (format == ImageFormat::kJpeg) spec.attribute("Compression", "jpeg:90");
-      const std::vector<unsigned char> srgb = ToSrgb8(image, exposure);
       return WriteInMemory(format == ImageFormat::kJpeg ? "image.jpg" : "image.png", spec, OIIO::TypeDesc::UINT8,
                            srgb.data(), bytes);
     }

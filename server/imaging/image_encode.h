@@ -15,6 +15,15 @@ enum class ImageFormat {
   kExr,  // float RGB OpenEXR, linear, unscaled
   kRaw,  // float32 RGB, little-endian, row-major, top row first, no header, unscaled
   kJpeg, // as kPng, as a baseline JPEG of quality 90
+  kWebp, // as kPng, as a lossy WebP of quality 90 (its alpha, when written, lossless)
+};
+
+// What shows where an image's object (a product) does not cover a pixel; with kWhite and kTransparent the
+// encoder is given each pixel's coverage, the share of it the object covers, in [0, 1].
+enum class Background {
+  kScene,        // the image as it is, opaque (no coverage)
+  kWhite,        // white, exactly (sRGB 255; EXR 1.0) where the coverage is 0, edges blended by coverage (below)
+  kTransparent,  // an alpha channel equal to the coverage: PNG, WebP and EXR; JPEG and raw have none (refused)
 };
 
 // width x height pixels of linear RGB, row-major, top row first (3 floats per pixel).
@@ -28,9 +37,28 @@ struct LinearRgbImage {
 // the brightest 1% of pixels clip in a PNG, the rest keep their gradation.
 double AutomaticExposure(const LinearRgbImage& image);
 
-// Encodes the image; `exposure` (finite, > 0) is used by PNG and JPEG only. Non-finite pixel values are written as 0.
-// Returns "" on success, else the reason (an OpenImageIO error: the caller reports it as internal).
-std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double exposure, std::string* bytes);
+// A coverage as the encoder and exposure use it: clamped to [0, 1], a non-finite one as 0.
+float ClampedCoverage(float coverage);
+
+// "" when `format` can show `background`, else why not (JPEG and raw have no alpha channel for kTransparent):
+// a request asking for both is refused with this before anything is rendered.
+std::string CheckBackground(ImageFormat format, Background background);
+
+// Encodes the image; `exposure` (finite, > 0) is used by the 8-bit formats (PNG, JPEG, WebP) only. Non-finite
+// pixel values are written as 0.
+// With kWhite or kTransparent, `coverage` holds width x height values (clamped to [0, 1]) and `image` the
+// object's own colour, unassociated (not multiplied by coverage; any value where the coverage is 0):
+//  - kTransparent: PNG and WebP write it with alpha = round(255 coverage) (their convention: unassociated
+//    alpha); EXR writes colour x coverage with A = coverage (OpenEXR's convention: associated alpha).
+//  - kWhite: 8-bit formats blend the colour's 8-bit sRGB code c over white in display space,
+//    round(c coverage + 255 (1 - coverage)): what an image editor or a browser shows for the kTransparent PNG
+//    on a white page, so the two agree, and 255 exactly where the coverage is 0. (Blending linear light
+//    instead would draw a black product's half-covered edge pixel at 188, not 128: edges that look thinner
+//    and lighter than the same PNG on white.) EXR is linear: colour x coverage + (1 - coverage).
+// Returns "" on success, else the reason (an encoder's error or a bad argument: the caller reports it as
+// internal, having refused what CheckBackground refuses).
+std::string EncodeImage(const LinearRgbImage& image, ImageFormat format, double exposure, std::string* bytes,
+                        Background background = Background::kScene, const std::vector<float>* coverage = nullptr);
 
 // Bytes DecodeImage holds while decoding an image of this header: its pixels in float as stored, and as RGB.
 inline size_t DecodeBytes(int width, int height, int channels) {

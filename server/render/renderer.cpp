@@ -421,14 +421,24 @@ void Renderer::FinishView() {
   done_ = true;
 }
 
-std::string EncodeRendered(const imaging::LinearRgbImage& image, imaging::ImageFormat format, double exposure,
+std::string EncodeRendered(const imaging::LinearRgbImage& image, const std::vector<float>* coverage,
+                           imaging::Background background, imaging::ImageFormat format, double exposure,
                            std::string* bytes, double* used_exposure) {
-  if (format == imaging::ImageFormat::kExr) {
-    *used_exposure = 1;
-    return imaging::EncodeImage(image, imaging::ImageFormat::kExr, 1.0, bytes);
+  *used_exposure = 1;
+  if (std::string error = imaging::CheckBackground(format, background); !error.empty()) return error;
+  const bool product_only = background != imaging::Background::kScene;
+  if (product_only && (!coverage || coverage->size() != image.rgb.size() / 3))
+    return "the coverage does not match the image";
+  if (format == imaging::ImageFormat::kExr && !product_only)
+    return imaging::EncodeImage(image, format, 1.0, bytes);
+  // One copy of the image: the product's colour, then (8-bit formats) tone mapped in place.
+  imaging::LinearRgbImage display = image;
+  if (product_only) ProductColour(*coverage, &display);
+  if (format != imaging::ImageFormat::kExr) {
+    *used_exposure = exposure > 0 ? exposure : AutomaticExposure(display, product_only ? coverage : nullptr);
+    ToneMap(*used_exposure, &display);
   }
-  *used_exposure = exposure > 0 ? exposure : render::AutomaticExposure(image);
-  return imaging::EncodeImage(ToneMap(image, *used_exposure), format, 1.0, bytes);
+  return imaging::EncodeImage(display, format, 1.0, bytes, background, product_only ? coverage : nullptr);
 }
 
 }  // namespace loomlight::render

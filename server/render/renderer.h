@@ -192,9 +192,21 @@ class Renderer {
   std::vector<RenderedImage> images_;
 };
 
-// A rendered image encoded: EXR as it is (linear), PNG and JPEG tone mapped at `exposure` (0: automatic, the
-// exposure used in *used_exposure; EXR: 1). "" or why it could not be encoded.
-std::string EncodeRendered(const imaging::LinearRgbImage& image, imaging::ImageFormat format, double exposure,
+// A rendered view encoded for the client.
+//  - image: with background kScene, each pixel's mean radiance over its samples, what the background shows
+//    included. With kWhite and kTransparent, each pixel's mean over ALL its samples of the radiance of those that
+//    hit the product, a miss adding 0 (radiance premultiplied by coverage: the product's colour is image /
+//    coverage).
+//  - coverage: with kWhite and kTransparent (required), width x height values in [0, 1], the share of each
+//    pixel's samples that hit the product; kScene ignores it (may be null).
+// EXR: linear and unscaled (*used_exposure 1): kScene the image; kTransparent RGBA, premultiplied (the image,
+// then the coverage); kWhite the image + (1 - coverage). PNG, JPEG, WebP: the product's colour x exposure (0:
+// automatic, AutomaticExposure over the product's pixels weighted by coverage, or the whole image with kScene;
+// the one used in *used_exposure) through the ACES curve to sRGB, then the background as imaging::EncodeImage
+// puts it (white blended in display space; alpha unassociated). "" or why not (JPEG with kTransparent:
+// imaging::CheckBackground's reason, which a request should have been refused with).
+std::string EncodeRendered(const imaging::LinearRgbImage& image, const std::vector<float>* coverage,
+                           imaging::Background background, imaging::ImageFormat format, double exposure,
                            std::string* bytes, double* used_exposure);
 
 }  // namespace loomlight::render

@@ -107,7 +107,7 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log, bool open
 
 std::string BtfStore::Load(const std::string& entry, std::shared_ptr<BtfAsset>* out) const {
   std::vector<VersionedDirectory::FileToRead> files = {
-      {"manifest.pb", kMaxManifestBytes}, {"tables.f32", max_bytes_}, {"owner", 1024}};
+      {"manifest.pb", kMaxManifestBytes}, {"tables.f32", max_bytes_}, {"owner", 1024, true}};
   if (std::string e = dir_->Read(entry, &files); !e.empty()) return e;
   const std::string &bytes = files[0].bytes, &data = files[1].bytes;
   v1::BtfAssetInfo info;

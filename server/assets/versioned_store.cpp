@@ -173,7 +173,7 @@ std::string VersionedDirectory::Read(const std::string& entry, std::vector<FileT
     if (dir_fd >= 0) {
       for (FileToRead& f : *files) {
         f.read = ReadFileAt(dir_fd, f.name.c_str(), f.max_bytes, &f.bytes);
-        gone = gone || (!f.read && errno == ENOENT && f.name != "owner");  // no owner: stored before owners
+        gone = gone || (!f.read && errno == ENOENT && !f.optional);
         if (!f.read) f.bytes.clear();
       }
       ::close(dir_fd);

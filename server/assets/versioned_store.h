@@ -50,11 +50,14 @@ class VersionedDirectory {
   // Which version of ENTRY's files the directory holds ("" when it has no manifest).
   std::string StampOf(const std::string& entry) const;
 
-  // A file of a version to read, at most max_bytes (larger, absent or unreadable: not read).
+  // A file of a version to read, at most max_bytes (larger, absent or unreadable: not read). An optional one's
+  // absence is not taken for a version removed while read (the owner file: absent before assets had owners).
   struct FileToRead {
-    FileToRead(std::string file, uint64_t max) : name(std::move(file)), max_bytes(max) {}
+    FileToRead(std::string file, uint64_t max, bool optional_file = false)
+        : name(std::move(file)), max_bytes(max), optional(optional_file) {}
     std::string name;
     uint64_t max_bytes;
+    bool optional;
     std::string bytes;
     bool read = false;
   };

@@ -3,13 +3,12 @@
 #include <embree3/rtcore.h>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <mutex>
 #include <utility>
 
+#include "server/yarn/embree_build_monitor.h"
 #include "server/yarn/embree_mxcsr.h"
 
 namespace loomlight::yarn {
@@ -57,26 +56,6 @@ RTCBuildQuality ToEmbree(BvhQuality q) {
   return RTC_BUILD_QUALITY_MEDIUM;
 }
 
-const char* ErrorName(RTCError e) {
-  switch (e) {
-    case RTC_ERROR_NONE:
-      return "none";
-    case RTC_ERROR_UNKNOWN:
-      return "unknown error";
-    case RTC_ERROR_INVALID_ARGUMENT:
-      return "invalid argument";
-    case RTC_ERROR_INVALID_OPERATION:
-      return "invalid operation";
-    case RTC_ERROR_OUT_OF_MEMORY:
-      return "out of memory";
-    case RTC_ERROR_UNSUPPORTED_CPU:
-      return "unsupported CPU";
-    case RTC_ERROR_CANCELLED:
-      return "cancelled";
-  }
-  return "error";
-}
-
 struct FloatPoint {
   float x, y, z;
   bool operator==(const FloatPoint&) const = default;
@@ -122,92 +101,9 @@ Float3 Normalized(float x, float y, float z) {
 
 }  // namespace
 
-// What the device's callbacks share with Build. Heap-allocated so it stays put when the scene moves.
-struct FiberScene::Monitor {
-  std::atomic<int64_t> current{0};
-  std::atomic<int64_t> peak{0};
-  int64_t limit = 0;
-  std::atomic<bool> building{false};          // the limit and the cancel predicate apply only while building
-  const std::function<bool()>* cancel = nullptr;
-  std::atomic<bool> cancelled{false};
-  std::atomic<bool> over_limit{false};
-  std::mutex mu;
-  int64_t refused_bytes = 0;  // the first refused allocation
-  int64_t refused_total = 0;  // the total it would have made
-  RTCError error = RTC_ERROR_NONE;
-  std::string error_message;
-
-  bool ShouldCancel() {
-    if (cancelled.load(std::memory_order_relaxed)) return true;
-    if (cancel == nullptr || !*cancel) return false;
-    bool stop = true;  // a predicate that throws cannot say "go on"; nothing may unwind through Embree
-    try {
-      stop = (*cancel)();
-    } catch (...) {
-    }
-    if (stop) cancelled.store(true, std::memory_order_relaxed);
-    return stop;
-  }
-
-  void RaisePeak(int64_t now) {
-    int64_t p = peak.load(std::memory_order_relaxed);
-    while (now > p && !peak.compare_exchange_weak(p, now, std::memory_order_relaxed)) {
-    }
-  }
-
-  // Embree's contract: bytes > 0 before an allocation (post = false; returning false cancels it, and it must
-  // then not be counted) or after one that already happened (post = true, counted whatever we return);
-  // bytes < 0 for a release. Called from Embree's threads concurrently.
-  static bool OnMemory(void* ptr, ssize_t bytes, bool post) {
-    auto* m = static_cast<Monitor*>(ptr);
-    const int64_t b = static_cast<int64_t>(bytes);
-    if (b > 0 && !post && m->building.load(std::memory_order_relaxed)) {
-      if (m->ShouldCancel()) return false;
-      const int64_t after = m->current.fetch_add(b, std::memory_order_relaxed) + b;
-      if (after > m->limit) {
-        m->current.fetch_sub(b, std::memory_order_relaxed);
-        std::lock_guard<std::mutex> lock(m->mu);
-        if (!m->over_limit.exchange(true)) {
-          m->refused_bytes = b;
-          m->refused_total = after;
-        }
-        return false;
-      }
-      m->RaisePeak(after);
-      return true;
-    }
-    const int64_t after = m->current.fetch_add(b, std::memory_order_relaxed) + b;
-    if (b > 0) m->RaisePeak(after);
-    return true;
-  }
-
-  static bool OnProgress(void* ptr, double /*fraction*/) { return !static_cast<Monitor*>(ptr)->ShouldCancel(); }
-
-  static void OnError(void* ptr, RTCError code, const char* str) {
-    auto* m = static_cast<Monitor*>(ptr);
-    std::lock_guard<std::mutex> lock(m->mu);
-    if (m->error != RTC_ERROR_NONE) return;  // the first error is the cause; later ones follow from it
-    m->error = code;
-    m->error_message = str != nullptr ? str : "";
-  }
-
-  // "" or Build's error for what the callbacks saw (cancel first: a cancelled build also fails allocations).
-  std::string Status(RTCDevice device) {
-    if (cancelled.load()) return "cancelled";
-    std::lock_guard<std::mutex> lock(mu);
-    if (over_limit.load()) {
-      return "bvh_memory: an allocation of " + std::to_string(refused_bytes) +
-             " bytes would have brought the scene to " + std::to_string(refused_total) + " bytes, " +
-             std::to_string(refused_total - limit) + " bytes over the limit of " + std::to_string(limit) +
-             " bytes (options.max_bytes)";
-    }
-    RTCError e = error;
-    std::string msg = error_message;
-    if (e == RTC_ERROR_NONE && device != nullptr) e = rtcGetDeviceError(device);
-    if (e == RTC_ERROR_NONE) return "";
-    return std::string("embree: ") + ErrorName(e) + (msg.empty() ? "" : " (" + msg + ")");
-  }
-};
+// What the device's callbacks share with Build (embree_build_monitor.h). Heap-allocated so it stays put when the
+// scene moves.
+struct FiberScene::Monitor : EmbreeBuildMonitor {};
 
 std::string ValidateFiberSceneOptions(const FiberSceneOptions& o) {
   if (o.quality != BvhQuality::kLow && o.quality != BvhQuality::kMedium && o.quality != BvhQuality::kHigh) {
@@ -328,6 +224,7 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
   scene.monitor_ = std::make_unique<Monitor>();
   Monitor* m = scene.monitor_.get();
   m->limit = options.max_bytes;
+  m->limit_name = "options.max_bytes";
   m->cancel = &options.cancel;
   m->building = true;
   if (m->ShouldCancel()) return "cancelled";
@@ -336,10 +233,9 @@ std::string FiberScene::Build(std::span<const YarnGeometry* const> yarns, const 
   const std::string config = "threads=" + std::to_string(options.threads) + ",set_affinity=0,start_threads=0,verbose=0";
   scene.device_ = rtcNewDevice(config.c_str());
   if (scene.device_ == nullptr) {
-    return std::string("embree: cannot create a device: ") + ErrorName(rtcGetDeviceError(nullptr));
+    return std::string("embree: cannot create a device: ") + EmbreeErrorName(rtcGetDeviceError(nullptr));
   }
-  rtcSetDeviceErrorFunction(scene.device_, &Monitor::OnError, m);
-  rtcSetDeviceMemoryMonitorFunction(scene.device_, &Monitor::OnMemory, m);
+  m->Attach(scene.device_);
 
   // Every failure path goes through here: release what Embree holds and say what the monitor still counts.
   auto fail = [&](std::string err) {

@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "server/models/float_angles.h"
+#include "server/render/mesh_geometry.h"
 #include "server/render/scene_registry.h"
 #include "server/yarn/fiber_scene.h"
 
@@ -232,10 +233,17 @@ void FiberHitToHit(const yarn::FiberHit& h, double distance, Vec3 position, int 
 
 }  // namespace
 
+bool Scene::IsShape(size_t i) const {
+  if (objects[i].fibers) return false;
+  if (!mesh) return true;
+  const size_t first = static_cast<size_t>(std::max(mesh_first_object, 0));
+  return i < first || i - first >= mesh->materials();
+}
+
 bool Scene::IntersectShapes(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const {
   bool found = false;
   for (size_t i = 0; i < objects.size(); ++i) {
-    if (objects[i].fibers) continue;
+    if (!IsShape(i)) continue;
     Hit candidate;
     if (IntersectShape(objects[i].shape, origin, direction, min_distance, max_distance, &candidate)) {
       max_distance = candidate.distance;
@@ -270,13 +278,30 @@ bool Scene::Intersect(Vec3 origin, Vec3 direction, double min_distance, double m
       FiberHitToHit(h, max_distance, piece_origin + double(h.t) * direction, fiber_object, hit);
     }
   }
+  Hit mesh_hit;
+  if (mesh && mesh->Intersect(origin, direction, min_distance, max_distance, mesh_uv_length, &mesh_hit)) {
+    mesh_hit.object += mesh_first_object;
+    *hit = mesh_hit;
+    max_distance = mesh_hit.distance;
+    found = true;
+  }
   return IntersectShapes(origin, direction, min_distance, max_distance, hit) || found;
 }
 
 void Scene::IntersectFrom(Vec3 origin, std::span<const Vec3> directions, std::span<Hit> hits,
                           std::span<uint8_t> found) const {
   const size_t n = directions.size();
-  if (!fibers || tiling.period_x > 0 || n < 2) {  // a periodic scene's rays part ways at its tiles' edges
+  if (mesh && !fibers && n >= 2) {
+    mesh->IntersectFrom(origin, directions, mesh_uv_length, hits, found);
+    for (size_t i = 0; i < n; ++i) {
+      if (found[i]) hits[i].object += mesh_first_object;
+      const double max_distance = found[i] ? hits[i].distance : INFINITY;
+      found[i] = IntersectShapes(origin, directions[i], 0.0, max_distance, &hits[i]) || found[i];
+    }
+    return;
+  }
+  // A periodic scene's rays part ways at its tiles' edges; a mesh among fibers (no scene has both) ray by ray.
+  if (!fibers || mesh || tiling.period_x > 0 || n < 2) {
     for (size_t i = 0; i < n; ++i) found[i] = Intersect(origin, directions[i], 0.0, INFINITY, &hits[i]);
     return;
   }
@@ -302,9 +327,10 @@ void Scene::IntersectFrom(Vec3 origin, std::span<const Vec3> directions, std::sp
 
 bool Scene::Occluded(Vec3 origin, Vec3 direction, double max_distance, double min_distance) const {
   double distance;
-  for (const SceneObject& object : objects)
-    if (!object.fibers && ShapeDistance(object.shape, origin, direction, min_distance, max_distance, &distance))
+  for (size_t i = 0; i < objects.size(); ++i)
+    if (IsShape(i) && ShapeDistance(objects[i].shape, origin, direction, min_distance, max_distance, &distance))
       return true;
+  if (mesh && mesh->Occluded(origin, direction, min_distance, max_distance)) return true;
   if (!fibers) return false;
   const auto trace = [&](Vec3 o, double lo, double hi) {
     const yarn::FiberRay ray = ToFiberRay(o, direction, lo, hi);

@@ -18,6 +18,8 @@ class YarnVisibility;
 
 namespace loomlight::render {
 
+class MeshGeometry;  // server/render/mesh_geometry.h
+
 // The registered scenes (server/render/scene_registry.h) by their ScenePreset value (the same order), for
 // callers that name one in code.
 // kYarn and kWovenPatch are fiber scenes: their one object is fiber curves (Scene::fibers, which the caller
@@ -125,12 +127,19 @@ struct Scene {
   struct Tiling {
     double x0 = 0, y0 = 0, period_x = 0, period_y = 0;
   } tiling;
+  // A triangle mesh (a client's garment or product, server/render/mesh_geometry.h), hit together with the shapes
+  // and fibers: a hit on its material k is object mesh_first_object + k (those objects, one per material name of
+  // the mesh, stand for the mesh: their shapes are not intersected); its texture coordinates are the UVs times
+  // mesh_uv_length (scene units per UV unit).
+  std::shared_ptr<const MeshGeometry> mesh;
+  int mesh_first_object = 0;
+  double mesh_uv_length = 1;
 
   // The nearest hit with distance in (min_distance, max_distance); false when there is none.
   bool Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;
   // The closest hits of rays from one origin (a pixel's camera rays), as Intersect from 0 to infinity would
-  // find them: found[i] = 1 with hits[i] filled, or 0. The fibers take them as packets of up to kMaxPacket
-  // (Embree's coherent rays). Spans of one length.
+  // find them: found[i] = 1 with hits[i] filled, or 0. The fibers or the mesh take them as packets of up to
+  // kMaxPacket (Embree's coherent rays). Spans of one length.
   static constexpr size_t kMaxPacket = 16;
   void IntersectFrom(Vec3 origin, std::span<const Vec3> directions, std::span<Hit> hits, std::span<uint8_t> found) const;
   bool Occluded(Vec3 origin, Vec3 direction, double max_distance, double min_distance = 0) const;
@@ -138,6 +147,8 @@ struct Scene {
  private:
   // The analytic objects only: the closest hit closer than max_distance, into *hit.
   bool IntersectShapes(Vec3 origin, Vec3 direction, double min_distance, double max_distance, Hit* hit) const;
+  // Object i is an analytic shape: neither the fibers nor one of the mesh's materials.
+  bool IsShape(size_t i) const;
 };
 
 // The registered scene of that kind at its parameters' defaults (SceneRegistry::Global()).

@@ -1,5 +1,5 @@
-// Encoding linear float RGB images into file bytes in memory (OpenImageIO), shared by every RPC that
-// returns an image (TextureSlice today, Render later). No protobuf or gRPC here, so no header-order clash
+// Encoding linear float RGB images into file bytes in memory (OpenImageIO; WebP through libwebp), shared by
+// every RPC that returns an image (TextureSlice, Render). No protobuf or gRPC here, so no header-order clash
 // with OpenImageIO for its users.
 #pragma once
 

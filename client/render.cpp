@@ -26,7 +26,8 @@ v1::RenderFormat parse_format(const std::string& name, const std::string& what) 
   if (n == "png") return v1::RENDER_FORMAT_PNG;
   if (n == "jpg" || n == "jpeg") return v1::RENDER_FORMAT_JPEG;
   if (n == "exr") return v1::RENDER_FORMAT_EXR;
-  throw UsageError(what + ": expected png, jpeg or exr, got '" + name + "'");
+  if (n == "webp") return v1::RENDER_FORMAT_WEBP;
+  throw UsageError(what + ": expected png, jpeg, webp or exr, got '" + name + "'");
 }
 
 // --format, else the output file's extension.
@@ -96,12 +97,47 @@ void parse_size(const std::string& text, v1::RenderRequest& request) {
 
 }  // namespace
 
+// --mesh FILE (sent with the request) or --mesh-name NAME (stored: `loomlight mesh upload`), and each
+// --material MESH_MATERIAL=PRESET binding.
+void set_mesh(const ParsedOptions& options, v1::RenderRequest& request) {
+  if (auto file = options.last("mesh")) {
+    v1::MeshData* data = request.mutable_mesh()->mutable_data();
+    data->set_data(read_local_file(*file, "--mesh"));
+  } else if (auto name = options.last("mesh-name")) {
+    request.mutable_mesh()->set_name(*name);
+  }
+  for (const auto& entry : options.matching({"material"})) {
+    const auto eq = entry.value.find('=');
+    if (eq == std::string::npos || eq == 0 || eq + 1 == entry.value.size())
+      throw UsageError("--material: expected MESH_MATERIAL=PRESET, got '" + entry.value + "'");
+    if (!request.has_mesh()) throw UsageError("--material binds a mesh's material: give --mesh or --mesh-name");
+    v1::MaterialBinding* binding = request.add_materials();
+    binding->set_mesh_material(entry.value.substr(0, eq));
+    binding->mutable_material()->set_preset(entry.value.substr(eq + 1));
+  }
+}
+
 v1::RenderRequest render_request(const ParsedOptions& options, const std::string& out) {
-  const v1::EvaluateRequest material = material_request(options);
   v1::RenderRequest request;
-  *request.mutable_material() = material.material();
-  request.set_precision(material.precision());
-  set_scene(options.last("scene").value_or("sphere"), request);
+  set_mesh(options, request);
+  // A mesh whose materials are all bound by --material needs no MATERIAL.
+  const bool bound_only = request.materials_size() > 0 && !options.has("preset") && !options.has("model") &&
+                          !options.has("btf");
+  if (!bound_only) {
+    const v1::EvaluateRequest material = material_request(options);
+    *request.mutable_material() = material.material();
+    request.set_precision(material.precision());
+  }
+  if (!request.has_mesh()) set_scene(options.last("scene").value_or("sphere"), request);
+  else if (options.has("scene")) throw UsageError("--scene: a mesh is the scene; give one or the other");
+  if (auto v = enum_option(options, "background", "BACKGROUND_", v1::Background_Parse)) request.set_background(*v);
+  if (auto views = options.last("views")) request.set_views(static_cast<uint32_t>(parse_int(*views, "--views", 1, 1000)));
+  if (auto lighting = options.last("lighting")) request.set_lighting(*lighting);
+  if (auto unit = options.last("texture-unit")) {
+    if (*unit == "uv") request.set_texture_scale_unit(v1::TEXTURE_SCALE_UNIT_PER_UV_UNIT);
+    else if (*unit == "metre" || *unit == "meter") request.set_texture_scale_unit(v1::TEXTURE_SCALE_UNIT_PER_METRE);
+    else throw UsageError("--texture-unit: expected uv or metre, got '" + *unit + "'");
+  }
   for (const auto& entry : options.matching({"scene-param"}))
     *request.add_scene_params() = parse_param(entry.value, "--scene-param");
   parse_size(options.last("size").value_or("256x256"), request);
@@ -154,6 +190,7 @@ const char* format_name(v1::RenderFormat format) {
   switch (format) {
     case v1::RENDER_FORMAT_JPEG: return "JPEG";
     case v1::RENDER_FORMAT_EXR: return "EXR";
+    case v1::RENDER_FORMAT_WEBP: return "WebP";
     default: return "PNG";
   }
 }
@@ -163,6 +200,8 @@ void print_fidelity(const v1::RenderUpdate& update) {
   for (const v1::ObjectFidelity& object : update.fidelity()) {
     std::printf("  %s [%s], estimated error %.3g:\n", object.object().c_str(), object.model().c_str(),
                 object.estimated_error());
+    for (const v1::RungShare& rung : object.rungs())
+      std::printf("    %.1f%% of its samples: %s\n", 100 * rung.share(), rung.rung().c_str());
     for (const v1::FidelityChoice& c : object.choices())
       std::printf("    %s %s (full %s, error %.3g): %s\n", c.aspect().c_str(), c.chosen().c_str(), c.full().c_str(),
                   c.estimated_error(), c.reason().c_str());
@@ -171,7 +210,7 @@ void print_fidelity(const v1::RenderUpdate& update) {
 
 int run_render(const ParsedOptions& options) {
   const auto out = options.last("out");
-  if (!out || out->empty()) throw UsageError("render needs --out FILE (.png, .jpg or .exr)");
+  if (!out || out->empty()) throw UsageError("render needs --out FILE (.png, .jpg, .webp or .exr)");
   const v1::RenderRequest request = render_request(options, *out);
   ProgressBar progress("samples");
   v1::RenderUpdate last;
@@ -186,9 +225,27 @@ int run_render(const ParsedOptions& options) {
   }
   progress.end();
   if (last.image().empty()) throw std::runtime_error("the server finished without an image");
-  std::ofstream file(*out, std::ios::binary);
-  file.write(last.image().data(), static_cast<std::streamsize>(last.image().size()));
-  if (!file) throw std::runtime_error("cannot write " + *out);
+  const auto write = [](const std::string& path, const std::string& bytes) {
+    std::ofstream file(path, std::ios::binary);
+    file.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    if (!file) throw std::runtime_error("cannot write " + path);
+  };
+  if (last.views_size() > 1) {  // a turntable: FILE's stem, -NN, its extension
+    const auto dot = out->rfind('.');
+    const std::string stem = dot == std::string::npos ? *out : out->substr(0, dot);
+    const std::string extension = dot == std::string::npos ? "" : out->substr(dot);
+    for (int k = 0; k < last.views_size(); ++k) {
+      char suffix[16];
+      std::snprintf(suffix, sizeof suffix, "-%02d", k);
+      write(stem + suffix + extension, last.views(k).image());
+      std::printf("view %d: %s%s%s, the product fills %.1f%% of the frame\n", k, stem.c_str(), suffix,
+                  extension.c_str(), 100 * last.views(k).fill());
+    }
+  } else {
+    write(*out, last.image());
+  }
+  if (request.background() != v1::BACKGROUND_ENVIRONMENT)
+    std::printf("the product fills %.1f%% of the frame\n", 100 * last.fill());
   std::printf("%ux%u %s, %s samples: %s queries in %.3f s (setup %.3f s, kernel %.3f s), exposure %.4g -> %s\n",
               last.width(), last.height(), format_name(last.format()), ProgressBar::grouped(last.samples_total()).c_str(),
               ProgressBar::grouped(last.queries()).c_str(), last.total_seconds(), last.setup_seconds(),
@@ -204,6 +261,13 @@ OptionList render_options() {
   OptionList options = material_options();
   options.insert(options.end(), {
       {"scene", "NAME", "sphere (default), cylinders, swatch, curtain; fiber scenes: yarn, woven-patch (`loomlight scenes`)"},
+      {"mesh", "FILE", "render this glTF 2.0 (.glb, .gltf with embedded buffers) or OBJ file, sent with the request"},
+      {"mesh-name", "NAME", "render a mesh stored on the server (`loomlight mesh upload`)"},
+      {"material", "MESH_MATERIAL=PRESET", "dress one of the mesh's materials in a preset (repeatable; the rest wear MATERIAL)"},
+      {"texture-unit", "uv|metre", "meshes: --texture-scale counts repeats per UV unit (default) or per metre of surface"},
+      {"background", "environment|white|transparent", "behind the product: the lighting's (default), pure white, or transparent (PNG, WebP, EXR)"},
+      {"lighting", "PRESET", "a lighting preset, e.g. studio (`loomlight scenes` lists them; meshes default to studio)"},
+      {"views", "N", "a turntable: N views around the vertical axis, written as FILE-00.png, FILE-01.png, ..."},
       {"scene-param", "NAME=V", "set a scene parameter (repeatable; names and ranges: `loomlight scenes`)"},
       {"yarn", "PRESET", "fiber scenes: the yarn, cotton1 (default), cotton2, polyester1, rayon2 or silk1"},
       {"yarn-param", "NAME=V", "fiber scenes: override a yarn parameter (repeatable; names: `loomlight models`)"},
@@ -231,7 +295,7 @@ OptionList render_options() {
       {"error-target", "X", "relative error allowed per modelling choice (default 0.02)"},
       {"full-fidelity", "", "BTF, the most tangent samples and transmission everywhere"},
       {"exposure", "X", "PNG/JPEG: scale before the tone curve (default: automatic)"},
-      {"format", "png|jpeg|exr", "output format (default: from the --out extension)"},
+      {"format", "png|jpeg|webp|exr", "output format (default: from the --out extension)"},
       {"out", "FILE", "output file (required)"},
   });
   return options;
@@ -252,7 +316,9 @@ const Command& render_command() {
       "stderr (plain lines when it is not a terminal); the chosen fidelity is printed at the end.\n"
       "Example: loomlight render --preset polyester_satin_charmeuse_front --scene cylinders --size 512x256 \\\n"
       "           --spp 64 --out satin.png\n"
-      "Fibers: loomlight render --preset cotton --scene yarn --yarn cotton1 --size 512x256 --out yarn.png",
+      "Fibers: loomlight render --preset cotton --scene yarn --yarn cotton1 --size 512x256 --out yarn.png\n"
+      "A garment: loomlight render --mesh garment.glb --material body=polyester_satin_charmeuse_front \\\n"
+      "           --material collar=cotton_twill --background white --views 8 --size 1600x1600 --out shot.png",
       render_options(),
       run_render,
   };

@@ -9,9 +9,14 @@
 #include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
 #include "server/models/material.h"
+#include "server/assets/mesh_file.h"
+#include "server/assets/mesh_store.h"
 #include "server/render/adaptive_sampling.h"
+#include "server/render/lighting_presets.h"
+#include "server/render/mesh_scene.h"
 #include "server/render/renderer.h"
 #include "server/render/scene_registry.h"
+#include "server/models/quote.h"
 #include "server/api/yarn_rpc.h"
 #include "server/yarn/fiber_scene.h"
 #include "server/yarn/visibility.h"
@@ -47,13 +52,42 @@ std::string ValidateLight(const v1::RenderLight& light, const std::string& field
   if (std::string e = ValidateTriple(light.rgb(), field + ".rgb", kMaxLightValue); !e.empty()) return e;
   for (int c = 0; c < 3; ++c)
     if (light.rgb(c) < 0) return Indexed(field + ".rgb", c) + ": must be >= 0";
-  if (light.type() == v1::RenderLight::TYPE_DIRECTIONAL) {
+  const bool rect = light.type() == v1::RenderLight::TYPE_RECT;
+  if (!rect && !light.size().empty()) return field + ".size: only for TYPE_RECT";
+  if (!rect && !light.up().empty()) return field + ".up: only for TYPE_RECT";
+  if (light.type() != v1::RenderLight::TYPE_POINT) {  // directional: toward the light; rect: the way it faces
     if (std::string e = ValidateTriple(light.direction(), field + ".direction", kMaxSceneCoordinate); !e.empty()) return e;
     if (render::Length(ToVec(light.direction())) < 1e-9) return field + ".direction: must not be zero";
-  } else {
-    if (std::string e = ValidateTriple(light.position(), field + ".position", kMaxSceneCoordinate); !e.empty()) return e;
   }
+  if (light.type() != v1::RenderLight::TYPE_DIRECTIONAL)
+    if (std::string e = ValidateTriple(light.position(), field + ".position", kMaxSceneCoordinate); !e.empty()) return e;
+  if (!rect) return "";
+  if (light.size_size() != 2) return field + ".size: needs 2 values (width, height), got " + std::to_string(light.size_size());
+  for (int i = 0; i < 2; ++i)
+    if (!(std::isfinite(light.size(i)) && light.size(i) > 0 && light.size(i) <= kMaxSceneCoordinate))
+      return Indexed(field + ".size", i) + ": " + std::to_string(light.size(i)) + " is not finite in (0, " +
+             std::to_string(int(kMaxSceneCoordinate)) + "]";
+  if (std::string e = ValidateTriple(light.up(), field + ".up", kMaxSceneCoordinate, true); !e.empty()) return e;
+  if (!light.up().empty() && render::Length(render::Cross(render::Normalize(ToVec(light.up())),
+                                                          render::Normalize(ToVec(light.direction())))) < 1e-6)
+    return field + ".up: must not be zero or parallel to the direction";
   return "";
+}
+
+// A validated light as the renderer takes it.
+render::Light LightOf(const v1::RenderLight& light) {
+  render::Light l;
+  l.rgb = ToVec(light.rgb());
+  if (light.type() == v1::RenderLight::TYPE_POINT) {
+    l.type = render::Light::Type::kPoint;
+    l.position = ToVec(light.position());
+  } else if (light.type() == v1::RenderLight::TYPE_RECT) {
+    l = render::RectLight(ToVec(light.position()), ToVec(light.direction()), light.size(0), light.size(1),
+                          light.up().empty() ? Vec3{} : ToVec(light.up()), l.rgb);
+  } else {
+    l.direction = render::Normalize(ToVec(light.direction()));
+  }
+  return l;
 }
 
 std::string ValidateCamera(const v1::RenderCamera& camera) {
@@ -82,11 +116,46 @@ render::ResolvedScene ResolvedSceneOf(const v1::RenderRequest& r) {
   return scene;
 }
 
+// What a mesh needs: texture coordinates, which place a spatially varying material's pattern on its UV layout.
+constexpr render::SceneNeeds kMeshNeeds{.uv = true};
+
 // What the request's scene needs (nothing for a scene the registry does not know: validation refuses it).
 render::SceneNeeds NeedsOf(const v1::RenderRequest& r) {
+  if (r.has_mesh()) return kMeshNeeds;
   const render::ResolvedScene scene = ResolvedSceneOf(r);
   return scene.spec ? scene.spec->needs : render::SceneNeeds{};
 }
+
+// The scene units per UV unit of a mesh's texture coordinates (RenderRequest.texture_scale_unit).
+double UvLength(const v1::RenderRequest& r, const assets::TriangleMesh& mesh) {
+  return r.texture_scale_unit() == v1::TEXTURE_SCALE_UNIT_PER_METRE && mesh.metres_per_uv > 0 ? mesh.metres_per_uv
+                                                                                              : 1.0;
+}
+
+// What a lighting preset is placed around: the mesh's bounding sphere, or the built-in scene's objects'.
+render::Subject SubjectOf(const render::Scene& scene, const render::CameraSpec& camera) {
+  if (scene.mesh) return render::SubjectOf(scene.mesh->mesh());
+  render::Subject subject;
+  render::SubjectSphere(scene, camera, &subject.centre, &subject.radius);
+  return subject;
+}
+
+imaging::Background BackgroundOf(const v1::RenderRequest& r) {
+  return r.background() == v1::BACKGROUND_WHITE         ? imaging::Background::kWhite
+         : r.background() == v1::BACKGROUND_TRANSPARENT ? imaging::Background::kTransparent
+                                                        : imaging::Background::kScene;
+}
+
+imaging::ImageFormat FormatOf(const v1::RenderRequest& r) {
+  switch (r.format()) {
+    case v1::RENDER_FORMAT_EXR: return imaging::ImageFormat::kExr;
+    case v1::RENDER_FORMAT_JPEG: return imaging::ImageFormat::kJpeg;
+    case v1::RENDER_FORMAT_WEBP: return imaging::ImageFormat::kWebp;
+    default: return imaging::ImageFormat::kPng;
+  }
+}
+
+uint32_t ViewsOf(const v1::RenderRequest& r) { return std::max<uint32_t>(1, r.views()); }
 
 // The request's scene (a fiber scene's fibers are generated and built separately).
 render::Scene SceneOf(const v1::RenderRequest& r) { return ResolvedSceneOf(r).Build(); }
@@ -158,36 +227,41 @@ void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderS
   }
 }
 
-// The renderer's inputs from a validated request: its scene (fibers as generated), camera, lights, environment
-// (`map`: the loaded one; null: the built-in sky), texture and sampling; the material is the caller's.
-render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, std::shared_ptr<const render::Environment> map) {
+// The renderer's inputs from a validated request: its scene (a registered scene's, fibers as generated, or a
+// mesh's), cameras, lights, environment (`map`: the loaded one; null: the built-in sky), texture and sampling;
+// the materials are the caller's.
+render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, render::Scene scene,
+                                    std::shared_ptr<const render::Environment> map) {
   render::RenderInputs in;
   render::RenderSetup& s = in.setup;
-  s.scene = SceneOf(r);
+  s.scene = std::move(scene);
   s.fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_SLICES ? yarn::ShadowMethod::kSlices : yarn::ShadowMethod::kTraced;
   s.fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_TEXTURE    ? yarn::OcclusionMethod::kTexture
                       : r.fiber_occlusion() == v1::FIBER_OCCLUSION_DISTANCE ? yarn::OcclusionMethod::kDistance
                                                                             : yarn::OcclusionMethod::kTraced;
   s.choose_fiber_shadows = r.fiber_shadows() == v1::FIBER_SHADOWS_AUTO;
   s.choose_fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_AUTO;
-  in.views.push_back({CameraOf(r, s.scene), static_cast<int>(r.width()), static_cast<int>(r.height())});
+  const render::CameraSpec camera = CameraOf(r, s.scene);
+  for (const render::CameraSpec& view : render::TurntableCameras(camera, int(ViewsOf(r))))
+    in.views.push_back({view, static_cast<int>(r.width()), static_cast<int>(r.height())});
+  in.product_only = r.background() != v1::BACKGROUND_ENVIRONMENT;
   s.samples_per_pixel = SamplesPerPixel(r);
   s.seed = r.seed();
   s.texture_scale = r.texture_scale() > 0 ? r.texture_scale() : s.scene.default_texture_scale;
   s.texture_rotation_deg = r.texture_rotation_deg();
-  for (const v1::RenderLight& light : r.lights()) {
-    render::Light l;
-    l.rgb = ToVec(light.rgb());
-    if (light.type() == v1::RenderLight::TYPE_POINT) {
-      l.type = render::Light::Type::kPoint;
-      l.position = ToVec(light.position());
-    } else {
-      l.direction = render::Normalize(ToVec(light.direction()));
-    }
-    s.lights.push_back(l);
-  }
-  const bool default_lighting = r.lights().empty() && !r.has_environment();
+  for (const v1::RenderLight& light : r.lights()) s.lights.push_back(LightOf(light));
+  // A mesh without lighting is lit by the studio preset, as a product is photographed.
+  const bool mesh_default = r.has_mesh() && r.lighting().empty() && r.lights().empty() && !r.has_environment();
+  const render::LightingPreset* preset =
+      mesh_default ? render::FindLightingPreset(render::kDefaultMeshLighting)
+      : r.lighting().empty() ? nullptr : render::FindLightingPreset(r.lighting());
+  const bool default_lighting = r.lights().empty() && !r.has_environment() && !preset;
   if (default_lighting) s.lights = s.scene.default_lights;
+  if (preset) {  // placed around the subject as the first view sees it; the request's lights join them
+    const render::Subject subject = SubjectOf(s.scene, camera);
+    std::vector<render::Light> placed = render::PlaceLights(*preset, subject.centre, subject.radius, camera);
+    s.lights.insert(s.lights.begin(), placed.begin(), placed.end());
+  }
   s.ambient = r.ambient() > 0 ? r.ambient() : default_lighting ? s.scene.default_ambient : 0.0;
   if ((default_lighting && s.scene.default_environment) || r.has_environment()) {
     // A copy with its own transform; the decoded map itself is shared (a cached map is not copied).
@@ -196,6 +270,23 @@ render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, std::shared_ptr<
                              : r.environment().intensity() > 0 ? r.environment().intensity() : 1.0;
     environment->SetTransform(intensity, r.has_environment() ? r.environment().rotation_deg() : 0.0);
     s.environment = std::move(environment);
+  } else if (preset && preset->environment_intensity > 0) {  // the preset's studio map (a request's map wins)
+    auto environment = std::make_shared<render::Environment>(render::Environment::Studio());
+    environment->SetTransform(preset->environment_intensity, 0.0);
+    s.environment = std::move(environment);
+  }
+  // A turntable turns the lights and the environment with its camera: the product turns, the studio stays.
+  const int views = int(in.views.size());
+  for (int k = 1; k < views; ++k) {
+    const double angle = render::TurntableAngle(k, views);
+    render::RenderView& view = in.views[k];
+    view.lights.emplace();
+    for (const render::Light& light : s.lights) view.lights->push_back(render::TurnLight(light, camera, angle));
+    if (s.environment) {
+      auto turned = std::make_shared<render::Environment>(*s.environment);
+      turned->Turn(angle * 180 / std::numbers::pi);  // about +y, as a map turns (RenderEnvironment.rotation_deg)
+      view.environment = std::move(turned);
+    }
   }
   in.error_target = r.error_target() > 0 ? r.error_target() : render::kDefaultErrorTarget;
   in.force_full_fidelity = r.force_full_fidelity();
@@ -226,14 +317,16 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
                     [this](std::function<void()> task) { Post(std::move(task)); }, [this] { Pump(); }, true}) {
     const v1::RenderEnvironment& env = request_.environment();
     const bool map = !env.name().empty() || !env.data().empty();
-    if (map || fiber_job_) {
-      // Reading and decoding a map runs on the asset loader, generating fibers and their BVH on the geometry
-      // worker, never on the host worker every streaming call shares; the call cannot finish meanwhile (Pump
-      // waits for loading_ to clear).
+    const bool mesh = request_.has_mesh();
+    if (map || fiber_job_ || mesh) {
+      // Reading and decoding a map runs on the asset loader, generating fibers, parsing a mesh and their BVHs on
+      // the geometry worker, never on the host worker every streaming call shares; the call cannot finish
+      // meanwhile (Pump waits for loading_ to clear).
       loading_ = true;
-      (fiber_job_ ? deps_.geometry : deps_.loader)->Post([this, map] {
+      (fiber_job_ || mesh ? deps_.geometry : deps_.loader)->Post([this, map, mesh] {
         grpc::Status status = map ? LoadEnvironment() : grpc::Status::OK;
         if (status.ok() && fiber_job_) status = BuildFibers();
+        if (status.ok() && mesh) status = LoadMesh();
         Post([this, status] {
           loading_ = false;
           if (status.ok()) SetUp();
@@ -288,24 +381,113 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     return s;
   }
 
+  // On the geometry worker: the request's mesh (sent with it, or stored by name) and its Embree BVH, within the
+  // call's deadline, while the client is there, and within the memory budget: a sent file's parse is admitted at
+  // kMeshParseBytesPerFileByte before it starts, the BVH at kMeshBvhBytesPerTriangle before it is built (and
+  // bounded by it).
+  grpc::Status LoadMesh() {
+    const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
+    const auto stopped_or = [this](grpc::Status status) {
+      grpc::Status s = StopStatus(context_, deadline_);
+      return s.ok() ? status : s;
+    };
+    const v1::MeshSource& source = request_.mesh();
+    std::shared_ptr<const assets::TriangleMesh> mesh;
+    if (source.has_data()) {
+      const uint64_t parse_bytes = std::min<uint64_t>(kMeshParseBytesPerFileByte * source.data().data().size(),
+                                                      kMaxMeshParseBytes);
+      if (!admission_.bytes.Grow(size_t(parse_bytes)))
+        return {grpc::StatusCode::RESOURCE_EXHAUSTED, "mesh.data: parsing it needs " + std::to_string(parse_bytes) +
+                                                          " bytes, over this client's share of the memory budget"};
+      auto parsed = std::make_shared<assets::TriangleMesh>();
+      if (std::string e = assets::ParseMesh(source.data().data(), source.data().format(), assets::MeshLimits{},
+                                            parsed.get(), nullptr, stop);
+          !e.empty())
+        return stopped_or(Invalid("mesh.data: " + e));
+      mesh = std::move(parsed);
+    } else {
+      if (!deps_.mesh_store)
+        return {grpc::StatusCode::FAILED_PRECONDITION, "mesh.name: this server keeps no meshes (no data directory)"};
+      v1::MeshInfo info;
+      std::string error;
+      switch (deps_.mesh_store->Load(source.name(), stop, &mesh, &info, &error)) {
+        case assets::MeshStore::Found::kOk: break;
+        case assets::MeshStore::Found::kNotFound:
+          return {grpc::StatusCode::NOT_FOUND, "mesh.name: no mesh " + models::Quote(source.name()) + " (ListMeshes)"};
+        case assets::MeshStore::Found::kFailed:
+          return stopped_or({grpc::StatusCode::INTERNAL, "mesh.name: cannot load " + models::Quote(source.name()) + ": " + error});
+      }
+      if (!admission_.bytes.Grow(size_t(mesh->memory_bytes())))
+        return {grpc::StatusCode::RESOURCE_EXHAUSTED, "mesh.name: the mesh's " + std::to_string(mesh->memory_bytes()) +
+                                                          " bytes are over this client's share of the memory budget"};
+    }
+    const uint64_t bvh_bytes = kMeshBvhBytesPerTriangle * mesh->triangles.size() + (uint64_t{1} << 20);
+    if (!admission_.bytes.Grow(size_t(bvh_bytes)))
+      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+              "mesh: its BVH needs up to " + std::to_string(bvh_bytes) + " bytes, over this client's share of the memory budget"};
+    if (std::string e = render::MeshGeometry::Build(std::move(mesh), bvh_bytes, stop, &mesh_); !e.empty())
+      return stopped_or({grpc::StatusCode::RESOURCE_EXHAUSTED, "mesh: cannot build its BVH: " + e});
+    return grpc::Status::OK;
+  }
+
+  // Which material each of the mesh's materials wears (RenderRequest.materials, else `material`), packed, into
+  // in->object_materials; a spatially varying one needs the mesh's texture coordinates.
+  grpc::Status BindMeshMaterials(render::RenderInputs* in) {
+    const v1::RenderRequest& r = request_;
+    const assets::TriangleMesh& mesh = mesh_->mesh();
+    for (int i = 0; i < r.materials_size(); ++i) {
+      const std::string& name = r.materials(i).mesh_material();
+      if (std::find(mesh.material_names.begin(), mesh.material_names.end(), name) == mesh.material_names.end()) {
+        std::string names;
+        for (const std::string& n : mesh.material_names) names += (names.empty() ? "" : ", ") + models::Quote(n);
+        return Invalid(Indexed("materials", i) + ".mesh_material: the mesh has no material " + models::Quote(name) +
+                       " (it has " + names + ")");
+      }
+    }
+    in->object_materials.resize(mesh.material_names.size());
+    for (size_t o = 0; o < mesh.material_names.size(); ++o) {
+      const std::string& name = mesh.material_names[o];
+      int bound = -1;
+      for (int i = 0; i < r.materials_size() && bound < 0; ++i)
+        if (r.materials(i).mesh_material() == name) bound = i;
+      const v1::Material& material = bound >= 0 ? r.materials(bound).material() : r.material();
+      if (bound < 0 && !r.has_material())
+        return Invalid("material: unset, and the mesh's material " + models::Quote(name) +
+                       " is not named in `materials`: give `material` for the rest");
+      render::RenderInputs::ObjectMaterial& slot = in->object_materials[o];
+      if (grpc::Status s = PrepareMaterial(deps_, material, &slot.material); !s.ok())
+        return bound < 0 ? s : Invalid(Indexed("materials", bound) + ".material: " + s.error_message());
+      slot.variants = std::make_unique<render::CachedVariants>(material, *deps_.registry, *deps_.materials);
+      if (slot.material->model->spatially_varying() && mesh.uvs.empty())
+        return Invalid("mesh: it has no texture coordinates, which the " + slot.material->model->name() +
+                       " material of its material " + models::Quote(name) + " needs to place its pattern");
+    }
+    return grpc::Status::OK;
+  }
+
   // The renderer, given the request's inputs, plans; its builds (a fold, material samplers) run on the asset
   // loader (not on the host worker every streaming call shares), then it renders. On failure status_ says why.
   void SetUp() {
     const v1::RenderRequest& r = request_;
-    render::RenderInputs in = RenderInputsOf(r, std::move(environment_));
+    render::RenderInputs in = RenderInputsOf(
+        r, mesh_ ? render::MeshScene(mesh_, UvLength(r, mesh_->mesh()), int(r.width()), int(r.height())) : SceneOf(r),
+        std::move(environment_));
+    if (mesh_ && !(status_ = BindMeshMaterials(&in)).ok()) return;
     in.setup.scene.fibers = std::move(fibers_);
     in.setup.scene.fiber_visibility = std::move(fiber_visibility_);
     // Held only by the renderer from here: it lets go of the full-detail check's geometry once planned.
     in.setup.full_detail_fibers = std::move(full_fibers_);
     in.setup.full_detail_visibility = std::move(full_fiber_visibility_);
-    if (!material_ && !(status_ = PrepareMaterial(deps_, r.material(), &material_)).ok()) return;
+    // A mesh whose every material is bound may leave `material` unset: the first binding's stands for it.
+    const v1::Material& main = r.has_mesh() && !r.has_material() ? r.materials(0).material() : r.material();
+    if (!material_ && !(status_ = PrepareMaterial(deps_, main, &material_)).ok()) return;
     if (fiber_job_) {
       in.setup.fiber_detail = fiber_detail_;
       in.setup.fiber_detail.reason +=
           "; " + std::to_string(in.setup.scene.fibers->stats().curves) + " fiber curves";
     }
     in.material = material_;
-    in.variants = std::make_unique<render::CachedVariants>(r.material(), *deps_.registry, *deps_.materials);
+    in.variants = std::make_unique<render::CachedVariants>(main, *deps_.registry, *deps_.materials);
     in.materials = deps_.materials;
     in.folds = deps_.folds;
     renderer_ = std::make_unique<render::Renderer>(
@@ -357,23 +539,49 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     if (!sent_first_ || renderer_->samples_done() > samples_sent_) WriteUpdate(false);
   }
 
+  // Every view encoded; a turntable's exposure is its first view's, so its views match.
   void Encode() {
-    const render::RenderedImage& rendered = renderer_->images().front();
-    const imaging::ImageFormat format = request_.format() == v1::RENDER_FORMAT_EXR    ? imaging::ImageFormat::kExr
-                                        : request_.format() == v1::RENDER_FORMAT_JPEG ? imaging::ImageFormat::kJpeg
-                                                                                      : imaging::ImageFormat::kPng;
-    double exposure = 1;
-    std::string bytes;
-    if (std::string error = render::EncodeRendered(rendered.image, format, request_.exposure(), &bytes, &exposure);
-        !error.empty()) {
-      status_ = {grpc::StatusCode::INTERNAL, "cannot encode the image: " + error};
-      return;
+    const std::vector<render::RenderedImage>& images = renderer_->images();
+    const render::RenderedImage& rendered = images.front();
+    double exposure = request_.exposure();
+    size_t total_bytes = 0;
+    for (size_t k = 0; k < images.size(); ++k) {
+      std::string bytes;
+      double used = 1;
+      if (std::string error = render::EncodeRendered(images[k].image, images[k].coverage.empty() ? nullptr : &images[k].coverage,
+                                                     BackgroundOf(request_), FormatOf(request_), exposure, &bytes, &used);
+          !error.empty()) {
+        status_ = {grpc::StatusCode::INTERNAL, "cannot encode the image: " + error};
+        return;
+      }
+      if (k == 0 && FormatOf(request_) != imaging::ImageFormat::kExr) exposure = used;
+      if (k == 0) final_.set_exposure(used);
+      total_bytes += (images.size() > 1 ? 2 : 1) * bytes.size();
+      if (total_bytes > kMaxRenderReplyBytes) {
+        status_ = {grpc::StatusCode::RESOURCE_EXHAUSTED,
+                   "views: the encoded images pass " + std::to_string(kMaxRenderReplyBytes) +
+                       " bytes, one message's limit: ask for fewer views, fewer pixels or a smaller format"};
+        return;
+      }
+      if (images.size() > 1) {
+        v1::RenderedView* view = final_.add_views();
+        view->set_image(bytes);
+        view->set_fill(images[k].fill);
+        for (double m : images[k].mean) view->add_mean(m);
+        const render::CameraSpec& camera = renderer_->views()[k].camera;
+        v1::RenderCamera* out = view->mutable_camera();
+        const auto set = [](google::protobuf::RepeatedField<double>* field, render::Vec3 v) { for (double x : {v.x, v.y, v.z}) field->Add(x); };
+        set(out->mutable_position(), camera.position);
+        set(out->mutable_look_at(), camera.look_at);
+        set(out->mutable_up(), camera.up);
+        out->set_fov_deg(camera.fov_deg);
+      }
+      if (k == 0) final_.set_image(std::move(bytes));
     }
-    final_.set_image(std::move(bytes));
+    final_.set_fill(rendered.fill);
     final_.set_format(request_.format());
     final_.set_width(request_.width());
     final_.set_height(request_.height());
-    final_.set_exposure(exposure);
     for (double m : rendered.mean) final_.add_mean(m);
     final_.set_adaptive_sampling(rendered.adaptive);
     final_.set_min_samples_per_pixel(rendered.min_samples_per_pixel);
@@ -381,10 +589,26 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     complete_ = true;
   }
 
-  void AddFidelity(v1::RenderUpdate* update) const {
+  // The fidelity report; the last message's also says which share of each object's samples each rung took.
+  void AddFidelity(v1::RenderUpdate* update, bool last) const {
     update->set_error_target(renderer_->error_target());
-    for (const render::ObjectFidelity& of : renderer_->fidelity()) {
+    const std::vector<std::vector<render::Renderer::RungShare>> rungs =
+        last ? renderer_->RungShares() : std::vector<std::vector<render::Renderer::RungShare>>{};
+    const auto add_rung = [](const render::Renderer::RungShare& share, const render::ObjectFidelity* of, v1::RungShare* out) {
+      out->set_rung(share.rung);
+      out->set_share(share.share);
+      // The error estimate of a cheaper rung: its object's "path" choice's (the BTF and fibers are the reference).
+      if (of && (share.rung == "BRDF"))
+        for (const render::FidelityChoice& c : of->choices)
+          if (c.aspect == "path") out->set_estimated_error(c.estimated_error);
+    };
+    if (last)
+      for (const render::Renderer::RungShare& share : renderer_->TotalRungShares()) add_rung(share, nullptr, update->add_rungs());
+    for (size_t o = 0; o < renderer_->fidelity().size(); ++o) {
+      const render::ObjectFidelity& of = renderer_->fidelity()[o];
       v1::ObjectFidelity* out = update->add_fidelity();
+      if (o < rungs.size())
+        for (const render::Renderer::RungShare& share : rungs[o]) add_rung(share, &of, out->add_rungs());
       out->set_object(of.object);
       out->set_model(of.model);
       out->set_estimated_error(of.estimated_error);
@@ -408,7 +632,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     } else {
       update_.Clear();
     }
-    if (last || !sent_first_) AddFidelity(&update_);
+    if (last || !sent_first_) AddFidelity(&update_, last);
     sent_first_ = true;
     update_.set_samples_done(renderer_->samples_done());
     update_.set_samples_total(renderer_->samples_total());
@@ -433,6 +657,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   std::shared_ptr<const yarn::FiberScene> fibers_, full_fibers_;
   std::shared_ptr<const yarn::YarnVisibility> fiber_visibility_, full_fiber_visibility_;
   std::shared_ptr<const render::Environment> environment_;  // the loaded map (null: the built-in sky)
+  std::shared_ptr<const render::MeshGeometry> mesh_;        // the request's mesh, built (null: none)
   bool loading_ = false;  // the asset loader or geometry worker is loading or building for this call
 
   BatcherEvaluator evaluator_;
@@ -513,14 +738,66 @@ size_t RenderBytes(const v1::RenderRequest& r) {
   size_t fibers = 0;
   if (NeedsOf(r).fibers)  // the generated curves, held while the BVH is built
     fibers = kMaxRenderFiberPoints * kYarnBytesPerPoint + kMaxRenderFibers * kYarnBytesPerFiber;
-  return pixels * 108 + 2 * render::kRenderChunkQueries * 138 + render::kRenderChunkQueries * (60 + 64) +
-         r.environment().data().size() + fibers;
+  // Views: each finished image (12), its coverage (4) and encoding (at most 16, twice in the reply) are held until
+  // the last is done; the current view's hit counts (4). A sent mesh's parse and BVH are admitted when loaded
+  // (RenderCall::LoadMesh); its bytes are the request's.
+  const size_t views = ViewsOf(r);
+  return pixels * (108 + 4) + (views - 1) * pixels * 48 + 2 * render::kRenderChunkQueries * 138 +
+         render::kRenderChunkQueries * (60 + 64) + r.environment().data().size() + fibers;
+}
+
+// A mesh request's own fields. "" or "field: reason".
+std::string ValidateMeshRequest(const v1::RenderRequest& r) {
+  if (!r.scene_name().empty() || r.scene() != v1::SCENE_SPHERE || r.scene_params_size() > 0)
+    return "mesh: the mesh is the scene; leave scene, scene_name and scene_params unset";
+  const v1::MeshSource& mesh = r.mesh();
+  if (mesh.has_data()) {
+    if (!v1::MeshFormat_IsValid(mesh.data().format()))
+      return "mesh.data.format: unknown value " + std::to_string(mesh.data().format());
+    if (mesh.data().data().empty()) return "mesh.data.data: empty";
+    if (mesh.data().data().size() > assets::MeshLimits{}.max_bytes)
+      return "mesh.data.data: " + std::to_string(mesh.data().data().size()) + " bytes exceed the limit of " +
+             std::to_string(assets::MeshLimits{}.max_bytes);
+  } else if (mesh.source_case() == v1::MeshSource::kName) {
+    if (std::string e = assets::ValidateAssetName(mesh.name()); !e.empty()) return "mesh.name: " + e;
+  } else {
+    return "mesh: give a stored mesh's name or the file's data";
+  }
+  if (r.materials_size() > int(assets::MeshLimits{}.max_materials))
+    return "materials: " + std::to_string(r.materials_size()) + " bindings exceed the limit of " +
+           std::to_string(assets::MeshLimits{}.max_materials) + " materials per mesh";
+  for (int i = 0; i < r.materials_size(); ++i) {
+    const v1::MaterialBinding& b = r.materials(i);
+    if (b.mesh_material().size() > kMaxMeshMaterialName)
+      return Indexed("materials", i) + ".mesh_material: longer than " + std::to_string(kMaxMeshMaterialName) + " bytes";
+    if (!b.has_material()) return Indexed("materials", i) + ".material: unset";
+    for (int j = 0; j < i; ++j)
+      if (r.materials(j).mesh_material() == b.mesh_material())
+        return Indexed("materials", i) + ".mesh_material: " + models::Quote(b.mesh_material()) + " is bound twice";
+  }
+  if (!r.has_material() && r.materials_size() == 0) return "material: unset (a mesh needs `material` or `materials`)";
+  return "";
 }
 
 std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   render::ResolvedScene scene;
-  if (std::string e = render::ResolveScene(r, render::SceneRegistry::Global(), &scene); !e.empty()) return e;
-  const render::SceneNeeds& needs = scene.spec->needs;
+  render::SceneNeeds needs = kMeshNeeds;
+  std::string scene_label = "mesh";
+  if (r.has_mesh()) {
+    if (std::string e = ValidateMeshRequest(r); !e.empty()) return e;
+  } else {
+    if (std::string e = render::ResolveScene(r, render::SceneRegistry::Global(), &scene); !e.empty()) return e;
+    needs = scene.spec->needs;
+    scene_label = scene.spec->name;
+    if (r.materials_size() > 0) return "materials: only for a mesh (RenderRequest.mesh); use `material`";
+  }
+  if (!v1::TextureScaleUnit_IsValid(r.texture_scale_unit()))
+    return "texture_scale_unit: unknown value " + std::to_string(r.texture_scale_unit());
+  if (r.texture_scale_unit() != v1::TEXTURE_SCALE_UNIT_DEFAULT && !r.has_mesh())
+    return "texture_scale_unit: only for a mesh (a built-in scene counts repeats per scene unit)";
+  if (!v1::Background_IsValid(r.background())) return "background: unknown value " + std::to_string(r.background());
+  if (r.views() > kMaxRenderViews)
+    return "views: " + std::to_string(r.views()) + " is outside 0.." + std::to_string(kMaxRenderViews);
   if (!std::isfinite(r.texture_scale()) || r.texture_scale() < 0 || r.texture_scale() > kMaxTextureScale)
     return "texture_scale: " + std::to_string(r.texture_scale()) + " is outside 0.." + std::to_string(int(kMaxTextureScale)) +
            " pattern repeats per unit (0 = the scene's default)";
@@ -530,6 +807,8 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
     return "lights: " + std::to_string(r.lights_size()) + " lights exceed the limit of " + std::to_string(kMaxRenderLights);
   for (int i = 0; i < r.lights_size(); ++i)
     if (std::string e = ValidateLight(r.lights(i), Indexed("lights", i)); !e.empty()) return e;
+  if (!r.lighting().empty() && !render::FindLightingPreset(r.lighting()))
+    return "lighting: no preset named " + models::Quote(r.lighting()) + " (ListScenes lists lighting_presets)";
   if (r.has_environment()) {
     const v1::RenderEnvironment& env = r.environment();
     if (!env.path().empty())
@@ -563,6 +842,7 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
     return "sampling: ADAPTIVE needs samples_per_pixel >= " + std::to_string(render::kMinAdaptiveSamples) + ", got " +
            std::to_string(SamplesPerPixel(r));
   if (!v1::RenderFormat_IsValid(r.format())) return "format: unknown value " + std::to_string(r.format());
+  if (std::string e = imaging::CheckBackground(FormatOf(r), BackgroundOf(r)); !e.empty()) return "background: " + e;
   if (!std::isfinite(r.exposure()) || r.exposure() < 0)
     return "exposure: " + std::to_string(r.exposure()) + " must be finite and >= 0 (0 = automatic)";
   if (!std::isfinite(r.error_target()) || r.error_target() < 0 || r.error_target() > 1)
@@ -579,6 +859,7 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
     return "btf_environment: unknown value " + std::to_string(r.btf_environment());
   if (r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED) {
     if (needs.fibers) return "btf_environment: FOLDED is for `btf` materials, not the fiber scenes";
+    if (r.has_mesh()) return "btf_environment: FOLDED is for the built-in scenes, not a mesh (its materials differ)";
     const bool default_sky = r.lights().empty() && !r.has_environment() && scene.Build().default_environment;
     if (!r.has_environment() && !default_sky)
       return "btf_environment: FOLDED folds the environment map, and this request's lighting has none";
@@ -586,13 +867,13 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   if (!std::isfinite(r.ambient()) || r.ambient() < 0 || r.ambient() > kMaxLightValue)
     return "ambient: " + std::to_string(r.ambient()) + " must be finite in 0.." + std::to_string(kMaxLightValue);
   if (!needs.fibers) {
-    if (r.has_yarn()) return "yarn: only for the fiber scenes (ListScenes: fibers), not '" + scene.spec->name + "'";
+    if (r.has_yarn()) return "yarn: only for the fiber scenes (ListScenes: fibers), not '" + scene_label + "'";
     if (r.fiber_detail() != v1::FIBER_DETAIL_AUTO) return "fiber_detail: only for the fiber scenes";
     if (r.fiber_shadows() != v1::FIBER_SHADOWS_AUTO) return "fiber_shadows: only for the fiber scenes";
     if (r.fiber_occlusion() != v1::FIBER_OCCLUSION_AUTO) return "fiber_occlusion: only for the fiber scenes";
   }
   if (r.has_woven() && !needs.woven)
-    return "woven: only for the fiber scenes laid out as a weave, not '" + scene.spec->name + "'";
+    return "woven: only for the fiber scenes laid out as a weave, not '" + scene_label + "'";
   return "";
 }
 
@@ -631,8 +912,19 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   };
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
-  if (std::string error = deps.materials->Peek(request->material(), *deps.registry, &model, &material); !error.empty())
-    return reject(MaterialError(error));
+  // A mesh whose every material is bound may leave `material` unset: the first binding's stands for it.
+  const bool bound_only = request->has_mesh() && !request->has_material() && request->materials_size() > 0;
+  if (std::string error = deps.materials->Peek(bound_only ? request->materials(0).material() : request->material(),
+                                               *deps.registry, &model, &material);
+      !error.empty())
+    return reject(bound_only ? Invalid("materials[0].material: " + error) : MaterialError(error));
+  for (int i = 0; i < request->materials_size(); ++i) {  // each binding's material checked before any work
+    const models::Model* bound = nullptr;
+    std::shared_ptr<const models::PreparedMaterial> unused;
+    if (std::string error = deps.materials->Peek(request->materials(i).material(), *deps.registry, &bound, &unused);
+        !error.empty())
+      return reject(Invalid(Indexed("materials", i) + ".material: " + error));
+  }
   FiberJobs fiber_jobs;
   render::RenderSetup::FiberDetail detail;
   if (grpc::Status s = CheckRenderRequest(*deps.registry, *request, *model, deps.has_fp64, &fiber_jobs, &detail); !s.ok())

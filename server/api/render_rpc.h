@@ -21,7 +21,18 @@
 namespace loomlight::api {
 
 // Documented limits (docs/thumbnails.md "Limits").
-constexpr uint32_t kMaxRenderSide = 2048;                      // width and height, pixels
+constexpr uint32_t kMaxRenderSide = 4096;                      // width and height, pixels
+constexpr uint32_t kMaxRenderViews = 72;                       // a turntable's images (RenderRequest.views)
+// The final message's images together (a turntable's first view twice), under one message's limit.
+constexpr size_t kMaxRenderReplyBytes = size_t(kMaxMessageBytes) - (size_t{1} << 20);
+constexpr size_t kMaxMeshMaterialName = 256;                   // RenderRequest.materials[].mesh_material, bytes
+// Meshes sent with a request: bytes a parse may take per byte of the file (an OBJ's "f 1 2 3" line of 8 bytes
+// becomes a triangle of 12 and up to three vertices of 48), and at most (the limits' triangles and vertices).
+constexpr uint64_t kMeshParseBytesPerFileByte = 24;
+constexpr uint64_t kMaxMeshParseBytes = uint64_t{512} << 20;
+// An Embree BVH of triangles takes about 60-120 bytes per triangle (measured: docs/products.md); admitted at this
+// bound, which also bounds the build.
+constexpr uint64_t kMeshBvhBytesPerTriangle = 160;
 constexpr uint32_t kMaxRenderSamplesPerPixel = 1024;
 constexpr uint32_t kDefaultRenderSamplesPerPixel = 16;          // samples_per_pixel 0
 constexpr uint64_t kMaxRenderSamples = uint64_t{1} << 26;      // width x height x samples per pixel

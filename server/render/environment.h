@@ -50,6 +50,8 @@ class Environment {
   // transform: equal for environments that give the same radiance everywhere.
   std::string Identity() const;
 
+  // Turns the map a further `degrees` about +y, in the sense SetTransform's rotation turns it (a turntable's view).
+  void Turn(double degrees);
   Rgb Radiance(Vec3 direction) const;
 
   // The map is sampled as two lights: its small bright regions (the sun; pixels above kBrightFactor times the

@@ -417,20 +417,29 @@ std::string FoldEnvironment(const RenderSetup& setup, const std::vector<FoldedEn
 
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, MaterialVariants& variants,
                            double target, bool force_full, FidelityPlan* plan, int threads) {
+  const std::vector<ObjectMaterial> materials(setup.scene.objects.size(), ObjectMaterial{m, &variants});
+  return ChooseFidelity(setup, materials, target, force_full, plan, threads);
+}
+
+std::string ChooseFidelity(const RenderSetup& setup, const std::vector<ObjectMaterial>& materials, double target,
+                           bool force_full, FidelityPlan* plan, int threads) {
   const std::string failed = "cannot pack a variant of the material for the fidelity choice";
-  const models::PreparedMaterial* requested = variants.Requested();
-  if (!requested) return failed;
-  const Knobs knobs{FindKnob(*m.model, ""),
-                    requested->transmission ? FindKnob(*requested->transmission->model, "transmission.") : Knob{}};
-  const bool varying = m.model->spatially_varying(), transmits = Transmits(m);
-  const Config full{varying, knobs.reflection.full, knobs.layer.full, transmits};
-  const double segment = 1.0 / (setup.texture_scale * m.model->ThreadsPerRepeat(m.values));  // scene units
+  if (materials.size() != setup.scene.objects.size()) return "one material per object is needed";
   const Pilot pilot(setup);
 
   plan->evaluators.clear();
   plan->objects.clear();
   plan->fidelity.clear();
   for (size_t o = 0; o < setup.scene.objects.size(); ++o) {
+    const MaterialInfo& m = materials[o].info;
+    MaterialVariants& variants = *materials[o].variants;
+    const models::PreparedMaterial* requested = variants.Requested();
+    if (!requested) return failed;
+    const Knobs knobs{FindKnob(*m.model, ""),
+                      requested->transmission ? FindKnob(*requested->transmission->model, "transmission.") : Knob{}};
+    const bool varying = m.model->spatially_varying(), transmits = Transmits(m);
+    const Config full{varying, knobs.reflection.full, knobs.layer.full, transmits};
+    const double segment = 1.0 / (setup.texture_scale * m.model->ThreadsPerRepeat(m.values));  // scene units
     ObjectFidelity out{setup.scene.objects[o].name, m.model->name(), {}, 0, 0};
     if (setup.scene.objects[o].fibers) {
       // Fibers span pixels here: each fiber is shaded by the fiber model about its own axis, plus the ambient
@@ -473,6 +482,7 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
     FidelityChoice transmission{"transmission", transmits ? "on" : "off", transmits ? "on" : "off", 0,
                                 transmits ? "" : "the material does not transmit"};
     std::string common;  // a reason shared by every choice
+    double near_footprint = 0;  // > 0: the BTF nearer than this footprint, the BRDF beyond (per pixel)
     if (force_full) {
       common = "force_full_fidelity";
     } else if (points.empty()) {
@@ -480,35 +490,50 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
     } else {
       std::vector<double> reference, candidate;
       if (varying) {
-        std::vector<double> filtered;  // per pilot point: the share of the texture a pixel keeps, min(1, r / pi)
-        std::vector<double> pixels_per_thread;
-        for (const ShadingPoint& p : points) {
-          const double r = p.footprint > 0 ? segment / p.footprint : 1e9;
-          pixels_per_thread.push_back(r);
-          // A box filter over the pixel keeps at most 1 / (pi r') of a texture of period r' pixels (the
-          // sinc's envelope, r' = 1 / r threads per pixel): the part the BRDF misses.
-          filtered.push_back(std::min(1.0, r / std::numbers::pi));
-        }
+        const size_t n = points.size();
+        std::vector<double> pixels_per_thread(n);
+        for (size_t i = 0; i < n; ++i)
+          pixels_per_thread[i] = points[i].footprint > 0 ? segment / points[i].footprint : 1e9;
         out.pixels_per_thread = Median(pixels_per_thread);
-        if (out.pixels_per_thread > 1) {
-          path.reason = Format("threads span %.3g pixels (> 1): the BTF resolves them", out.pixels_per_thread);
+        Config brdf = full;
+        brdf.btf = false;
+        if (!PilotRadiance(points, m, variants, knobs, full, &reference) ||
+            !PilotRadiance(points, m, variants, knobs, brdf, &candidate))
+          return failed;
+        // Per pixel: the BRDF takes the hits farthest in texture (fewest pixels per thread) first, as many as keep
+        // the object's error, sum |BRDF - BTF| x the share of the texture a pixel keeps over them / sum |BTF|
+        // over all, within the target. A box filter over the pixel keeps at most 1 / (pi r') of a texture of
+        // period r' pixels (the sinc's envelope, r' = 1 / r threads per pixel): the part the BRDF misses.
+        std::vector<size_t> order(n);
+        for (size_t i = 0; i < n; ++i) order[i] = i;
+        std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return pixels_per_thread[a] < pixels_per_thread[b]; });
+        double total = 0;
+        for (double r : reference) total += std::fabs(r);
+        size_t far = 0;  // pilot hits the BRDF takes
+        double missed = 0;
+        for (; far < n; ++far) {
+          const size_t i = order[far];
+          const double add = std::fabs(candidate[i] - reference[i]) * std::min(1.0, pixels_per_thread[i] / std::numbers::pi);
+          if (total <= 0 || (missed + add) / total > target) break;
+          missed += add;
+        }
+        path.estimated_error = total > 0 ? missed / total : 0;
+        if (far == n) {
+          chosen.btf = false;
+          path.chosen = "BRDF";
+          path.reason = Format("threads span %.3g pixels (median): a pixel averages them, so the BRDF (the BTF's "
+                               "mean) is within %.2g of the BTF", out.pixels_per_thread, path.estimated_error);
+        } else if (far == 0) {
+          path.reason = Format("threads span %.3g pixels (median): the BTF resolves them (the BRDF would differ "
+                               "by more than the target where the texture is coarsest)", out.pixels_per_thread);
         } else {
-          Config brdf = full;
-          brdf.btf = false;
-          if (!PilotRadiance(points, m, variants, knobs, full, &reference) ||
-              !PilotRadiance(points, m, variants, knobs, brdf, &candidate))
-            return failed;
-          path.estimated_error = RelativeL1(candidate, reference, &filtered);
-          if (path.estimated_error <= target) {
-            chosen.btf = false;
-            path.chosen = "BRDF";
-            path.reason = Format("threads span %.3g pixels (< 1): a pixel averages them, so the BRDF (the BTF's "
-                                 "mean) is within %.2g of the BTF", out.pixels_per_thread, path.estimated_error);
-          } else {
-            path.reason = Format("threads span %.3g pixels, but the texture a pixel keeps differs from the BRDF "
-                                 "by %.2g > target: BTF", out.pixels_per_thread, path.estimated_error);
-            path.estimated_error = 0;
-          }
+          // The footprint between the last hit the BRDF takes and the first it does not (geometric mean).
+          const double r_far = pixels_per_thread[order[far - 1]], r_near = pixels_per_thread[order[far]];
+          near_footprint = segment / std::sqrt(r_far * r_near);
+          path.chosen = "BTF near, BRDF far";
+          path.reason = Format("per pixel: the BRDF where threads span < %.3g pixels (%.0f%% of the pilot's hits, "
+                               "within %.2g of the BTF), the BTF nearer", std::sqrt(r_far * r_near),
+                               100.0 * double(far) / double(n), path.estimated_error);
         }
       }
       if (!knobs.reflection.name.empty() &&
@@ -554,6 +579,15 @@ std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, Mate
     }
     ObjectShading shading;
     if (!MakeShading(m, variants, knobs, chosen, &plan->evaluators, &shading)) return failed;
+    if (near_footprint > 0) {
+      Config far = chosen;
+      far.btf = false;
+      ObjectShading brdf;
+      if (!MakeShading(m, variants, knobs, far, &plan->evaluators, &brdf)) return failed;
+      shading.near_evaluator = shading.evaluator;
+      shading.near_footprint = near_footprint;
+      shading.evaluator = brdf.evaluator;
+    }
     plan->objects.push_back(shading);
     plan->fidelity.push_back(std::move(out));
   }

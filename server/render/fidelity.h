@@ -102,8 +102,20 @@ struct FidelityPlan {
   bool fiber_full_detail = false;
 };
 
-// Fills *plan for every object of setup.scene, its pilots on up to `threads` threads. Returns "" or why a
-// variant could not be made (internal).
+// What one object wears: its material and that material's variants.
+struct ObjectMaterial {
+  MaterialInfo info;
+  MaterialVariants* variants = nullptr;
+};
+
+// Fills *plan for every object of setup.scene (materials: one per object), its pilots on up to `threads`
+// threads. A spatially varying material's path is chosen per pixel: the BRDF where a pixel's footprint spans
+// so many threads that, over the pilot's hits that far away, the texture a pixel keeps stays within the target
+// of the BTF, the BTF nearer (ObjectShading::near_footprint). Returns "" or why a variant could not be made
+// (internal).
+std::string ChooseFidelity(const RenderSetup& setup, const std::vector<ObjectMaterial>& materials,
+                           double error_target, bool force_full, FidelityPlan* plan, int threads = 1);
+// Every object wearing one material.
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& material, MaterialVariants& variants,
                            double error_target, bool force_full, FidelityPlan* plan, int threads = 1);
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <mutex>
 #include <thread>
 
 #include "server/render/adaptive_sampling.h"
@@ -21,6 +22,10 @@ struct Renderer::Chunk {
   std::vector<std::vector<double>> f;  // per evaluator: the kernel's results
   std::vector<std::unique_ptr<models::EvaluationPlan>> plans;  // per evaluator: its kernel parts
   uint64_t queries = 0;
+  std::vector<uint8_t> slot_hit;  // product_only: per slot, 1 when the camera ray hit an object
+  // Per object, per rung: the chunk's camera hits that took it (the trace threads' counts, added under the lock).
+  std::vector<std::array<uint64_t, 2>> rung_hits;
+  std::mutex rung_lock;
 };
 
 Renderer::Renderer(RenderInputs inputs, QueryEvaluator* evaluator, std::function<Status()> stop,
@@ -39,15 +44,23 @@ Renderer::~Renderer() = default;
 Status Renderer::Plan() {
   if (in_.views.empty()) return status_ = {batching::JobStatus::kInternal, "a render needs at least one view"};
   RenderSetup& s = setup_;
-  MaterialInfo info;
-  info.model = in_.material->model;
-  info.values = in_.material->values;
-  info.layered = in_.material->transmission != nullptr;
-  s.object_transmits.assign(s.scene.objects.size(), Transmits(info));
-  if (std::string e = ChooseFidelity(s, info, *in_.variants, error_target_, in_.force_full_fidelity, &plan_,
-                                     int(kTraceThreads));
+  const size_t objects = s.scene.objects.size();
+  std::vector<ObjectMaterial> materials(objects);
+  s.object_transmits.assign(objects, false);
+  for (size_t o = 0; o < objects; ++o) {
+    const bool own = o < in_.object_materials.size() && in_.object_materials[o].material;
+    const models::PreparedMaterial& material = own ? *in_.object_materials[o].material : *in_.material;
+    MaterialInfo& info = materials[o].info;
+    info.model = material.model;
+    info.values = material.values;
+    info.layered = material.transmission != nullptr;
+    materials[o].variants = own ? in_.object_materials[o].variants.get() : in_.variants.get();
+    s.object_transmits[o] = Transmits(info);
+  }
+  if (std::string e = ChooseFidelity(s, materials, error_target_, in_.force_full_fidelity, &plan_, int(kTraceThreads));
       !e.empty())
     return status_ = {batching::JobStatus::kInternal, e};
+  rung_hits_.assign(objects, {0, 0});
   if (plan_.fiber_full_detail) {  // AUTO's thinning was over the target: the render is at full detail
     s.scene.fibers = s.full_detail_fibers;
     s.scene.fiber_visibility = s.full_detail_visibility;
@@ -68,6 +81,11 @@ Status Renderer::Plan() {
 // by the caller: a `btf` material without a layer, environment lighting, not a fiber scene.
 void Renderer::ChooseBtfEnvironment() {
   const models::PreparedMaterial& material = *in_.material;
+  // Folding is for one material over every object (objects wearing several sample the map as ever), and one
+  // environment (a turntable's turns with its views).
+  if (!in_.object_materials.empty()) return;
+  for (const RenderView& view : in_.views)
+    if (view.environment) return;
   if (!setup_.environment || !material.model->folds_environment() || setup_.scene.fibers) return;
   const bool asked = in_.btf_environment != BtfEnvironmentChoice::kSampled;
   folding_ = asked && !in_.force_full_fidelity && !material.transmission;
@@ -152,10 +170,13 @@ void Renderer::StartView() {
   RenderSetup& s = setup_;
   const RenderView& view = in_.views[view_];
   s.camera = PinholeCamera(view.camera, view.width, view.height);
+  if (view.lights) s.lights = *view.lights;
+  if (view.environment) s.environment = view.environment;
   s.width = view.width;
   s.height = view.height;
   total_pixels_ = uint64_t(s.width) * s.height;
   sums_.assign(total_pixels_, Rgb{});
+  hits_.assign(in_.product_only ? total_pixels_ : 0, 0);
   pass_ = 0;
   next_pixel_ = 0;
   pass_pixels_done_ = 0;
@@ -199,6 +220,8 @@ void Renderer::Prepare(Chunk& chunk) {
   for (QueryBucket& b : chunk.buckets) b.Clear();
   chunk.value.assign(slots, Rgb{});
   chunk.slot_folded.assign(adaptive_ && pass_ == 0 ? slots : 0, 0);
+  chunk.slot_hit.assign(in_.product_only ? slots : 0, 0);
+  chunk.rung_hits.assign(plan_.objects.size(), {0, 0});
   chunk.queries = 0;
   // Chunks are traced on kTraceThreads threads (casting rays and sampling lights and materials is the host's
   // share of a render), each taking the next block of kTraceBlockPixels pixels into its own buckets, appended
@@ -238,6 +261,7 @@ void Renderer::TraceBlocks(Chunk& chunk, std::atomic<uint64_t>* next_block, std:
   size_t queued = 0;
   std::vector<FoldedEnvironment::Query> folded;
   std::vector<uint32_t> folded_slot;
+  std::vector<std::array<uint64_t, 2>> rung_hits(plan_.objects.size(), {0, 0});
   // Samples are traced a packet at a time, in pixel order (a pixel's queries stay in sample order).
   const auto flush = [&] {
     TracePixelSamples(setup_, {batch.data(), queued}, points.data());
@@ -245,10 +269,13 @@ void Renderer::TraceBlocks(Chunk& chunk, std::atomic<uint64_t>* next_block, std:
       const ShadingPoint& point = points[k];
       const uint32_t slot = batch_slot[k];
       if (point.object < 0) {
-        chunk.value[slot] = point.background;
+        chunk.value[slot] = in_.product_only ? Rgb{} : point.background;
         continue;
       }
-      chunk.value[slot] = AppendQueries(point, plan_.objects[point.object], plan_.evaluators, slot, buckets);
+      if (in_.product_only) chunk.slot_hit[slot] = 1;
+      const ObjectShading& shading = plan_.objects[point.object];
+      ++rung_hits[point.object][EvaluatorFor(point, shading) == shading.near_evaluator ? 1 : 0];
+      chunk.value[slot] = AppendQueries(point, shading, plan_.evaluators, slot, buckets);
       if (point.environment_folded) {
         folded.push_back(setup_.folded_environment->QueryOf(point));
         folded_slot.push_back(slot);
@@ -271,6 +298,11 @@ void Renderer::TraceBlocks(Chunk& chunk, std::atomic<uint64_t>* next_block, std:
       }
     }
     flush();  // a packet holds one block's samples, whichever thread traces it
+  }
+  {
+    std::lock_guard lock(chunk.rung_lock);
+    for (size_t o = 0; o < rung_hits.size(); ++o)
+      for (int r = 0; r < 2; ++r) chunk.rung_hits[o][r] += rung_hits[o][r];
   }
   if (folded.empty()) return;
   std::vector<Rgb> radiance;
@@ -385,6 +417,7 @@ void Renderer::Accumulate(Chunk& chunk) {
     for (uint32_t slot = chunk.slot_begin[p]; slot < chunk.slot_begin[p + 1]; ++slot) {
       const Rgb& v = chunk.value[slot];
       sum = sum + v;
+      if (in_.product_only) hits_[pixel] += chunk.slot_hit[slot];
       if (!measure) continue;
       squares_[pixel] += v.x * v.x + v.y * v.y + v.z * v.z;
       pixel_queries_[pixel] += chunk.slot_queries[slot] + (chunk.slot_folded[slot] ? kFoldedSampleCost : 0.0);
@@ -392,6 +425,8 @@ void Renderer::Accumulate(Chunk& chunk) {
   }
   samples_done_ += chunk.value.size();
   pass_pixels_done_ += chunk.pixels;
+  for (size_t o = 0; o < chunk.rung_hits.size() && o < rung_hits_.size(); ++o)
+    for (int r = 0; r < 2; ++r) rung_hits_[o][r] += chunk.rung_hits[o][r];
 }
 
 // The view's image from its sums; then the next view, or the render is done.
@@ -408,6 +443,16 @@ void Renderer::FinishView() {
       image.rgb[3 * p + c] = static_cast<float>(v);
       out.mean[c] += v / total_pixels_;
     }
+  if (in_.product_only) {
+    out.coverage.resize(total_pixels_);
+    double covered = 0;
+    for (uint64_t p = 0; p < total_pixels_; ++p) {
+      out.coverage[p] = static_cast<float>(double(hits_[p]) / PixelSamples(p));
+      covered += out.coverage[p];
+    }
+    out.fill = covered / double(total_pixels_);
+    hits_ = {};
+  }
   out.adaptive = adaptive_;
   out.min_samples_per_pixel = out.max_samples_per_pixel = setup_.samples_per_pixel;
   if (adaptive_) {
@@ -419,6 +464,43 @@ void Renderer::FinishView() {
   sums_ = {};
   if (++view_ < in_.views.size()) return StartView();
   done_ = true;
+}
+
+// The rung an evaluator is: fibers, the BTF (texture coordinates) or the BRDF.
+static std::string RungName(const Evaluator& e) { return e.fiber_axis ? "fibers" : e.with_uv ? "BTF" : "BRDF"; }
+
+std::vector<std::vector<Renderer::RungShare>> Renderer::RungShares() const {
+  std::vector<std::vector<RungShare>> out(rung_hits_.size());
+  for (size_t o = 0; o < rung_hits_.size() && o < plan_.objects.size(); ++o) {
+    const uint64_t total = rung_hits_[o][0] + rung_hits_[o][1];
+    if (total == 0) continue;
+    const ObjectShading& shading = plan_.objects[o];
+    for (int r = 0; r < 2; ++r) {
+      const int e = r == 0 ? shading.evaluator : shading.near_evaluator;
+      if (e < 0) continue;
+      out[o].push_back({RungName(plan_.evaluators[e]), double(rung_hits_[o][r]) / double(total)});
+    }
+  }
+  return out;
+}
+
+std::vector<Renderer::RungShare> Renderer::TotalRungShares() const {
+  std::vector<std::pair<std::string, uint64_t>> hits;
+  uint64_t total = 0;
+  for (size_t o = 0; o < rung_hits_.size() && o < plan_.objects.size(); ++o)
+    for (int r = 0; r < 2; ++r) {
+      const int e = r == 0 ? plan_.objects[o].evaluator : plan_.objects[o].near_evaluator;
+      if (e < 0) continue;
+      const std::string name = RungName(plan_.evaluators[e]);
+      auto it = std::find_if(hits.begin(), hits.end(), [&](const auto& h) { return h.first == name; });
+      if (it == hits.end()) it = hits.insert(hits.end(), {name, 0});
+      it->second += rung_hits_[o][r];
+      total += rung_hits_[o][r];
+    }
+  std::vector<RungShare> out;
+  for (const auto& [name, n] : hits)
+    if (total > 0) out.push_back({name, double(n) / double(total)});
+  return out;
 }
 
 std::string EncodeRendered(const imaging::LinearRgbImage& image, const std::vector<float>* coverage,

@@ -16,10 +16,12 @@
 // of a few samples per pixel measures each pixel's noise, and a second gives each pixel its share of the rest.
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -75,10 +77,13 @@ class QueryEvaluator {
   virtual void Submit(std::vector<ShadingWork> work, std::function<void(const ShadingOutcome&)> done) = 0;
 };
 
-// One camera's image: a render has one or more, rendered in order, each with its own samples.
+// One camera's image: a render has one or more, rendered in order, each with its own samples. A turntable's
+// views turn the lights and the environment with the camera (the product turns under fixed studio lights).
 struct RenderView {
   CameraSpec camera;
   int width = 1, height = 1;
+  std::optional<std::vector<Light>> lights;         // unset: the setup's
+  std::shared_ptr<const Environment> environment;  // null: the setup's (which may be none)
 };
 
 enum class Sampling { kAuto, kUniform, kAdaptive };              // kAuto: adaptive from kAutoAdaptiveSamples
@@ -92,6 +97,16 @@ struct RenderInputs {
   // The material, packed, and its variants for the fidelity chooser (which keeps the ones the render uses).
   std::shared_ptr<const models::PreparedMaterial> material;
   std::unique_ptr<MaterialVariants> variants;
+  // Per object, when objects differ (a mesh's materials): what each wears instead of `material` (an empty
+  // list, or a slot whose material is null: `material`).
+  struct ObjectMaterial {
+    std::shared_ptr<const models::PreparedMaterial> material;
+    std::unique_ptr<MaterialVariants> variants;
+  };
+  std::vector<ObjectMaterial> object_materials;
+  // The product alone (a white or transparent background): a camera ray that misses every object adds nothing,
+  // and each view's image comes with its coverage (RenderedImage::coverage).
+  bool product_only = false;
   double error_target = kDefaultErrorTarget;  // relative, > 0
   bool force_full_fidelity = false;
   Sampling sampling = Sampling::kAuto;
@@ -103,6 +118,11 @@ struct RenderInputs {
 // One view's image and what its sampling came to.
 struct RenderedImage {
   imaging::LinearRgbImage image;  // linear RGB radiance, every value finite and >= 0
+  // product_only: per pixel, the share of its samples whose camera ray hit an object (the image then holds the
+  // product's radiance averaged over all the pixel's samples, misses adding 0: premultiplied by coverage), and
+  // its mean over the pixels (the share of the frame the product fills). Empty and 1 otherwise.
+  std::vector<float> coverage;
+  double fill = 1;
   double mean[3] = {0, 0, 0};     // per channel, over the pixels
   bool adaptive = false;
   uint32_t min_samples_per_pixel = 0, max_samples_per_pixel = 0;
@@ -134,7 +154,17 @@ class Renderer {
   uint64_t samples_total() const { return samples_total_; }  // of every view (an adaptive view's once allocated)
   double error_target() const { return error_target_; }
   const std::vector<ObjectFidelity>& fidelity() const { return plan_.fidelity; }  // set by Plan and Build
+  // Per object: the rungs of the fidelity ladder its hits took, as (rung name, share of its hits); empty for
+  // an object no camera ray hit. Complete once done().
+  struct RungShare {
+    std::string rung;
+    double share = 0;
+  };
+  std::vector<std::vector<RungShare>> RungShares() const;
+  // Every object's hits together.
+  std::vector<RungShare> TotalRungShares() const;
   const std::vector<RenderedImage>& images() const { return images_; }
+  const std::vector<RenderView>& views() const { return in_.views; }
   uint64_t queries() const { return queries_; }
   double kernel_seconds() const { return kernel_seconds_; }
 
@@ -176,6 +206,9 @@ class Renderer {
   uint64_t total_pixels_ = 0, chunk_slots_ = 1, next_pixel_ = 0, pass_pixels_done_ = 0;
   uint64_t samples_done_ = 0, samples_total_ = 0;
   std::vector<Rgb> sums_;  // per pixel: the sum over its samples
+  std::vector<uint32_t> hits_;  // product_only, per pixel: its samples whose camera ray hit an object
+  // Per object, per rung (0: its evaluator, 1: its near evaluator): the camera hits that took it.
+  std::vector<std::array<uint64_t, 2>> rung_hits_;
   // Prepare: the queries of trace threads 1.. (per evaluator), before they join the chunk's buckets.
   std::vector<std::vector<QueryBucket>> trace_parts_;
   // Sampling: pass 0 gives every pixel first_pass_ samples (all of samples_per_pixel when uniform); an adaptive

@@ -478,9 +478,10 @@ void QueryBucket::Append(const QueryBucket& other) {
 
 Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const std::vector<Evaluator>& evaluators,
                   uint32_t tag, std::vector<QueryBucket>* buckets) {
-  if (shading.evaluator < 0) return {};
-  const Evaluator& evaluator = evaluators[shading.evaluator];
-  QueryBucket& bucket = (*buckets)[shading.evaluator];
+  const int chosen = EvaluatorFor(point, shading);
+  if (chosen < 0) return {};
+  const Evaluator& evaluator = evaluators[chosen];
+  QueryBucket& bucket = (*buckets)[chosen];
   const auto push = [&](QueryBucket& b, const Evaluator& e, Vec3 wi, Rgb weight) {
     b.wi.insert(b.wi.end(), {float(wi.x), float(wi.y), float(wi.z)});
     b.wo.insert(b.wo.end(), {float(point.wo.x), float(point.wo.y), float(point.wo.z)});

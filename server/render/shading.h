@@ -144,11 +144,21 @@ struct Evaluator {
 };
 
 // How one object's light samples are evaluated: the index of its evaluator (and, on fibers, of its ambient
-// evaluator; -1: none).
+// evaluator; -1: none). The fidelity ladder per pixel: a hit whose footprint is smaller than near_footprint
+// (its threads span more than the fidelity chooser's threshold of pixels) takes near_evaluator, the BTF,
+// instead of `evaluator`, the BRDF (-1: every hit takes `evaluator`).
 struct ObjectShading {
   int evaluator = -1;
   int ambient_evaluator = -1;
+  int near_evaluator = -1;
+  double near_footprint = 0;
 };
+
+// The evaluator a hit on an object takes (ObjectShading's rule; -1: none).
+inline int EvaluatorFor(const ShadingPoint& point, const ObjectShading& shading) {
+  return shading.near_evaluator >= 0 && point.footprint < shading.near_footprint ? shading.near_evaluator
+                                                                                  : shading.evaluator;
+}
 
 // Queries of one evaluator, structure of arrays; `tag` says whose radiance each query adds to.
 struct QueryBucket {

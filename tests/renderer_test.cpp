@@ -6,67 +6,25 @@
 
 #include <cmath>
 #include <cstdio>
-#include <deque>
 #include <functional>
 #include <numbers>
 
 #include "server/models/material_cache.h"
 #include "server/models/registry.h"
 #include "server/render/renderer.h"
+#include "tests/renderer_testing.h"
 
 namespace loomlight {
 namespace {
 
 using render::Vec3;
+using testing::LambertianEvaluator;
+using testing::Rendered;
+using testing::RenderWith;
 
 constexpr double kAlbedo = 0.6;
 const Vec3 kTowardLight = render::Normalize({1.0, 0.4, 0.1});  // from the side: the sphere is half lit
 constexpr double kIrradiance = 2.0;  // per channel, perpendicular to the beam
-
-// Evaluates every query as a Lambertian reflector, f = albedo / pi with both directions above the cloth (0 else),
-// and answers on the test's own "renderer thread": a queue the test runs until it is empty.
-class LambertianEvaluator final : public render::QueryEvaluator {
- public:
-  void Submit(std::vector<render::ShadingWork> work, std::function<void(const render::ShadingOutcome&)> done) override {
-    ++chunks_;
-    if (on_submit) on_submit(chunks_);
-    render::ShadingOutcome outcome;
-    if (chunks_ == fail_chunk) {
-      outcome.status = {batching::JobStatus::kInternal, "the device fell over"};
-    } else {
-      for (const render::ShadingWork& w : work)
-        for (size_t k = 0; k < w.plan->parts(); ++k) {
-          const float* wi = w.plan->wi(k);
-          const float* wo = w.plan->wo(k);
-          const size_t* slot = w.plan->slots(k);
-          const double* scale = w.plan->scale(k);
-          for (size_t i = 0; i < w.plan->size(k); ++i) {
-            const size_t q = slot ? slot[i] : i;
-            const double f = wi[3 * i + 2] > 0 && wo[3 * i + 2] > 0 ? kAlbedo / std::numbers::pi : 0.0;
-            for (int c = 0; c < 3; ++c) w.sink.f64[3 * q + c] = f * (scale ? scale[q] : 1.0);
-          }
-          outcome.queries += w.plan->size(k);
-        }
-    }
-    queue_.push_back([done, outcome] { done(outcome); });
-  }
-
-  void RunUntilIdle() {
-    while (!queue_.empty()) {
-      auto task = std::move(queue_.front());
-      queue_.pop_front();
-      task();
-    }
-  }
-  int chunks() const { return chunks_; }
-
-  std::function<void(int chunk)> on_submit;  // called as chunk `chunk` (from 1) is submitted
-  int fail_chunk = 0;                         // this chunk's evaluation fails (0: none does)
-
- private:
-  int chunks_ = 0;
-  std::deque<std::function<void()>> queue_;
-};
 
 models::MaterialCache& Cache() {
   static models::MaterialCache cache(size_t{256} << 20);
@@ -97,31 +55,6 @@ render::RenderInputs SphereInputs(int width, int height, uint32_t samples_per_pi
   return in;
 }
 
-struct Rendered {
-  render::Status status;
-  bool done = false;
-  std::vector<render::RenderedImage> images;
-  int progress = 0;
-};
-
-// Plans, builds and renders on this thread, the token `stop`.
-Rendered RenderWith(render::RenderInputs in, LambertianEvaluator* evaluator,
-               std::function<render::Status()> stop = [] { return render::Status{}; }) {
-  Rendered run;
-  render::Renderer renderer(std::move(in), evaluator, std::move(stop), [&run] { ++run.progress; });
-  EXPECT_TRUE(renderer.Plan().ok());
-  if (renderer.NeedsBuild()) {
-    EXPECT_TRUE(renderer.Build([] { return false; }, [](uint64_t) { return true; }).ok());
-  }
-  renderer.Start();
-  evaluator->RunUntilIdle();
-  EXPECT_FALSE(renderer.InFlight());
-  run.status = renderer.status();
-  run.done = renderer.done();
-  run.images = renderer.images();
-  return run;
-}
-
 // The radiance along the camera ray through image position (px, py), computed here: the nearest hit on the
 // unit sphere at the origin (the sphere scene's shape), L = albedo / pi x E x max(0, n . l); -1 for a miss.
 double ExpectedRadiance(const render::PinholeCamera& camera, double px, double py) {
@@ -142,7 +75,7 @@ TEST(Renderer, LambertianSphereMatchesTheClosedFormRadiance) {
   ASSERT_EQ(sphere.radius, 1);
   ASSERT_EQ(render::Length(sphere.centre), 0);
   const render::PinholeCamera camera(in.views[0].camera, kSide, kSide);
-  LambertianEvaluator evaluator;
+  LambertianEvaluator evaluator(kAlbedo);
   const Rendered run = RenderWith(std::move(in), &evaluator);
   ASSERT_TRUE(run.status.ok()) << run.status.message;
   ASSERT_TRUE(run.done);
@@ -204,12 +137,12 @@ TEST(Renderer, LambertianSphereMatchesTheClosedFormRadiance) {
 render::RenderInputs ManyChunkInputs() { return SphereInputs(128, 128, 64); }
 
 TEST(Renderer, CancellationStopsTheLoopWithinOneChunk) {
-  LambertianEvaluator whole;
+  LambertianEvaluator whole(kAlbedo);
   const Rendered uncancelled = RenderWith(ManyChunkInputs(), &whole);
   ASSERT_TRUE(uncancelled.status.ok());
   ASSERT_GE(whole.chunks(), 4) << "the render must take several chunks for the test to mean anything";
 
-  LambertianEvaluator evaluator;
+  LambertianEvaluator evaluator(kAlbedo);
   bool cancelled = false;
   int cancelled_at = 0;
   evaluator.on_submit = [&](int chunk) {
@@ -230,7 +163,7 @@ TEST(Renderer, CancellationStopsTheLoopWithinOneChunk) {
 }
 
 TEST(Renderer, EvaluatorFailureEndsTheRenderWithItsStatus) {
-  LambertianEvaluator evaluator;
+  LambertianEvaluator evaluator(kAlbedo);
   evaluator.fail_chunk = 2;
   const Rendered run = RenderWith(ManyChunkInputs(), &evaluator);
   EXPECT_EQ(run.status.code, batching::JobStatus::kInternal);
@@ -244,7 +177,7 @@ TEST(Renderer, EvaluatorFailureEndsTheRenderWithItsStatus) {
 // Two views of one scene: each its own image, the same as a render of that view alone (same seed).
 TEST(Renderer, EachViewIsItsOwnImage) {
   render::RenderInputs one = SphereInputs(20, 14, 4);
-  LambertianEvaluator alone;
+  LambertianEvaluator alone(kAlbedo);
   const Rendered single = RenderWith(std::move(one), &alone);
   ASSERT_TRUE(single.done);
 
@@ -255,7 +188,7 @@ TEST(Renderer, EachViewIsItsOwnImage) {
   side.height = 12;
   two.views.push_back(side);
   two.views.push_back(two.views[0]);
-  LambertianEvaluator evaluator;
+  LambertianEvaluator evaluator(kAlbedo);
   const Rendered run = RenderWith(std::move(two), &evaluator);
   ASSERT_TRUE(run.status.ok());
   ASSERT_TRUE(run.done);

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Coverage-guided fuzzing (libFuzzer) of request validation and WIF parsing: the targets in tests/fuzz/.
+# Coverage-guided fuzzing (libFuzzer) of request validation, WIF parsing and mesh files: the targets in tests/fuzz/.
 #
 #     scripts/fuzz.sh [SECONDS] [--merge]
 #
@@ -28,7 +28,7 @@ done
 
 ./scripts/install-deps.sh --fuzz
 build=build-fuzz
-targets=(fuzz_request fuzz_wif)
+targets=(fuzz_request fuzz_wif fuzz_mesh)
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ -DLOOMLIGHT_FUZZ=ON \
   -DLOOMLIGHT_SANITIZE=ON -DLOOMLIGHT_BENCH=OFF >/dev/null
 cmake --build "$build" -j"$(nproc)" --target "${targets[@]}"

@@ -504,6 +504,9 @@ TEST(MeshFile, BadValuesAreRefusedByName) {
   PrimitiveData infinite_uv = Rectangle();
   infinite_uv.uvs[1][0] = std::numeric_limits<float>::infinity();
   EXPECT_TRUE(Contains(ParseError(Write(OneMeshModel({infinite_uv}), true)), "TEXCOORD_0[1] is not finite"));
+  // tinyobjloader reads an overflowing number as infinity (and "nan" as 0).
+  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1e400 0 0\nv 0 1 0\nf 1 2 3\n"), "v 2 is not finite"));
+  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1e39\nf 1//1 2//1 3//1\n"), "vn 1 is not finite"));
 
   PrimitiveData out_of_range = Rectangle();
   out_of_range.indices[4] = 7;

@@ -200,14 +200,19 @@ void AddOptions(CLI::App& app, loomlight::api::ServerOptions& options) {
                  "environment maps clients may name (EXR/HDR files; default: none)")
       ->type_name("DIR");
   app.add_option("--data-dir", options.data_dir,
-                 "BTF assets live under DIR/btf (default $XDG_STATE_HOME/loomlight,\n"
+                 "BTF assets live under DIR/btf, meshes under DIR/meshes (default\n"
+                 "$XDG_STATE_HOME/loomlight, "
                  "else ~/.local/state/loomlight)")
       ->type_name("DIR");
   AddMebibytes(app, "--btf-store-mb", "all BTF assets together, in MiB (default 2048)", &options.btf_store_bytes);
+  AddMebibytes(app, "--mesh-store-mb", "all uploaded meshes' files together, in MiB (default 2048)",
+               &options.mesh_store_bytes);
+  AddMebibytes(app, "--mesh-cache-mb", "parsed meshes kept for renders, in MiB (default 512)",
+               &options.mesh_cache_bytes);
   AddNumber(app, "--btf-client-quota-mb", "one client's BTF assets, in MiB (default 1024; 0: the store's bound)",
             [&options](Number n) { options.btf_client_quota_bytes = std::min(n, kMaxMebibytes) << 20; });
   AddNumber(app, "--btf-sync-seconds",
-            "look for assets other replicas sharing --data-dir added, replaced or\n"
+            "look for assets and meshes other replicas sharing --data-dir added, replaced or\n"
             "deleted every N s (default 5; 0: only at start and on SIGHUP)",
             [&options](Number n) { options.btf_sync_period = seconds(std::min(n, kDaySeconds)); });
   AddMebibytes(app, "--memory-budget-mb", "bytes all calls' buffers may hold, in MiB (default 2048)",

@@ -10,6 +10,7 @@
 #include "server/api/job_status.h"
 #include "server/api/render_rpc.h"
 #include "server/api/stream_call.h"
+#include "server/api/upload_bounds.h"
 #include "server/api/yarn_rpc.h"
 #include "server/assets/btf_store.h"
 #include "server/imaging/image_encode.h"
@@ -370,36 +371,25 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
 // that stalls holds only what it sent, never what its header promised. When the client closes the stream with
 // every pair sent, the call is charged for the compression (BuildBytes), the images are gathered into one buffer,
 // compressed and stored on the geometry worker, and the call answers the stored asset. An error ends the call at
-// once. A client that sends nothing for --upload-idle-seconds is cut off (IdleStreams), and so is one still
-// sending --max-upload-seconds after the call began (an alarm), however steadily it trickles.
+// once. The upload's bounds (server/api/upload_bounds.h): a client that sends nothing for --upload-idle-seconds
+// is cut off, and so is one still sending --max-upload-seconds after the call began.
 class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage> {
  public:
   UploadBtfCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, v1::BtfAssetInfo* response)
       : deps_(deps), context_(context), response_(response), received_(Clock::now()),
-        deadline_(CallDeadline(context, received_)), idle_(deps.idle_uploads->Watch(context)),
-        client_(FairShareKey(*context, *deps.trusted_proxies)), bound_(std::make_shared<DurationBound>()) {
-    bound_->context = context;
-    if (deps_.max_upload_duration.count() > 0) {
-      // The alarm holds the shared state only: it may fire after this call is gone, and then does nothing.
-      alarm_.Set(std::chrono::system_clock::now() + deps_.max_upload_duration, [bound = bound_](bool fired) {
-        std::lock_guard<std::mutex> lock(bound->mutex);
-        if (!fired || !bound->context) return;
-        bound->expired = true;
-        bound->context->TryCancel();  // the pending read ends; the call finishes from there
-      });
-      alarm_set_ = true;
-    }
+        deadline_(CallDeadline(context, received_)), bounds_(deps, context),
+        client_(FairShareKey(*context, *deps.trusted_proxies)) {
     StartRead(&message_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) return EndOfStream();
-    idle_->Touch();
+    bounds_.Touch();
     if (images_seen_ < 0) return Next(Header());
     deps_.loader->Post(
         [this] {
           const grpc::Status s = Image();
-          idle_->Touch();  // a wait for the loader is not the client's silence
+          bounds_.Touch();  // a wait for the loader is not the client's silence
           Next(s);
         },
         client_);
@@ -407,31 +397,11 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   void OnDone() override { delete this; }
 
  private:
-  // The whole-duration bound's state, shared with its alarm.
-  struct DurationBound {
-    std::mutex mutex;
-    grpc::CallbackServerContext* context = nullptr;  // null once the call stops receiving
-    bool expired = false;
-  };
-
   // The next read, or the end of the call with an error.
   void Next(const grpc::Status& s) {
     if (!s.ok()) return Finish(s);
     message_.Clear();
     StartRead(&message_);
-  }
-
-  // Nothing more is received: the alarm lets go of the context. True when it had fired.
-  bool StopReceiving() {
-    bool expired;
-    {
-      std::lock_guard<std::mutex> lock(bound_->mutex);
-      bound_->context = nullptr;
-      expired = bound_->expired;
-    }
-    if (alarm_set_) alarm_.Cancel();
-    alarm_set_ = false;
-    return expired;
   }
 
   grpc::Status Header() {
@@ -511,19 +481,8 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
 
   // The client closed its side (or went away): everything arrived, or the call fails saying what is missing.
   void EndOfStream() {
-    deps_.idle_uploads->Forget(idle_);  // nothing more to receive: compressing is not idling
-    if (StopReceiving())
-      return Finish({grpc::StatusCode::DEADLINE_EXCEEDED,
-                     "the upload was still sending after " +
-                         std::to_string(std::chrono::duration_cast<std::chrono::seconds>(
-                                            deps_.max_upload_duration).count()) +
-                         " s (--max-upload-seconds): cancelled"});
-    if (idle_->cut_off())
-      return Finish({grpc::StatusCode::DEADLINE_EXCEEDED,
-                     "the client sent nothing for " +
-                         std::to_string(std::chrono::duration_cast<std::chrono::seconds>(
-                                            deps_.idle_uploads->limit()).count()) +
-                         " s: the upload was cancelled"});
+    // Nothing more to receive (compressing is not idling), or a bound cut the upload off.
+    if (grpc::Status s = bounds_.Stop(); !s.ok()) return Finish(s);
     if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return Finish(s);
     if (images_seen_ < 0) return Finish(Invalid("no header: the stream was empty"));
     const size_t n = job_.grid.size();
@@ -550,8 +509,7 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   }
 
   void Finish(const grpc::Status& s) {
-    deps_.idle_uploads->Forget(idle_);  // an error before the end of the stream
-    StopReceiving();
+    bounds_.Stop();  // an error before the end of the stream
     deps_.metrics->Call(kUploadRpc, s.error_code(), SecondsSince(received_));
     admission_.EndSlots();
     grpc::ServerReadReactor<v1::UploadBtfMessage>::Finish(s);
@@ -561,11 +519,8 @@ class UploadBtfCall final : public grpc::ServerReadReactor<v1::UploadBtfMessage>
   grpc::CallbackServerContext* const context_;
   v1::BtfAssetInfo* const response_;
   const Clock::time_point received_, deadline_;
-  const std::shared_ptr<IdleStreams::Stream> idle_;
+  UploadBounds bounds_;
   const std::string client_;  // FairShareKey: its images take their turn on the loader
-  const std::shared_ptr<DurationBound> bound_;
-  grpc::Alarm alarm_;
-  bool alarm_set_ = false;
   Admission admission_;
   BtfJob job_;
   double scale_ = 1, threads_per_tile_ = 1;

@@ -1,1 +1,196 @@
-// (being written)
+#include "server/api/mesh_rpc.h"
+
+#include <algorithm>
+#include <memory>
+#include <string>
+
+#include "server/api/access.h"
+#include "server/api/job_status.h"
+#include "server/api/render_rpc.h"
+#include "server/api/unary_call.h"
+#include "server/api/upload_bounds.h"
+#include "server/assets/mesh_file.h"
+#include "server/assets/mesh_store.h"
+#include "server/models/quote.h"
+
+namespace loomlight::api {
+namespace {
+using batching::Clock;
+constexpr const char* kUploadRpc = "UploadMesh";
+
+// What the parse holds beside the file, charged before it starts: as for a mesh sent with a render
+// (render_rpc.h kMeshParseBytesPerFileByte, at most kMaxMeshParseBytes).
+uint64_t ParseBytes(uint64_t file_bytes) {
+  return std::min(kMeshParseBytesPerFileByte * file_bytes, kMaxMeshParseBytes);
+}
+
+grpc::Status NoStore() {
+  return {grpc::StatusCode::FAILED_PRECONDITION, "this server keeps no meshes (started without a data directory)"};
+}
+
+grpc::Status NotOwner(const std::string& name) {
+  return {grpc::StatusCode::PERMISSION_DENIED, "name: the mesh " + models::Quote(name) +
+                                                   " belongs to another client (its owner, or a token with the "
+                                                   "admin right, may delete it)"};
+}
+
+// Ends an upload that cannot start (no store; the service not serving), recording it.
+class RejectedUpload final : public grpc::ServerReadReactor<v1::UploadMeshMessage> {
+ public:
+  RejectedUpload(Metrics* metrics, grpc::Status status) {
+    metrics->Call(kUploadRpc, status.error_code(), 0);
+    Finish(std::move(status));
+  }
+  void OnDone() override { delete this; }
+};
+
+// One UploadMesh call: the header checked and the call admitted (its file's bytes and its parse charged) on the
+// gRPC thread, the chunks appended there (never past the header's size), then the file parsed and stored on the
+// asset loader.
+class UploadMeshCall final : public grpc::ServerReadReactor<v1::UploadMeshMessage> {
+ public:
+  UploadMeshCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, v1::MeshInfo* response)
+      : deps_(deps), context_(context), response_(response), received_(Clock::now()),
+        deadline_(CallDeadline(context, received_)), bounds_(deps, context),
+        client_(FairShareKey(*context, *deps.trusted_proxies)) {
+    StartRead(&message_);
+  }
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return EndOfStream();
+    bounds_.Touch();
+    const grpc::Status s = header_seen_ ? Chunk() : Header();
+    if (!s.ok()) return Finish(s);
+    message_.Clear();
+    StartRead(&message_);
+  }
+  void OnDone() override { delete this; }
+
+ private:
+  grpc::Status Header() {
+    if (!message_.has_header()) return Invalid("the first message must be a header");
+    const v1::UploadMeshHeader& h = message_.header();
+    if (std::string e = assets::ValidateAssetName(h.name()); !e.empty()) return Invalid("header.name: " + e);
+    if (!v1::MeshFormat_IsValid(h.format()))
+      return Invalid("header.format: unknown value " + std::to_string(h.format()));
+    const uint64_t max = deps_.mesh_store->limits().max_bytes;
+    if (h.size() == 0) return Invalid("header.size: the file's bytes, at least 1");
+    if (h.size() > max)
+      return Invalid("header.size: " + std::to_string(h.size()) + " bytes, over the limit of " + std::to_string(max) +
+                     " bytes per mesh file");
+    if (deps_.mesh_store->Exists(h.name()))  // early; the store checks again when it writes
+      return {grpc::StatusCode::ALREADY_EXISTS,
+              "header.name: a mesh named " + models::Quote(h.name()) + " exists (delete it first)"};
+    if (deps_.mesh_store->bytes() + h.size() > deps_.mesh_store->max_bytes())
+      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+              "the mesh store holds " + std::to_string(deps_.mesh_store->bytes() >> 20) + " MiB of its bound of " +
+                  std::to_string(deps_.mesh_store->max_bytes() >> 20) +
+                  " MiB (--mesh-store-mb): no room for this file; delete meshes first"};
+    if (grpc::Status s = AdmitLongCall(deps_, *context_, h.size() + ParseBytes(h.size()), &admission_); !s.ok())
+      return s;
+    name_ = h.name();
+    format_ = h.format();
+    size_ = h.size();
+    data_.reserve(size_);  // the client's declared size, within the limit and admitted
+    header_seen_ = true;
+    return grpc::Status::OK;
+  }
+
+  grpc::Status Chunk() {
+    if (!message_.has_chunk()) return Invalid("chunk: after the header, only chunks");
+    const std::string& chunk = message_.chunk();
+    if (chunk.size() > size_ - data_.size())  // refused before it is kept: nothing past the declared size
+      return Invalid("chunk: the chunks hold more than the header's size of " + std::to_string(size_) + " bytes");
+    data_.append(chunk);
+    return grpc::Status::OK;
+  }
+
+  // The client closed its side (or went away, or a bound cut it off).
+  void EndOfStream() {
+    if (grpc::Status s = bounds_.Stop(); !s.ok()) return Finish(s);
+    if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return Finish(s);
+    if (!header_seen_) return Finish(Invalid("no header: the stream was empty"));
+    if (data_.size() != size_)
+      return Finish(Invalid("chunk: the chunks hold " + std::to_string(data_.size()) + " bytes, the header's size is " +
+                            std::to_string(size_)));
+    deps_.loader->Post([this] { Finish(ParseAndStore()); }, client_);
+  }
+
+  // On the asset loader: the file checked by the parser, then stored with its description.
+  grpc::Status ParseAndStore() {
+    const auto stop = ReportingProgress([this] { return !StopStatus(context_, deadline_).ok(); });
+    const v1::MeshFormat format = assets::DetectMeshFormat(data_, format_);
+    auto mesh = std::make_shared<assets::TriangleMesh>();
+    if (std::string e = assets::ParseMesh(data_, format, deps_.mesh_store->limits(), mesh.get(), nullptr, stop);
+        !e.empty()) {
+      if (grpc::Status s = StopStatus(context_, deadline_); !s.ok()) return s;
+      return Invalid(e);
+    }
+    v1::MeshInfo info;
+    assets::DescribeMesh(*mesh, &info);
+    info.set_name(name_);
+    info.set_format(format);
+    info.set_bytes(data_.size());
+    std::string error;
+    switch (deps_.mesh_store->Put(info, data_, client_, std::move(mesh), &error)) {
+      case assets::MeshStore::Outcome::kOk: *response_ = info; return grpc::Status::OK;
+      case assets::MeshStore::Outcome::kExists: return {grpc::StatusCode::ALREADY_EXISTS, "header.name: " + error};
+      case assets::MeshStore::Outcome::kFull: return {grpc::StatusCode::RESOURCE_EXHAUSTED, error};
+      case assets::MeshStore::Outcome::kFailed: break;
+    }
+    return {grpc::StatusCode::INTERNAL, error};
+  }
+
+  void Finish(const grpc::Status& s) {
+    bounds_.Stop();  // an error before the end of the stream
+    deps_.metrics->Call(kUploadRpc, s.error_code(), SecondsSince(received_));
+    admission_.EndSlots();
+    grpc::ServerReadReactor<v1::UploadMeshMessage>::Finish(s);
+  }
+
+  const ServiceDeps deps_;
+  grpc::CallbackServerContext* const context_;
+  v1::MeshInfo* const response_;
+  const Clock::time_point received_, deadline_;
+  UploadBounds bounds_;
+  const std::string client_;  // FairShareKey: the mesh's owner; its parse takes its turn on the loader
+  Admission admission_;
+  bool header_seen_ = false;
+  std::string name_;
+  v1::MeshFormat format_ = v1::MESH_FORMAT_AUTO;
+  uint64_t size_ = 0;
+  std::string data_;  // the file as it arrives, at most size_ bytes
+  v1::UploadMeshMessage message_;
+};
+}  // namespace
+
+grpc::ServerReadReactor<v1::UploadMeshMessage>* HandleUploadMesh(const ServiceDeps& deps,
+                                                                 grpc::CallbackServerContext* context,
+                                                                 v1::MeshInfo* response, grpc::Status serving) {
+  if (!serving.ok()) return new RejectedUpload(deps.metrics, std::move(serving));
+  if (!deps.mesh_store) return new RejectedUpload(deps.metrics, NoStore());
+  return new UploadMeshCall(deps, context, response);
+}
+
+grpc::Status HandleListMeshes(const ServiceDeps& deps, v1::ListMeshesResponse* response) {
+  if (!deps.mesh_store) return NoStore();
+  for (v1::MeshInfo& info : deps.mesh_store->List()) *response->add_meshes() = std::move(info);
+  response->set_max_bytes(deps.mesh_store->max_bytes());
+  return grpc::Status::OK;
+}
+
+grpc::Status HandleDeleteMesh(const ServiceDeps& deps, const grpc::ServerContextBase& context,
+                              const v1::DeleteMeshRequest& request) {
+  if (!deps.mesh_store) return NoStore();
+  if (std::string e = assets::ValidateAssetName(request.name()); !e.empty()) return Invalid("name: " + e);
+  switch (deps.mesh_store->Delete(request.name(), FairShareKey(context, *deps.trusted_proxies),
+                                  TokenListsRight(context, "admin"))) {
+    case assets::MeshStore::Removal::kNotFound:
+      return {grpc::StatusCode::NOT_FOUND, "name: no mesh named " + models::Quote(request.name())};
+    case assets::MeshStore::Removal::kDenied: return NotOwner(request.name());
+    case assets::MeshStore::Removal::kRemoved: break;
+  }
+  return grpc::Status::OK;
+}
+
+}  // namespace loomlight::api

@@ -187,6 +187,9 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
     s->btf_store_ = assets::BtfStore::Open(options.data_dir, options.btf_store_bytes, error);
     if (!s->btf_store_) return nullptr;
     s->btf_store_->set_client_quota(options.btf_client_quota_bytes);
+    s->mesh_store_ = assets::MeshStore::Open(options.data_dir, options.mesh_store_bytes, options.mesh_cache_bytes,
+                                             assets::MeshLimits{}, error);
+    if (!s->mesh_store_) return nullptr;
   }
   s->batcher_ = std::make_unique<batching::Batcher>(s->runtime_.get(), options.batcher);
   ServiceDeps deps;
@@ -198,6 +201,7 @@ std::unique_ptr<LoomlightServer> LoomlightServer::Start(const ServerOptions& opt
   deps.long_calls = s->long_calls_.get();
   deps.environments = s->environments_.get();
   deps.btf_store = s->btf_store_.get();
+  deps.mesh_store = s->mesh_store_.get();
   deps.trusted_proxies = &s->options_.access.trusted_proxies;
   s->stalled_writes_ = std::make_unique<IdleStreams>(options.stall_write_timeout);
   deps.stalled_writes = s->stalled_writes_.get();

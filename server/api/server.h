@@ -27,11 +27,13 @@ struct ServerOptions {
   std::string metrics_address;  // "host:port" for Prometheus' /metrics ("" = none; port 0 picks one)
   ServiceLimits limits;
   std::string environment_dir;                 // maps clients may name ("" = none)
-  std::string data_dir;                        // BTF assets live under DATA_DIR/btf ("" = none: no asset RPCs)
+  std::string data_dir;  // BTF assets under DATA_DIR/btf, meshes under DATA_DIR/meshes ("" = none: no asset RPCs)
   uint64_t btf_store_bytes = uint64_t{2} << 30;  // all BTF assets together (float32 tables)
   uint64_t btf_client_quota_bytes = uint64_t{1} << 30;  // one client's BTF assets (0: only the store's bound)
-  // How often the assets are brought up to date with the data directory (another replica sharing it may have
-  // written or deleted one); 0 = only at start and on SyncBtfAssets (SIGHUP).
+  uint64_t mesh_store_bytes = uint64_t{2} << 30;  // all meshes' files together (under DATA_DIR/meshes)
+  uint64_t mesh_cache_bytes = uint64_t{512} << 20;  // parsed meshes kept for renders (TriangleMesh::memory_bytes)
+  // How often the assets and meshes are brought up to date with the data directory (another replica sharing it
+  // may have written or deleted one); 0 = only at start and on SyncBtfAssets (SIGHUP).
   std::chrono::seconds btf_sync_period{5};
   size_t environment_cache_bytes = size_t{256} << 20;  // decoded maps kept (within the memory budget)
   size_t grpc_memory_bytes = size_t{512} << 20;        // gRPC's own buffers (its resource quota)
@@ -83,6 +85,7 @@ class LoomlightServer {
   size_t health_watches() const;
   size_t health_watches_peak() const;
   LoomlightService& service() { return *service_; }  // for tests: its workers
+  assets::MeshStore* mesh_store() { return mesh_store_.get(); }  // for tests: what a render loads (null: none)
 
  private:
   LoomlightServer() = default;
@@ -97,6 +100,7 @@ class LoomlightServer {
   std::unique_ptr<batching::Budget> memory_, long_calls_;
   std::unique_ptr<assets::EnvironmentMaps> environments_;
   std::unique_ptr<assets::BtfStore> btf_store_;
+  std::unique_ptr<assets::MeshStore> mesh_store_;
   std::unique_ptr<IdleStreams> stalled_writes_;  // outlives the service and the gRPC server
   std::unique_ptr<LoomlightService> service_;
   std::unique_ptr<HealthService> health_;

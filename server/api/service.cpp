@@ -9,6 +9,7 @@
 #include "server/api/admission.h"
 #include "server/api/btf_rpc.h"
 #include "server/api/job_status.h"
+#include "server/api/mesh_rpc.h"
 #include "server/api/render_rpc.h"
 #include "server/api/sample_rpc.h"
 #include "server/api/tabulate.h"
@@ -17,6 +18,7 @@
 #include "server/api/yarn_rpc.h"
 #include "server/models/material.h"
 #include "server/models/material_plan.h"
+#include "server/render/lighting_presets.h"
 #include "server/render/scene_registry.h"
 
 namespace loomlight::api {
@@ -55,6 +57,38 @@ void SetTriple(render::Vec3 v, google::protobuf::RepeatedField<double>* out) {
   out->Add(v.z);
 }
 
+void ToProto(const render::Light& l, v1::RenderLight* light) {
+  switch (l.type) {
+    case render::Light::Type::kPoint:
+      light->set_type(v1::RenderLight::TYPE_POINT);
+      SetTriple(l.position, light->mutable_position());
+      break;
+    case render::Light::Type::kRect:
+      light->set_type(v1::RenderLight::TYPE_RECT);
+      SetTriple(l.position, light->mutable_position());
+      SetTriple(l.direction, light->mutable_direction());
+      light->add_size(l.width);
+      light->add_size(l.height);
+      SetTriple(l.axis_v, light->mutable_up());
+      break;
+    case render::Light::Type::kDirectional:
+      light->set_type(v1::RenderLight::TYPE_DIRECTIONAL);
+      SetTriple(l.direction, light->mutable_direction());
+      break;
+  }
+  SetTriple(l.rgb, light->mutable_rgb());
+}
+
+// A lighting preset as ListScenes describes it: its softboxes placed around a sphere of radius 1 at the origin,
+// seen from +z (the camera at (0, 0, 4) looking at the origin, +y up).
+void DescribeLightingPreset(const render::LightingPreset& preset, v1::LightingPreset* info) {
+  info->set_name(std::string(preset.name));
+  info->set_description(std::string(preset.description));
+  const render::CameraSpec camera{{0, 0, 4}, {0, 0, 0}};
+  for (const render::Light& l : render::PlaceLights(preset, {0, 0, 0}, 1, camera)) ToProto(l, info->add_lights());
+  info->set_environment(preset.environment_intensity > 0);
+}
+
 // A registered scene as ListScenes describes it: its declarations, and its camera and lighting at its defaults.
 void DescribeScene(const render::SceneSpec& spec, v1::SceneInfo* info) {
   const render::Scene scene = spec.build(models::DefaultValues(spec.params));
@@ -69,17 +103,7 @@ void DescribeScene(const render::SceneSpec& spec, v1::SceneInfo* info) {
   SetTriple(scene.default_camera.look_at, camera->mutable_look_at());
   SetTriple(scene.default_camera.up, camera->mutable_up());
   camera->set_fov_deg(scene.default_camera.fov_deg);
-  for (const render::Light& l : scene.default_lights) {
-    v1::RenderLight* light = info->add_default_lights();
-    if (l.type == render::Light::Type::kPoint) {
-      light->set_type(v1::RenderLight::TYPE_POINT);
-      SetTriple(l.position, light->mutable_position());
-    } else {
-      light->set_type(v1::RenderLight::TYPE_DIRECTIONAL);
-      SetTriple(l.direction, light->mutable_direction());
-    }
-    SetTriple(l.rgb, light->mutable_rgb());
-  }
+  for (const render::Light& l : scene.default_lights) ToProto(l, info->add_default_lights());
   info->set_default_environment(scene.default_environment);
   info->set_default_texture_scale(scene.default_texture_scale);
   for (const render::SceneObject& object : scene.objects) info->add_objects(object.name);
@@ -158,13 +182,16 @@ LoomlightService::LoomlightService(const ServiceDeps& deps, const ServiceLimits&
 LoomlightService::~LoomlightService() = default;
 
 void LoomlightService::SyncBtfAssets() {
-  if (!deps_.btf_store || sync_queued_.exchange(true)) return;
+  if ((!deps_.btf_store && !deps_.mesh_store) || sync_queued_.exchange(true)) return;
   loader_.Post([this] {
     sync_queued_ = false;
-    const int changes = deps_.btf_store->Sync([this](const std::string& line) {
+    const auto log = [this](const std::string& line) {
       loader_.Progress();  // a line per asset loaded, failed or removed: one bounded step each
       std::fprintf(stderr, "loomlight-server: %s\n", line.c_str());
-    });
+    };
+    if (deps_.mesh_store) deps_.mesh_store->Sync(log);  // parsed again on first use: no cache to empty
+    if (!deps_.btf_store) return;
+    const int changes = deps_.btf_store->Sync(log);
     if (changes == 0) return;
     materials_.Clear();  // no material may keep a replaced or deleted asset's packing
     folds_.Clear();
@@ -318,6 +345,8 @@ grpc::ServerUnaryReactor* LoomlightService::ListScenes(grpc::CallbackServerConte
   const auto received = batching::Clock::now();
   if (grpc::Status s = Serving(); !s.ok()) return AnswerNow(deps_.metrics, context, "ListScenes", received, s);
   for (const render::SceneSpec& spec : render::SceneRegistry::Global().scenes()) DescribeScene(spec, response->add_scenes());
+  for (const render::LightingPreset& preset : render::LightingPresets())
+    DescribeLightingPreset(preset, response->add_lighting_presets());
   return AnswerNow(deps_.metrics, context, "ListScenes", received, grpc::Status::OK);
 }
 
@@ -407,6 +436,27 @@ grpc::ServerUnaryReactor* LoomlightService::DeleteBtf(grpc::CallbackServerContex
   grpc::Status s = Serving();
   if (s.ok()) s = HandleDeleteBtf(deps_, *context, *request);
   return AnswerNow(deps_.metrics, context, "DeleteBtf", received, s);
+}
+
+grpc::ServerReadReactor<v1::UploadMeshMessage>* LoomlightService::UploadMesh(grpc::CallbackServerContext* context,
+                                                                             v1::MeshInfo* response) {
+  return HandleUploadMesh(deps_, context, response, Serving());
+}
+
+grpc::ServerUnaryReactor* LoomlightService::ListMeshes(grpc::CallbackServerContext* context,
+                                                       const v1::ListMeshesRequest*, v1::ListMeshesResponse* response) {
+  const auto received = batching::Clock::now();
+  grpc::Status s = Serving();
+  if (s.ok()) s = HandleListMeshes(deps_, response);
+  return AnswerNow(deps_.metrics, context, "ListMeshes", received, s);
+}
+
+grpc::ServerUnaryReactor* LoomlightService::DeleteMesh(grpc::CallbackServerContext* context,
+                                                       const v1::DeleteMeshRequest* request, v1::DeleteMeshResponse*) {
+  const auto received = batching::Clock::now();
+  grpc::Status s = Serving();
+  if (s.ok()) s = HandleDeleteMesh(deps_, *context, *request);
+  return AnswerNow(deps_.metrics, context, "DeleteMesh", received, s);
 }
 
 }  // namespace loomlight::api

@@ -15,6 +15,7 @@
 #include "server/api/metrics.h"
 #include "server/assets/btf_store.h"
 #include "server/assets/environment_maps.h"
+#include "server/assets/mesh_store.h"
 #include "server/batching/batcher.h"
 #include "server/batching/budget.h"
 #include "server/models/material_cache.h"
@@ -75,7 +76,8 @@ struct ServiceDeps {
   ClientSlots* client_long_calls = nullptr;  // and each client's share of them
   assets::EnvironmentMaps* environments = nullptr;
   assets::BtfStore* btf_store = nullptr;  // null: the server keeps no BTF assets
-  IdleStreams* idle_uploads = nullptr;     // UploadBtf calls, cut off when they stop sending
+  assets::MeshStore* mesh_store = nullptr;  // null: the server keeps no meshes (RenderRequest.mesh carries them)
+  IdleStreams* idle_uploads = nullptr;     // UploadBtf and UploadMesh calls, cut off when they stop sending
   std::chrono::milliseconds max_upload_duration{0};  // and when they are still sending after this (0: never)
   // Server-streaming calls, cut off when their client reads nothing (server/api/stream_call.h; null: never).
   IdleStreams* stalled_writes = nullptr;
@@ -125,9 +127,9 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   const models::MaterialCache& materials() const { return materials_; }
   // Cancels the uploads that stopped sending (the watchdog's round).
   void CancelIdleUploads() { idle_uploads_.CancelIdle(); }
-  // Brings the BTF assets up to date with the data directory (another server sharing it may have written), on
-  // the asset loader; a change empties the caches holding assets' tables. Does nothing without a store, or while
-  // the last sync is still queued.
+  // Brings the BTF assets and the meshes up to date with the data directory (another server sharing it may have
+  // written), on the asset loader; a BTF change empties the caches holding assets' tables. Does nothing without a
+  // store, or while the last sync is still queued.
   void SyncBtfAssets();
 
   grpc::ServerUnaryReactor* ListModels(grpc::CallbackServerContext* context, const v1::ListModelsRequest* request,
@@ -161,6 +163,13 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
                                      v1::ListBtfsResponse* response) override;
   grpc::ServerUnaryReactor* DeleteBtf(grpc::CallbackServerContext* context, const v1::DeleteBtfRequest* request,
                                       v1::DeleteBtfResponse* response) override;
+  // Delegate to server/api/mesh_rpc.h.
+  grpc::ServerReadReactor<v1::UploadMeshMessage>* UploadMesh(grpc::CallbackServerContext* context,
+                                                            v1::MeshInfo* response) override;
+  grpc::ServerUnaryReactor* ListMeshes(grpc::CallbackServerContext* context, const v1::ListMeshesRequest* request,
+                                       v1::ListMeshesResponse* response) override;
+  grpc::ServerUnaryReactor* DeleteMesh(grpc::CallbackServerContext* context, const v1::DeleteMeshRequest* request,
+                                       v1::DeleteMeshResponse* response) override;
 
  private:
   // UNAVAILABLE while the service is not serving (warming up or draining), else OK.

@@ -95,7 +95,8 @@ int BtfStore::Sync(const std::function<void(const std::string&)>& log, bool open
     std::shared_ptr<BtfAsset> asset;
     if (std::string why = Load(entry, &asset); !why.empty()) return why;
     const auto old = Assets::Global().FindName(entry);
-    if (total - (old ? old->bytes() : 0) + asset->bytes() > max_bytes_) return "over the store's bound (--btf-store-mb)";
+    if (total - (old ? old->bytes() : 0) + asset->bytes() > max_bytes_)
+      return "over the store's bound (--btf-store-mb)";
     total += asset->bytes() - (old ? old->bytes() : 0);
     Assets::Global().Add(asset);
     if (old) Assets::Global().Remove(old->id);
@@ -114,7 +115,8 @@ std::string BtfStore::Load(const std::string& entry, std::shared_ptr<BtfAsset>* 
   if (!files[0].read || !info.ParseFromString(bytes)) return "manifest.pb missing or unreadable";
   auto asset = std::make_shared<BtfAsset>();
   // The name as its client gave it (the link is it in lower case).
-  asset->name = ValidateAssetName(info.name()).empty() && AssetKey(info.name()) == AssetKey(entry) ? info.name() : entry;
+  const bool same_name = ValidateAssetName(info.name()).empty() && AssetKey(info.name()) == AssetKey(entry);
+  asset->name = same_name ? info.name() : entry;
   asset->owner = files[2].bytes;  // none: stored before assets had owners
   asset->source = info.source();
   if (std::string e = GridOf(info.grid(), "grid", &asset->grid); !e.empty()) return e;

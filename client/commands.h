@@ -38,5 +38,6 @@ const Command& health_command();
 const Command& sample_command();
 const Command& batch_command();
 const Command& btf_command();
+const Command& mesh_command();
 
 }  // namespace loomlight::client

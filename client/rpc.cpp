@@ -311,6 +311,25 @@ void Client::create_btf(const v1::CreateBtfRequest& request,
   read_stream(context, *stub_->CreateBtf(&context, request), on_progress);
 }
 
+namespace {
+// A client-streaming upload: `message` (holding the header) first, then each message `fill` fills (after its
+// clear_part) until it returns false.
+template <class Message>
+void stream_upload(grpc::ClientContext& context, grpc::ClientWriter<Message>& writer, Message& message,
+                   const std::function<bool(Message&)>& fill) {
+  // Write fails once the server has ended the call (a bad header, a bad part): Finish then says why.
+  bool open = writer.Write(message);
+  try {
+    for (message.clear_part(); open && fill(message); message.clear_part()) open = writer.Write(message);
+  } catch (...) {
+    context.TryCancel();  // the server must not store a partial upload
+    writer.Finish();
+    throw;
+  }
+  if (open) writer.WritesDone();
+}
+}  // namespace
+
 v1::BtfAssetInfo Client::upload_btf(const v1::UploadBtfHeader& header,
                                     const std::function<bool(v1::BtfImage&)>& next_image) {
   grpc::ClientContext context;
@@ -319,19 +338,41 @@ v1::BtfAssetInfo Client::upload_btf(const v1::UploadBtfHeader& header,
   const auto writer = stub_->UploadBtf(&context, &asset);
   v1::UploadBtfMessage message;
   *message.mutable_header() = header;
-  // Write fails once the server has ended the call (a bad header, a bad image): Finish then says why.
-  bool open = writer->Write(message);
-  try {
-    for (message.clear_part(); open && next_image(*message.mutable_image()); message.clear_part())
-      open = writer->Write(message);
-  } catch (...) {
-    context.TryCancel();  // the server must not store a partial upload
-    writer->Finish();
-    throw;
-  }
-  if (open) writer->WritesDone();
+  stream_upload<v1::UploadBtfMessage>(context, *writer, message,
+                                      [&](v1::UploadBtfMessage& m) { return next_image(*m.mutable_image()); });
   check(writer->Finish());
   return asset;
+}
+
+v1::MeshInfo Client::upload_mesh(const v1::UploadMeshHeader& header,
+                                 const std::function<bool(std::string&)>& next_chunk) {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::MeshInfo mesh;
+  const auto writer = stub_->UploadMesh(&context, &mesh);
+  v1::UploadMeshMessage message;
+  *message.mutable_header() = header;
+  stream_upload<v1::UploadMeshMessage>(context, *writer, message,
+                                       [&](v1::UploadMeshMessage& m) { return next_chunk(*m.mutable_chunk()); });
+  check(writer->Finish());
+  return mesh;
+}
+
+v1::ListMeshesResponse Client::list_meshes() {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::ListMeshesResponse response;
+  check(stub_->ListMeshes(&context, v1::ListMeshesRequest(), &response));
+  return response;
+}
+
+void Client::delete_mesh(const std::string& name) {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::DeleteMeshRequest request;
+  request.set_name(name);
+  v1::DeleteMeshResponse response;
+  check(stub_->DeleteMesh(&context, request, &response));
 }
 
 v1::ListBtfsResponse Client::list_btfs() {

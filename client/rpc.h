@@ -64,6 +64,11 @@ class Client {
   v1::BtfAssetInfo upload_btf(const v1::UploadBtfHeader& header, const std::function<bool(v1::BtfImage&)>& next_image);
   v1::ListBtfsResponse list_btfs();
   void delete_btf(const std::string& name);
+  // Uploads a mesh file: the header, then one chunk per call of `next_chunk` until it returns false. Returns the
+  // stored mesh's description; throws RpcError when the server refuses, also part way through.
+  v1::MeshInfo upload_mesh(const v1::UploadMeshHeader& header, const std::function<bool(std::string&)>& next_chunk);
+  v1::ListMeshesResponse list_meshes();
+  void delete_mesh(const std::string& name);
 
  private:
   void prepare(grpc::ClientContext& context) const;

@@ -62,6 +62,8 @@ TEST(Cli, ServerHelpListsItsOptionsWithTheirHelp) {
       {"--queue-policy PRIORITY:KEY=VALUE[,KEY=VALUE...]", "one priority's queue"},
       {"--no-batching", "one request per launch"},
       {"--data-dir DIR", "BTF assets live under DIR/btf"},
+      {"--mesh-store-mb N", "all uploaded meshes' files together"},
+      {"--mesh-cache-mb N", "parsed meshes kept for renders"},
       {"--memory-budget-mb N", "bytes all calls' buffers may hold"},
       {"--max-long-calls-per-client N", "of them, one client's"},
       {"--keepalive-seconds N", "ping a connection"},
@@ -100,6 +102,10 @@ TEST(Cli, EveryCommandHelpListsItsOptions) {
       {"btf delete", {}},
       {"btf images", {"--grid", "--format", "--exposure"}},
       {"btf upload", {"--grid", "--value-scale", "--replace"}},
+      {"mesh", {}},
+      {"mesh upload", {"--name", "--format"}},
+      {"mesh list", {}},
+      {"mesh delete", {}},
       {"health", {"--service", "--alive"}},
   };
   for (const auto& [command, options] : commands) {

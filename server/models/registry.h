@@ -169,6 +169,10 @@ class Model {
   // per-query axis without a per-query kernel input. Only called for models with a fiber_axis_param.
   virtual void AlignToAxis(const ParamValues& values, const float* axis, size_t n, float* wi, float* wo) const {}
   virtual AccuracyKnob accuracy_knob() const { return {}; }
+  // The angular width (radians, one standard deviation) of the narrowest lobe of f for the material `values`
+  // describe: how fine a grid must be to tabulate it (server/models/tabulated_brdf.h). 0: the model declares none,
+  // and its materials are not tabulated.
+  virtual double NarrowestLobe(const ParamValues& values) const { return 0; }
   // The estimated relative error of f at each accuracy-knob setting (cheapest first; the exact one's is 0) for
   // the material `values` describe. The default measures it (accuracy::MeasureKnobErrors: the reference at
   // each setting against the exact one); a model with a cheaper or sharper estimate overrides it.

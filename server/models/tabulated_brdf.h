@@ -1,17 +1,21 @@
 // A material's BRDF tabulated once from its analytic model: the cheapest rung of the render's fidelity ladder
 // (issue 46 item 5), taken where its measured error against the analytic model is within a request's error target.
 //
-// The grid (kernels/models/tabulated_brdf.h) is 4D in the half and difference vectors of the pair, in the cloth's
-// own frame (threads along x and y, so the anisotropy is kept): h = (wi + wo) / |wi + wo| as (theta_h, phi_h) and
-// d, wi seen from h's frame, as (theta_d, phi_d), all four axes uniform. The microcylinder's specular peak lies
-// exactly where h is perpendicular to a tangent, whatever d is, so its narrowest lobe is resolved by the h axes
-// alone; d carries the smooth factors (Fresnel, masking, the lobe's width changing with theta_d). The h step is
-// the material's narrowest lobe (Model::NarrowestLobe) over TabulationBudget::nodes_per_lobe; a grid that would
-// pass TabulationBudget::max_bytes is refused and the renderer keeps the analytic model.
+// The grid (kernels/models/tabulated_brdf.h) is 4D, in the cloth's own frame (threads along x and y, so the
+// anisotropy is kept). Two axes place the half vector h = (wi + wo) / |wi + wo|: (eta_x, eta_y) = (atan2(h.x, h.z),
+// atan2(h.y, h.z)). The microcylinder's specular peak lies exactly where h is perpendicular to a tangent, whatever
+// else the pair is, and for a thread along x with tangent elevation a that is the grid line eta_x = -a (along y,
+// eta_y = -a): the narrowest lobe is resolved by these two axes alone, at TabulationBudget::nodes_per_lobe nodes per
+// its width (Model::NarrowestLobe, declared by the model from the material's parameters). Rusinkiewicz's (theta_h,
+// phi_h) would cut those lobes obliquely, and MERL's sqrt(theta_h) suits a peak at the normal, which cloth's are not.
+// The other two place wi about h (psi in the plane of h and the normal, chi across it), each relative to the range
+// where wi and wo are both above the surface, so the grid's edges are the horizon; f (n.wi) grows like sqrt(n.w)
+// from the horizon, so these axes are warped to be linear in it (a uniform (theta_d, phi_d) grid cut the horizon
+// across its cells: twice the error at the same bytes, most of it at grazing pairs). A grid that would pass
+// TabulationBudget::max_bytes is refused, and the renderer keeps the analytic model.
 //
-// Values stored: X = f(wi, wo) (n.wi), which has no pole at a grazing wi; Evaluate divides by n.wi again. Nodes
-// whose wi or wo lie below the horizon hold the value of the nearest pair above it, so that cells straddling
-// the horizon interpolate a continuation rather than a jump to 0 (the kernel applies the horizon itself).
+// Values stored: X = f(wi, wo) (n.wi), which has no pole at a grazing wi; the lookup divides by n.wi again. Nodes on
+// the horizon hold the limit from above (the model's own value there is 0).
 #pragma once
 
 #include <array>
@@ -28,16 +32,16 @@ namespace loomlight::models {
 
 struct TabulationBudget {
   size_t max_bytes = size_t{64} << 20;  // the table (float RGB per node); a grid needing more is refused
-  double nodes_per_lobe = 3;            // h grid steps per standard deviation of the narrowest lobe
-  double difference_step_degrees = 9;   // the d grid's step (the factors it carries vary over tens of degrees)
+  double nodes_per_lobe = 1.5;          // h grid steps per standard deviation of the narrowest lobe
+  int difference_nodes = 32;            // nodes along each of the psi and chi axes
   size_t error_pairs = 20000;           // cosine-weighted pairs the error is measured on
   uint64_t error_seed = 0x7ab;          // and their seed (the tests measure on others)
 };
 
-// The grid's size: nodes along theta_h, phi_h (periodic), theta_d, phi_d (periodic).
+// The grid's size: nodes along eta_x, eta_y, psi and chi (kernels/models/tabulated_brdf.h).
 struct TabulationGrid {
-  int theta_h = 0, phi_h = 0, theta_d = 0, phi_d = 0;
-  size_t nodes() const { return size_t(theta_h) * phi_h * theta_d * phi_d; }
+  int eta_x = 0, eta_y = 0, psi = 0, chi = 0;
+  size_t nodes() const { return size_t(eta_x) * eta_y * psi * chi; }
   size_t bytes() const;  // the packed table, header included
 };
 

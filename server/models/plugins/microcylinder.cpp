@@ -1,5 +1,6 @@
 // Registry entry of the microcylinder cloth model (Sadeghi et al. 2012, SPEC.md section 2): schema,
 // presets of the paper's Tables 2 and 3, validation and packing into the kernel's material layout.
+#include <algorithm>
 #include <cmath>
 #include <numeric>
 #include <vector>
@@ -124,6 +125,13 @@ class MicrocylinderModel : public Model {
             16};
   }
   KernelSpec kernel() const override { return {"models/microcylinder.cl", "microcylinder_eval", ""}; }
+  // The surface and volume Gaussians' widths in theta_h (SPEC.md section 2), the narrower of both threads'.
+  double NarrowestLobe(const ParamValues& v) const override {
+    double lobe = 90;
+    for (const char* t : {"thread1.", "thread2."})
+      lobe = std::min({lobe, v.at(std::string(t) + "gamma_s")[0], v.at(std::string(t) + "gamma_v")[0]});
+    return lobe * kDegree;
+  }
 
   std::string Validate(const ParamValues& v) const override {
     for (const char* t : {"thread1", "thread2"}) {

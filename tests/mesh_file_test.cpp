@@ -237,30 +237,38 @@ TEST(MeshFile, ObjCubeHasOutwardNormalsAndItsArea) {
 TEST(MeshFile, NodeTransformsMoveTheMeshAndItsNormals) {
   // A parent translated by (10, 0, 0); its child scaled by (2, 3, 5), rotated 90 degrees about +x, translated by
   // (1, 2, 3). The rectangle's corner (x, y, 0) goes to (2x, 3y, 0), then (2x, 0, 3y), then (2x + 11, 2, 3y + 3).
-  tinygltf::Model model = OneMeshModel({Rectangle()});
-  model.nodes[0].scale = {2, 3, 5};
-  model.nodes[0].rotation = {std::sin(M_PI / 4), 0, 0, std::cos(M_PI / 4)};
-  model.nodes[0].translation = {1, 2, 3};
-  tinygltf::Node parent;
-  parent.translation = {10, 0, 0};
-  parent.children = {0};
-  model.nodes.push_back(parent);
-  model.scenes[0].nodes = {1};
-  TriangleMesh mesh;
-  ASSERT_EQ(Parse(Write(model, true), &mesh), "");
-  EXPECT_NEAR(mesh.surface_area, 6 * 2 * 3, 1e-5);
-  for (int c = 0; c < 3; ++c) {
-    EXPECT_NEAR(mesh.bounds_min[c], (std::array<double, 3>{11, 2, 3})[c], 1e-5);
-    EXPECT_NEAR(mesh.bounds_max[c], (std::array<double, 3>{15, 2, 12})[c], 1e-5);
+  // The same child once more as a matrix (column-major): columns (2, 0, 0), (0, 0, 3), (0, -5, 0), (1, 2, 3).
+  for (bool matrix : {false, true}) {
+    SCOPED_TRACE(matrix ? "matrix" : "translation, rotation, scale");
+    tinygltf::Model model = OneMeshModel({Rectangle()});
+    if (matrix) {
+      model.nodes[0].matrix = {2, 0, 0, 0, 0, 0, 3, 0, 0, -5, 0, 0, 1, 2, 3, 1};
+    } else {
+      model.nodes[0].scale = {2, 3, 5};
+      model.nodes[0].rotation = {std::sin(M_PI / 4), 0, 0, std::cos(M_PI / 4)};
+      model.nodes[0].translation = {1, 2, 3};
+    }
+    tinygltf::Node parent;
+    parent.translation = {10, 0, 0};
+    parent.children = {0};
+    model.nodes.push_back(parent);
+    model.scenes[0].nodes = {1};
+    TriangleMesh mesh;
+    ASSERT_EQ(Parse(Write(model, true), &mesh), "");
+    EXPECT_NEAR(mesh.surface_area, 6 * 2 * 3, 1e-5);
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(mesh.bounds_min[c], (std::array<double, 3>{11, 2, 3})[c], 1e-5);
+      EXPECT_NEAR(mesh.bounds_max[c], (std::array<double, 3>{15, 2, 12})[c], 1e-5);
+    }
+    // The face normal +z turns with the rotation to -y (y' = -z).
+    for (const Vec3& n : mesh.normals) ExpectNear3(n, {0, -1, 0}, 1e-6, "normal");
+    // u along +x still (scaled), v along +y became +z.
+    for (const auto& t : mesh.tangents) {
+      ExpectNear3({t[0], t[1], t[2]}, {1, 0, 0}, 1e-6, "tangent");
+      EXPECT_EQ(t[3], 1);
+    }
+    EXPECT_NEAR(mesh.metres_per_uv, std::sqrt(36.0), 1e-5);
   }
-  // The face normal +z turns with the rotation to -y (y' = -z).
-  for (const Vec3& n : mesh.normals) ExpectNear3(n, {0, -1, 0}, 1e-6, "normal");
-  // u along +x still (scaled), v along +y became +z.
-  for (const auto& t : mesh.tangents) {
-    ExpectNear3({t[0], t[1], t[2]}, {1, 0, 0}, 1e-6, "tangent");
-    EXPECT_EQ(t[3], 1);
-  }
-  EXPECT_NEAR(mesh.metres_per_uv, std::sqrt(36.0), 1e-5);
 }
 
 TEST(MeshFile, FileNormalsTransformByTheInverseTranspose) {
@@ -523,6 +531,24 @@ TEST(MeshFile, BadValuesAreRefusedByName) {
   EXPECT_TRUE(Contains(ParseError(Write(OneMeshModel({collinear}), false)),
               "every triangle is degenerate (zero area): 3 of them"));
   EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1 0 0\nf 1 2 2\n"), "every triangle is degenerate"));
+}
+
+TEST(MeshFile, SparseAccessorsAndRequiredExtensionsAreRefused) {
+  std::string json = Write(OneMeshModel({Rectangle()}), false);
+  const std::string accessors = "\"accessors\":[{";
+  ASSERT_NE(json.find(accessors), std::string::npos);
+  json.insert(json.find(accessors) + accessors.size(),
+              "\"sparse\":{\"count\":1,\"indices\":{\"bufferView\":0,\"componentType\":5125},"
+              "\"values\":{\"bufferView\":0}},");
+  EXPECT_TRUE(Contains(ParseError(json), "POSITION (accessors[0]): sparse accessors are not supported"));
+
+  tinygltf::Model model = OneMeshModel({Rectangle()});
+  model.extensionsUsed = model.extensionsRequired = {"KHR_draco_mesh_compression"};
+  EXPECT_TRUE(Contains(ParseError(Write(model, true)),
+                       "extensionsRequired: 'KHR_draco_mesh_compression' is not supported"));
+  model.extensionsUsed = model.extensionsRequired = {"KHR_materials_sheen"};  // looks only: ignored
+  TriangleMesh mesh;
+  EXPECT_EQ(Parse(Write(model, true), &mesh), "");
 }
 
 TEST(MeshFile, NodeCyclesAndDeepHierarchiesAreRefused) {

@@ -383,6 +383,27 @@ TEST_F(MeshRpcTest, AClientStreamingMoreThanItDeclaredIsCutOff) {
   EXPECT_TRUE(List(*stub).empty());
 }
 
+// An upload that declares a large file and stalls holds the bytes it sent, not the ones it declared.
+TEST_F(MeshRpcTest, AStalledUploadHoldsOnlyWhatItSent) {
+  auto server = Start();
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  grpc::ClientContext ctx;
+  v1::MeshInfo out;
+  auto writer = stub->UploadMesh(&ctx, &out);
+  v1::UploadMeshMessage m;
+  m.mutable_header()->set_name("slow");
+  m.mutable_header()->set_size(assets::MeshLimits().max_bytes);
+  ASSERT_TRUE(writer->Write(m));
+  m.set_chunk(std::string(4096, 'v'));
+  ASSERT_TRUE(writer->Write(m));
+  ASSERT_TRUE(WaitUntil([&] { return server->memory_in_use() >= 4096; }));
+  EXPECT_LT(server->memory_in_use(), size_t{64} << 10);
+  ctx.TryCancel();
+  writer->Finish();
+  EXPECT_TRUE(WaitUntil([&] { return server->memory_in_use() == 0 && server->long_calls_in_use() == 0; }));
+}
+
 TEST_F(MeshRpcTest, TheClientUploadsListsAndDeletesMeshes) {
   auto server = Start();
   ASSERT_TRUE(server);

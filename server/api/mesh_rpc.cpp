@@ -44,9 +44,9 @@ class RejectedUpload final : public grpc::ServerReadReactor<v1::UploadMeshMessag
   void OnDone() override { delete this; }
 };
 
-// One UploadMesh call: the header checked and the call admitted (its file's bytes and its parse charged) on the
-// gRPC thread, the chunks appended there (never past the header's size), then the file parsed and stored on the
-// asset loader.
+// One UploadMesh call: the header checked and the call admitted on the gRPC thread, the chunks appended there
+// (charged as they come, never past the header's size), then the parse charged and the file parsed and stored on
+// the asset loader.
 class UploadMeshCall final : public grpc::ServerReadReactor<v1::UploadMeshMessage> {
  public:
   UploadMeshCall(const ServiceDeps& deps, grpc::CallbackServerContext* context, v1::MeshInfo* response)
@@ -86,12 +86,11 @@ class UploadMeshCall final : public grpc::ServerReadReactor<v1::UploadMeshMessag
               "the mesh store holds " + std::to_string(deps_.mesh_store->bytes() >> 20) + " MiB of its bound of " +
                   std::to_string(deps_.mesh_store->max_bytes() >> 20) +
                   " MiB (--mesh-store-mb): no room for this file; delete meshes first"};
-    if (grpc::Status s = AdmitLongCall(deps_, *context_, h.size() + ParseBytes(h.size()), &admission_); !s.ok())
-      return s;
+    // Its bytes are charged as they arrive: a client that stalls holds what it sent, not what it declared.
+    if (grpc::Status s = AdmitLongCall(deps_, *context_, 0, &admission_); !s.ok()) return s;
     name_ = h.name();
     format_ = h.format();
     size_ = h.size();
-    data_.reserve(size_);  // the client's declared size, within the limit and admitted
     header_seen_ = true;
     return grpc::Status::OK;
   }
@@ -101,6 +100,15 @@ class UploadMeshCall final : public grpc::ServerReadReactor<v1::UploadMeshMessag
     const std::string& chunk = message_.chunk();
     if (chunk.size() > size_ - data_.size())  // refused before it is kept: nothing past the declared size
       return Invalid("chunk: the chunks hold more than the header's size of " + std::to_string(size_) + " bytes");
+    if (const size_t needed = data_.size() + chunk.size(); needed > charged_) {
+      // Room grown by doubling (appends stay linear), never past the declared size, charged before it is taken.
+      const size_t room = size_t(std::min<uint64_t>(size_, std::max(needed, 2 * charged_)));
+      if (!admission_.bytes.Grow(room - charged_))
+        return {grpc::StatusCode::RESOURCE_EXHAUSTED,
+                "the server's memory budget holds no more of this upload now; retry later"};
+      data_.reserve(room);
+      charged_ = room;
+    }
     data_.append(chunk);
     return grpc::Status::OK;
   }
@@ -113,6 +121,10 @@ class UploadMeshCall final : public grpc::ServerReadReactor<v1::UploadMeshMessag
     if (data_.size() != size_)
       return Finish(Invalid("chunk: the chunks hold " + std::to_string(data_.size()) + " bytes, the header's size is " +
                             std::to_string(size_)));
+    if (!admission_.bytes.Grow(ParseBytes(size_)))
+      return Finish({grpc::StatusCode::RESOURCE_EXHAUSTED,
+                     "the server's memory budget cannot hold the parse of " + std::to_string(size_) +
+                         " bytes of mesh now; retry later"});
     deps_.loader->Post([this] { Finish(ParseAndStore()); }, client_);
   }
 
@@ -160,6 +172,7 @@ class UploadMeshCall final : public grpc::ServerReadReactor<v1::UploadMeshMessag
   v1::MeshFormat format_ = v1::MESH_FORMAT_AUTO;
   uint64_t size_ = 0;
   std::string data_;  // the file as it arrives, at most size_ bytes
+  size_t charged_ = 0;  // data_'s room, charged to the memory budget
   v1::UploadMeshMessage message_;
 };
 }  // namespace

@@ -24,6 +24,7 @@
 #include "server/render/mesh_geometry.h"
 #include "server/render/renderer.h"
 #include "server/render/scene.h"
+#include "server/render/shading.h"
 #include "tests/renderer_testing.h"
 
 namespace loomlight {
@@ -318,6 +319,40 @@ TEST(MeshGeometry, OccludedAgreesWithIntersect) {
   }
   EXPECT_GT(blocked, 300);
   EXPECT_GT(clear, 300);
+}
+
+TEST(MeshGeometry, ShadowRaysLeaveTheirOwnTriangleAtAnyScale) {
+  // A square of half-side `scale` at z = 0 seen from above; from each hit, a shadow ray toward a light 20 degrees
+  // from the normal, started as the renderer starts it (kRayOffset along the normal). Embree's float arithmetic
+  // must not find the square itself; a second square 1e-4 scale above it (in a mesh of both) must block the ray.
+  const Vec3 toward_light = render::Normalize({0.3, 0.2, 1});
+  for (double scale : {1.0, 100.0, 1e4}) {
+    auto base = Quad({{{0, 0}, {1, 0}, {1, 1}, {0, 1}}}, {1, 0, 0, 1});
+    for (auto& p : base->positions) p = F3(scale * V3(p));
+    auto covered = std::make_shared<TriangleMesh>(*base);
+    for (const auto& p : base->positions) covered->positions.push_back(F3(2 * V3(p) + Vec3{0, 0, 1e-4 * scale}));
+    covered->normals.assign(8, {0, 0, 1});
+    covered->uvs.insert(covered->uvs.end(), base->uvs.begin(), base->uvs.end());
+    covered->tangents.assign(8, base->tangents[0]);
+    covered->triangles.push_back({4, 5, 6});
+    covered->triangles.push_back({4, 6, 7});
+    covered->triangle_material.assign(4, 0);
+    const auto alone = MustBuild(base), under_cover = MustBuild(covered);
+    std::mt19937_64 rng(9);
+    std::uniform_real_distribution<double> across(-0.5 * scale, 0.5 * scale);
+    int self_shadowed = 0, uncovered = 0;
+    for (int k = 0; k < 1000; ++k) {
+      const Vec3 origin{0.3 * scale, 0.2 * scale, 3 * scale};
+      const Vec3 d = render::Normalize(Vec3{across(rng), across(rng), 0} - origin);
+      Hit h;
+      ASSERT_TRUE(alone->Intersect(origin, d, 0, INFINITY, 1, &h));
+      const Vec3 from = h.position + render::kRayOffset * h.normal;
+      self_shadowed += alone->Occluded(from, toward_light, 0, INFINITY);
+      uncovered += !under_cover->Occluded(from, toward_light, 0, INFINITY);
+    }
+    EXPECT_EQ(self_shadowed, 0) << "scale " << scale;
+    EXPECT_EQ(uncovered, 0) << "scale " << scale;
+  }
 }
 
 TEST(MeshGeometry, PositionsSharedOrCopiedHitAlike) {

@@ -45,6 +45,9 @@ class MeshGeometry {
   // normal, or its opposite on a mirrored UV panel (vertex handedness w = -1: the frame then faces the normal's
   // back; shading is two-sided). A mesh without UVs: s = t = 0, the normal turned to the side the triangle's
   // winding faces, and an arbitrary tangent frame. An invalid ray (not finite, zero direction, min > max) misses.
+  // In float, as Embree intersects: a hit nearer than 64 float steps of the largest coordinate (the origin's or
+  // the mesh's: 8e-6 on a mesh of unit size) is not taken, so that a ray leaving the surface misses its own
+  // triangle at any scale (IntersectFrom and Occluded too).
   bool Intersect(Vec3 origin, Vec3 direction, double min_distance, double max_distance, double uv_length,
                  Hit* hit) const;
   // Closest hits of rays from one origin (Embree's coherent packets of up to 16): found[i] = 1 with hits[i]

@@ -434,7 +434,7 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   // in->object_materials; a spatially varying one needs the mesh's texture coordinates.
   grpc::Status BindMeshMaterials(render::RenderInputs* in) {
     const v1::RenderRequest& r = request_;
-    const assets::TriangleMesh& mesh = mesh_->mesh();
+    const assets::TriangleMesh& mesh = in->setup.scene.mesh->mesh();
     for (int i = 0; i < r.materials_size(); ++i) {
       const std::string& name = r.materials(i).mesh_material();
       if (std::find(mesh.material_names.begin(), mesh.material_names.end(), name) == mesh.material_names.end()) {
@@ -472,14 +472,14 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
     render::RenderInputs in = RenderInputsOf(
         r, mesh_ ? render::MeshScene(mesh_, UvLength(r, mesh_->mesh()), int(r.width()), int(r.height())) : SceneOf(r),
         std::move(environment_));
-    if (mesh_ && !(status_ = BindMeshMaterials(&in)).ok()) return;
+    if ((mesh_ || r.materials_size() > 0) && !(status_ = BindMeshMaterials(&in)).ok()) return;
     in.setup.scene.fibers = std::move(fibers_);
     in.setup.scene.fiber_visibility = std::move(fiber_visibility_);
     // Held only by the renderer from here: it lets go of the full-detail check's geometry once planned.
     in.setup.full_detail_fibers = std::move(full_fibers_);
     in.setup.full_detail_visibility = std::move(full_fiber_visibility_);
     // A mesh whose every material is bound may leave `material` unset: the first binding's stands for it.
-    const v1::Material& main = r.has_mesh() && !r.has_material() ? r.materials(0).material() : r.material();
+    const v1::Material& main = !r.has_material() && r.materials_size() > 0 ? r.materials(0).material() : r.material();
     if (!material_ && !(status_ = PrepareMaterial(deps_, main, &material_)).ok()) return;
     if (fiber_job_) {
       in.setup.fiber_detail = fiber_detail_;
@@ -763,6 +763,11 @@ std::string ValidateMeshRequest(const v1::RenderRequest& r) {
   } else {
     return "mesh: give a stored mesh's name or the file's data";
   }
+  return "";
+}
+
+// RenderRequest.materials: each binding names a mesh material once and gives a material. "" or "field: reason".
+std::string ValidateBindings(const v1::RenderRequest& r) {
   if (r.materials_size() > int(assets::MeshLimits{}.max_materials))
     return "materials: " + std::to_string(r.materials_size()) + " bindings exceed the limit of " +
            std::to_string(assets::MeshLimits{}.max_materials) + " materials per mesh";
@@ -775,7 +780,8 @@ std::string ValidateMeshRequest(const v1::RenderRequest& r) {
       if (r.materials(j).mesh_material() == b.mesh_material())
         return Indexed("materials", i) + ".mesh_material: " + models::Quote(b.mesh_material()) + " is bound twice";
   }
-  if (!r.has_material() && r.materials_size() == 0) return "material: unset (a mesh needs `material` or `materials`)";
+  if (r.has_mesh() && !r.has_material() && r.materials_size() == 0)
+    return "material: unset (a mesh needs `material` or `materials`)";
   return "";
 }
 
@@ -789,8 +795,10 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
     if (std::string e = render::ResolveScene(r, render::SceneRegistry::Global(), &scene); !e.empty()) return e;
     needs = scene.spec->needs;
     scene_label = scene.spec->name;
-    if (r.materials_size() > 0) return "materials: only for a mesh (RenderRequest.mesh); use `material`";
+    if (r.materials_size() > 0 && !scene.Build().mesh)
+      return "materials: only for a mesh or a product scene (whose objects are mesh materials); use `material`";
   }
+  if (std::string e = ValidateBindings(r); !e.empty()) return e;
   if (!v1::TextureScaleUnit_IsValid(r.texture_scale_unit()))
     return "texture_scale_unit: unknown value " + std::to_string(r.texture_scale_unit());
   if (r.texture_scale_unit() != v1::TEXTURE_SCALE_UNIT_DEFAULT && !r.has_mesh())
@@ -913,7 +921,7 @@ grpc::ServerWriteReactor<v1::RenderUpdate>* HandleRender(const RenderDeps& deps,
   const models::Model* model = nullptr;
   std::shared_ptr<const models::PreparedMaterial> material;  // null until packed, on the host worker
   // A mesh whose every material is bound may leave `material` unset: the first binding's stands for it.
-  const bool bound_only = request->has_mesh() && !request->has_material() && request->materials_size() > 0;
+  const bool bound_only = !request->has_material() && request->materials_size() > 0;
   if (std::string error = deps.materials->Peek(bound_only ? request->materials(0).material() : request->material(),
                                                *deps.registry, &model, &material);
       !error.empty())

@@ -513,6 +513,9 @@ std::string ChooseFidelity(const RenderSetup& setup, const std::vector<ObjectMat
         double missed = 0;
         for (; far < n; ++far) {
           const size_t i = order[far];
+          // Only where a thread is narrower than a pixel: wider ones are texture a pixel shows, whatever the
+          // object's total says.
+          if (pixels_per_thread[i] > kMaxBrdfPixelsPerThread) break;
           const double add = std::fabs(candidate[i] - reference[i]) * std::min(1.0, pixels_per_thread[i] / std::numbers::pi);
           if (total <= 0 || (missed + add) / total > target) break;
           missed += add;

@@ -34,6 +34,7 @@ namespace loomlight::render {
 
 constexpr double kDefaultErrorTarget = 0.02;  // when a request gives none
 constexpr int kPilotGrid = 24;                // pilot rays: 24 x 24 pixel centres
+constexpr double kMaxBrdfPixelsPerThread = 1;  // the BRDF's rung: only where threads are narrower than a pixel
 constexpr int kFiberPilotGrid = 64;           // the fiber visibility choice's pilot: 64 x 64 pixels,
 constexpr int kFiberPilotRepeats = 2;         // 2 samples each
 

@@ -254,18 +254,21 @@ std::string Finish(Assembly* a, uint64_t* dropped, StopCheck* stop) {
     for (size_t v = 0; v < vertices; ++v) {
       const Vec3d n = ToDouble(m.normals[v]);
       auto& out = m.tangents[v];
-      // The file's tangent, made perpendicular to the normal, where it has one that survives that.
-      const Vec3d given{out[0], out[1], out[2]};
-      Vec3d t = Sub(given, {n[0] * Dot(n, given), n[1] * Dot(n, given), n[2] * Dot(n, given)});
+      // The file's tangent (unit or zero), else dP/du, made perpendicular to the normal: unless it lies within
+      // a thousandth of a radian of the normal, where what is left of it is mostly rounding.
+      const auto perpendicular = [&](const Vec3d& t) {
+        return Sub(t, {n[0] * Dot(n, t), n[1] * Dot(n, t), n[2] * Dot(n, t)});
+      };
+      Vec3d t = perpendicular({out[0], out[1], out[2]});
       double w = out[3] < 0 ? -1 : 1;
-      if (!(Length(t) > 1e-6)) {
+      if (!(Length(t) > 1e-3)) {
         m.file_tangents = false;
         const Vec3d& s = sdir[v];
-        t = Sub(s, {n[0] * Dot(n, s), n[1] * Dot(n, s), n[2] * Dot(n, s)});
+        t = perpendicular(s);
         w = Dot(Cross(n, s), tdir[v]) < 0 ? -1 : 1;
-        if (!(Length(t) > 1e-12 * Length(s)) || !(Length(t) > 0)) t = Perpendicular(n), w = 1;
+        if (!(Length(t) > 1e-3 * Length(s))) t = Perpendicular(n), w = 1;
       }
-      const auto unit = UnitOrZero(t);
+      const auto unit = UnitOrZero(perpendicular(t));  // again: the normal itself is rounded to float
       out = {unit[0], unit[1], unit[2], float(w)};
     }
   }

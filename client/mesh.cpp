@@ -41,15 +41,15 @@ const char* format_name(v1::MeshFormat format) {
 }
 
 void print_mesh(const v1::MeshInfo& mesh) {
-  std::printf("%s: %s, %llu triangles, %llu vertices, %.2f MiB\n", mesh.name().c_str(), format_name(mesh.format()),
+  std::printf("%s: %s, %llu triangles, %llu vertices, %llu bytes\n", mesh.name().c_str(), format_name(mesh.format()),
               static_cast<unsigned long long>(mesh.triangles()), static_cast<unsigned long long>(mesh.vertices()),
-              mib(mesh.bytes()));
+              static_cast<unsigned long long>(mesh.bytes()));
   std::printf("  materials:");
   for (const std::string& m : mesh.materials()) std::printf(" %s", m.empty() ? "(none)" : m.c_str());
   std::printf("\n  normals %s, uvs %s, tangents %s\n", mesh.has_normals() ? "from the file" : "computed",
               mesh.has_uvs() ? "yes" : "none", mesh.has_tangents() ? "from the file" : "computed");
   if (mesh.bounds_min_size() == 3 && mesh.bounds_max_size() == 3)
-    std::printf("  bounds (%.4g, %.4g, %.4g) to (%.4g, %.4g, %.4g); surface %.4g; %.4g per uv unit\n",
+    std::printf("  bounds (%.4g, %.4g, %.4g) to (%.4g, %.4g, %.4g); surface area %.4g; a uv unit spans %.4g\n",
                 mesh.bounds_min(0), mesh.bounds_min(1), mesh.bounds_min(2), mesh.bounds_max(0), mesh.bounds_max(1),
                 mesh.bounds_max(2), mesh.surface_area(), mesh.metres_per_uv());
 }

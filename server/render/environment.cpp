@@ -41,26 +41,41 @@ Rgb SkyRadiance(Vec3 d) {
   return radiance;
 }
 
+// The studio map's radiance toward `d`: floor, walls and a soft top, blended over a few degrees.
+Rgb StudioRadiance(Vec3 d) {
+  const double floor = 0.1, wall = 0.3, top = 1.2;
+  const double above = SmoothStep(-0.04, 0.04, d.y), overhead = SmoothStep(0.45, 0.95, d.y);
+  const double radiance = (1 - above) * floor + above * ((1 - overhead) * wall + overhead * top);
+  return {radiance, radiance, radiance};
+}
+
 }  // namespace
 
+Environment Environment::FromFunction(int width, int height, Rgb (*radiance)(Vec3)) {
+  Environment env;
+  env.SetSize(width, height);
+  std::vector<float> rgb(size_t{3} * env.width_ * env.height_);
+  constexpr int kSuper = 4;  // 4 x 4 samples per pixel: a small sun gets smooth pixel values
+  for (int y = 0; y < env.height_; ++y)
+    for (int x = 0; x < env.width_; ++x) {
+      Rgb sum;
+      for (int j = 0; j < kSuper; ++j)
+        for (int i = 0; i < kSuper; ++i)
+          sum = sum + radiance(env.FromImage(x + (i + 0.5) / kSuper, y + (j + 0.5) / kSuper));
+      for (int c = 0; c < 3; ++c)
+        rgb[3 * (size_t(y) * env.width_ + x) + c] = static_cast<float>(sum[c] / (kSuper * kSuper));
+    }
+  env.map_ = BuildMap(env.width_, env.height_, std::move(rgb));
+  return env;
+}
+
 Environment Environment::Builtin() {
-  static const Environment prototype = [] {
-    Environment env;
-    env.SetSize(512, 256);
-    std::vector<float> rgb(size_t{3} * env.width_ * env.height_);
-    constexpr int kSuper = 4;  // 4 x 4 samples per pixel: the small sun gets smooth pixel values
-    for (int y = 0; y < env.height_; ++y)
-      for (int x = 0; x < env.width_; ++x) {
-        Rgb sum;
-        for (int j = 0; j < kSuper; ++j)
-          for (int i = 0; i < kSuper; ++i)
-            sum = sum + SkyRadiance(env.FromImage(x + (i + 0.5) / kSuper, y + (j + 0.5) / kSuper));
-        for (int c = 0; c < 3; ++c)
-          rgb[3 * (size_t(y) * env.width_ + x) + c] = static_cast<float>(sum[c] / (kSuper * kSuper));
-      }
-    env.map_ = BuildMap(env.width_, env.height_, std::move(rgb));
-    return env;
-  }();
+  static const Environment prototype = FromFunction(512, 256, SkyRadiance);
+  return prototype;
+}
+
+Environment Environment::Studio() {
+  static const Environment prototype = FromFunction(256, 128, StudioRadiance);
   return prototype;
 }
 

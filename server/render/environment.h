@@ -33,6 +33,11 @@ class Environment {
   // A blue sky with a warm sun (2.5 degrees across, elevation 35 degrees, behind the default cameras on the
   // left) over a dim ground: lights every scene with a soft key light and a sky fill, no file needed.
   static Environment Builtin();
+  // The studio map of the lighting presets (server/render/lighting_presets.h): a soft bright top over neutral grey
+  // walls and a darker floor, the same all the way round (a function of elevation alone, so a turntable's views
+  // see the same surroundings). Radiance 1.2 at the top, 0.3 on the walls, 0.1 below: irradiance 2.35 facing up,
+  // 0.91 facing sideways.
+  static Environment Studio();
   // Decodes an OpenEXR or Radiance HDR file's bytes. `stop` is polled while decoding (a passed deadline or a
   // cancelled call); returning true abandons the work. `admit` (may be empty) is asked for the bytes the
   // decoded map and its decoding will hold, once the header is read and before any pixel is; false
@@ -116,6 +121,8 @@ class Environment {
 
  private:
   void SetSize(int width, int height);
+  // A procedural map of this size: each pixel the mean of radiance(direction) over 4 x 4 points in it.
+  static Environment FromFunction(int width, int height, Rgb (*radiance)(Vec3));
   // Pixel coordinates (continuous) of a world direction, and back.
   void ToImage(Vec3 direction, double* x, double* y) const;
   Vec3 FromImage(double x, double y) const;

@@ -49,11 +49,15 @@ class PinholeCamera {
 };
 
 struct Light {
-  enum class Type { kDirectional, kPoint };
+  enum class Type { kDirectional, kPoint, kRect };
   Type type = Type::kDirectional;
-  Vec3 direction;  // directional: unit, toward the light
-  Vec3 position;   // point
-  Rgb rgb;         // directional: irradiance perpendicular to the beam; point: radiant intensity
+  Vec3 direction;  // directional: unit, toward the light; rect: unit, the way its emitting side faces
+  Vec3 position;   // point; rect: its centre
+  Rgb rgb;         // directional: irradiance perpendicular to the beam; point: radiant intensity; rect: radiance
+  // Rect (a softbox, one-sided; server/render/lighting_presets.h RectLight): unit edge directions with
+  // Cross(axis_u, axis_v) = direction, and the full extents along them.
+  Vec3 axis_u, axis_v;
+  double width = 0, height = 0;
 };
 
 struct Shape {

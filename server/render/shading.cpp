@@ -6,6 +6,7 @@
 
 #include "server/models/material_plan.h"
 #include "server/render/folded_environment.h"
+#include "server/render/lighting_presets.h"
 
 namespace loomlight::render {
 namespace {
@@ -15,6 +16,8 @@ constexpr double kDegree = std::numbers::pi / 180;
 constexpr double kMinCosine = 1e-6;
 // SamplePoints' dimension pairs: the pixel position, then one per sampling strategy.
 enum Pair : uint32_t { kPixelPair, kBrightPair, kRestPair, kMaterialPair, kMaterialChoicePair, kAmbientPair, kCoreDepthPair, kCoreNormalPair };
+// Area lights' pairs: light i's point on the light is pair kFirstLightPair + i (clear of the strategies' pairs).
+constexpr uint32_t kFirstLightPair = 64;
 
 float WrapUnit(double t) {
   const float f = static_cast<float>(t - std::floor(t));
@@ -66,7 +69,8 @@ Environment::Sample DrawEnvironment(const RenderSetup& setup, const SamplePoints
 }
 
 // Calls add(direction toward the light, distance to it, incident radiance over pdf times the MIS weight, index of
-// the light in setup.lights or -1) for every light, and (with_environment) one direction from each component of the environment (its bright regions,
+// the light in setup.lights or -1) for every light (a rect light: one point on it, by light sampling alone, as
+// material draws look up the environment only), and (with_environment) one direction from each component of the environment (its bright regions,
 // the rest) as seen from `position`. material_density(direction) is the material sampling strategy's density
 // toward a direction times its draws per hit (0 where there is none), against which the environment's samples are
 // weighed. `drawn`: the environment's directions drawn ahead (null: drawn here from `points`).
@@ -77,6 +81,10 @@ void ForEachLight(const RenderSetup& setup, Vec3 position, const SamplePoints& p
     const Light& light = setup.lights[index];
     if (light.type == Light::Type::kDirectional) {
       add(light.direction, INFINITY, light.rgb, int(index));
+    } else if (light.type == Light::Type::kRect) {  // one point of the softbox per sample, its own Sobol pair
+      const std::array<double, 2> u = points.Get2D(kFirstLightPair + uint32_t(index));
+      RectLightSample sample;
+      if (SampleRectLight(light, position, u[0], u[1], &sample)) add(sample.direction, sample.distance, sample.incident, int(index));
     } else {
       const Vec3 to_light = light.position - position;
       const double d2 = Dot(to_light, to_light);

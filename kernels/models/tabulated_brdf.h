@@ -28,58 +28,78 @@ typedef scalar tb_stored;
 typedef float tb_stored;
 #endif
 
-#if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
-#define TB_LANES LL_WIDTH
-#define TB_SPILL(v, lanes) LL_CAT(vstore, LL_WIDTH)(v, 0, lanes)
-#define TB_FILL(lanes) LL_CAT(vload, LL_WIDTH)(0, lanes)
+// Node indices per lane, as integers (a float holds whole numbers only up to 2^24, fewer than a table's values).
+#if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1 && defined(LL_FP64)
+typedef LL_CAT(long, LL_WIDTH) tb_index;
+typedef long tb_index_lane;
+#define TB_TO_INDEX(x) LL_CAT(convert_long, LL_WIDTH)(x)
+#elif defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
+typedef LL_CAT(int, LL_WIDTH) tb_index;
+typedef int tb_index_lane;
+#define TB_TO_INDEX(x) LL_CAT(convert_int, LL_WIDTH)(x)
 #else
-#define TB_LANES 1
-#define TB_SPILL(v, lanes) ((lanes)[0] = (v))
-#define TB_FILL(lanes) ((lanes)[0])
+typedef int tb_index;
+typedef int tb_index_lane;
+#define TB_TO_INDEX(x) ((int)(x))
 #endif
 
-// The lower node and the weight of the upper one along an axis of n nodes, at grid coordinate x (clamped).
-LL_INLINE int tb_axis(scalar x, int n, scalar* t) {
-  const scalar top = (scalar)(n - 1);
-  const scalar xc = x < (scalar)0 ? (scalar)0 : (x > top ? top : x);
-  int i = (int)floor(xc);
-  i = i > n - 2 ? n - 2 : i;
-  i = i < 0 ? 0 : i;
-  *t = xc - (scalar)i;
-  return i;
+// The lower node along an axis of n >= 2 nodes at grid coordinate x (clamped to the axis), and the weight of the
+// upper one.
+LL_INLINE tb_index tb_axis(real x, scalar n, real* t) {
+  const real xc = LL_FMIN(LL_FMAX(x, R(0.0)), (real)(n - (scalar)1));
+  const real lower = LL_FMIN(floor(xc), (real)(n - (scalar)2));
+  *t = xc - lower;
+  return TB_TO_INDEX(lower);
 }
 
-// One lane's quadrilinear lookup at grid coordinates (x0, x1, x2, x3): X in out[0..2].
-LL_INLINE void tb_lookup(LL_GLOBAL const tb_stored* mat, scalar x0, scalar x1, scalar x2, scalar x3, scalar* out) {
-  const int n0 = (int)mat[0], n1 = (int)mat[1], n2 = (int)mat[2], n3 = (int)mat[3];
-  int i[2], j[2], k[2], l[2];
-  scalar ti, tj, tk, tl;
-  i[0] = tb_axis(x0, n0, &ti), i[1] = i[0] + 1;
-  j[0] = tb_axis(x1, n1, &tj), j[1] = j[0] + 1;
-  k[0] = tb_axis(x2, n2, &tk), k[1] = k[0] + 1;
-  l[0] = tb_axis(x3, n3, &tl), l[1] = l[0] + 1;
+// The three values at node index `at` (the node's first value) of every lane: OpenCL C has no vector gather, so
+// the indices go through private memory once and the loads run lane by lane; the arithmetic around stays vectors.
+#if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
+LL_INLINE void tb_gather3(LL_GLOBAL const tb_stored* nodes, tb_index at, real* r, real* g, real* b) {
+  tb_index_lane lane[LL_WIDTH];
+  scalar vr[LL_WIDTH], vg[LL_WIDTH], vb[LL_WIDTH];
+  LL_CAT(vstore, LL_WIDTH)(at, 0, lane);
+  for (int i = 0; i < LL_WIDTH; ++i) {
+    LL_GLOBAL const tb_stored* p = nodes + lane[i];
+    vr[i] = p[0], vg[i] = p[1], vb[i] = p[2];
+  }
+  *r = LL_CAT(vload, LL_WIDTH)(0, vr);
+  *g = LL_CAT(vload, LL_WIDTH)(0, vg);
+  *b = LL_CAT(vload, LL_WIDTH)(0, vb);
+}
+#else
+LL_INLINE void tb_gather3(LL_GLOBAL const tb_stored* nodes, tb_index at, real* r, real* g, real* b) {
+  *r = (real)nodes[at], *g = (real)nodes[at + 1], *b = (real)nodes[at + 2];
+}
+#endif
+
+// The quadrilinear lookup at grid coordinates (x0, x1, x2, x3): X in out[0..2].
+LL_INLINE void tb_lookup(LL_GLOBAL const tb_stored* mat, real x0, real x1, real x2, real x3, real* out) {
+  const scalar n0 = (scalar)mat[0], n1 = (scalar)mat[1], n2 = (scalar)mat[2], n3 = (scalar)mat[3];
+  real t0, t1, t2, t3;
+  const tb_index i = tb_axis(x0, n0, &t0), j = tb_axis(x1, n1, &t1);
+  const tb_index k = tb_axis(x2, n2, &t2), l = tb_axis(x3, n3, &t3);
+  const int m1 = (int)n1, m2 = (int)n2, m3 = (int)n3;
   LL_GLOBAL const tb_stored* nodes = mat + TB_HEADER_SIZE;
-  scalar r = (scalar)0, g = (scalar)0, b = (scalar)0;
+  real r = R(0.0), g = R(0.0), b = R(0.0);
   for (int a = 0; a < 2; ++a) {
-    const scalar wa = a ? ti : (scalar)1 - ti;
+    const real wa = a ? t0 : R(1.0) - t0;
     for (int c = 0; c < 2; ++c) {
-      const scalar wc = wa * (c ? tj : (scalar)1 - tj);
-      const int row = (i[a] * n1 + j[c]) * n2;
+      const real wc = wa * (c ? t1 : R(1.0) - t1);
+      const tb_index row = ((i + a) * m1 + j + c) * m2 + k;
       for (int e = 0; e < 2; ++e) {
-        const scalar we = wc * (e ? tk : (scalar)1 - tk);
-        const int base = (row + k[e]) * n3;
-        LL_GLOBAL const tb_stored* p0 = nodes + 3 * (base + l[0]);
-        LL_GLOBAL const tb_stored* p1 = nodes + 3 * (base + l[1]);
-        const scalar w0 = we * ((scalar)1 - tl), w1 = we * tl;
-        r += w0 * (scalar)p0[0] + w1 * (scalar)p1[0];
-        g += w0 * (scalar)p0[1] + w1 * (scalar)p1[1];
-        b += w0 * (scalar)p0[2] + w1 * (scalar)p1[2];
+        const real we = wc * (e ? t2 : R(1.0) - t2);
+        const tb_index at = 3 * ((row + e) * m3 + l);
+        for (int q = 0; q < 2; ++q) {
+          const real w = we * (q ? t3 : R(1.0) - t3);
+          real vr, vg, vb;
+          tb_gather3(nodes, at + 3 * q, &vr, &vg, &vb);
+          r += w * vr, g += w * vg, b += w * vb;
+        }
       }
     }
   }
-  out[0] = r;
-  out[1] = g;
-  out[2] = b;
+  out[0] = r, out[1] = g, out[2] = b;
 }
 
 // The warp of an axis relative to its range: s in [-1, 1] to t = sign(s) (1 - sqrt(1 - |s|)).
@@ -124,21 +144,9 @@ LL_INLINE void tb_eval(LL_GLOBAL const tb_stored* mat, int uniform, real wix, re
   // Unlit lanes look up the normal pair (whose h is defined) and are selected out below.
   wix = lit ? wix : R(0.0), wiy = lit ? wiy : R(0.0), wiz = lit ? wiz : R(1.0);
   wox = lit ? wox : R(0.0), woy = lit ? woy : R(0.0), woz = lit ? woz : R(1.0);
-  real x0, x1, x2, x3;
+  real x0, x1, x2, x3, x[3];
   tb_coordinates(mat, wix, wiy, wiz, wox, woy, woz, &x0, &x1, &x2, &x3);
-  // The lookup reads each lane's own nodes: a loop over the lanes (OpenCL C has no vector gather).
-  scalar c0[TB_LANES], c1[TB_LANES], c2[TB_LANES], c3[TB_LANES], r[TB_LANES], g[TB_LANES], b[TB_LANES];
-  TB_SPILL(x0, c0);
-  TB_SPILL(x1, c1);
-  TB_SPILL(x2, c2);
-  TB_SPILL(x3, c3);
-  for (int lane = 0; lane < TB_LANES; ++lane) {
-    scalar out[3];
-    tb_lookup(mat, c0[lane], c1[lane], c2[lane], c3[lane], out);
-    r[lane] = out[0], g[lane] = out[1], b[lane] = out[2];
-  }
+  tb_lookup(mat, x0, x1, x2, x3, x);
   const real inv_cos = lit ? R(1.0) / wiz : R(0.0);
-  f[0] = LL_FMAX(TB_FILL(r), R(0.0)) * inv_cos;
-  f[1] = LL_FMAX(TB_FILL(g), R(0.0)) * inv_cos;
-  f[2] = LL_FMAX(TB_FILL(b), R(0.0)) * inv_cos;
+  for (int c = 0; c < 3; ++c) f[c] = LL_FMAX(x[c], R(0.0)) * inv_cos;
 }

@@ -609,10 +609,12 @@ TEST(MeshFile, ObjMaterialLibrariesAreNeverRead) {
   std::remove(library.c_str());
 }
 
-TEST(MeshFile, ObjRefusesHugePolygonsAndNamesThatAreNotText) {
+TEST(MeshFile, ObjRefusesHugePolygonsTagLinesAndNamesThatAreNotText) {
   std::string obj = "v 0 0 0\nf";
   for (int i = 1; i <= 65; ++i) obj.append(" ").append(std::to_string(i));
   EXPECT_TRUE(Contains(ParseError(obj), "line 2: a face of more than 64 vertices"));
+  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nt crease 8192/8192/8192\n"),
+                       "line 5: 't' lines (subdivision surface tags) are not read"));
   EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl bad\xff\nf 1 2 3\n"),
               "line 5: usemtl 'bad\\xff' is not printable UTF-8 text"));
 }

@@ -1047,6 +1047,11 @@ std::string ScanObj(std::string_view text, const MeshLimits& limits, StopCheck* 
       pending_material.assign(token, std::strcspn(token, " \t\r"));
       continue;
     }
+    if (token[0] == 't' && ObjSpace(token[1])) {
+      // tinyobjloader sizes a tag's arrays from the counts the line states (up to 8192 values of each kind, some
+      // 330 KB for a line of 20 bytes): a file of them would take thousands of times its size.
+      return where + ": 't' lines (subdivision surface tags) are not read";
+    }
     const bool face = token[0] == 'f' && ObjSpace(token[1]);
     if (!face && !((token[0] == 'l' || token[0] == 'p') && ObjSpace(token[1]))) continue;
     token += 2;

@@ -57,7 +57,8 @@ v1::MeshFormat DetectMeshFormat(std::string_view bytes, v1::MeshFormat declared)
 // indices out of range, no triangles, every triangle degenerate; also refused: sparse accessors, required glTF
 // extensions other than KHR_materials_*, KHR_texture_transform and KHR_lights_punctual, node hierarchies deeper
 // than 64 or with cycles, JSON nested deeper than 64, OBJ faces of more than 64 vertices (tinyobjloader's
-// triangulation of an n-gon costs n^2 or more). glTF: the default scene (else the first, else every root node),
+// triangulation of an n-gon costs n^2 or more) and OBJ 't' lines (tinyobjloader sizes their arrays from the counts
+// they state). glTF: the default scene (else the first, else every root node),
 // triangles, strips and fans (points and lines are skipped); a mesh under several nodes counts once per node
 // against max_triangles before any is expanded. Degenerate triangles (zero area) among good ones are dropped
 // and counted in *dropped (may be null); *out is written only on success. `stop` is asked between stages and

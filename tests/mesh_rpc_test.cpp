@@ -404,6 +404,29 @@ TEST_F(MeshRpcTest, AStalledUploadHoldsOnlyWhatItSent) {
   EXPECT_TRUE(WaitUntil([&] { return server->memory_in_use() == 0 && server->long_calls_in_use() == 0; }));
 }
 
+// An upload whose client stops sending is cancelled by the idle bound (UploadBtf's, server/api/upload_bounds.h),
+// which the server counts as DEADLINE_EXCEEDED (its client sees the cancellation), and gives back its slot.
+TEST_F(MeshRpcTest, AnUploadThatStopsSendingIsCancelled) {
+  api::ServerOptions options;
+  options.data_dir = dir_.string();
+  options.limits.upload_idle_timeout = std::chrono::milliseconds(300);
+  options.metrics_address = "127.0.0.1:0";
+  auto server = testing::StartInProcessServer(options);
+  ASSERT_TRUE(server);
+  auto stub = testing::Connect(server->port());
+  grpc::ClientContext ctx;
+  v1::MeshInfo out;
+  auto writer = stub->UploadMesh(&ctx, &out);
+  v1::UploadMeshMessage m;
+  m.mutable_header()->set_name("silent");
+  m.mutable_header()->set_size(1000);
+  ASSERT_TRUE(writer->Write(m));
+  EXPECT_EQ(writer->Finish().error_code(), grpc::StatusCode::CANCELLED);  // returns once the server cancelled it
+  EXPECT_TRUE(testing::WaitForCallsEnded(server->metrics_port(), "UploadMesh", "DEADLINE_EXCEEDED", 1));
+  EXPECT_TRUE(WaitUntil([&] { return server->memory_in_use() == 0 && server->long_calls_in_use() == 0; }));
+  EXPECT_TRUE(List(*stub).empty());
+}
+
 TEST_F(MeshRpcTest, TheClientUploadsListsAndDeletesMeshes) {
   auto server = Start();
   ASSERT_TRUE(server);
@@ -551,6 +574,8 @@ TEST_F(MeshStoreOnDisk, OnlyTheOwnerOrAnAdminDeletesAMesh) {
   EXPECT_EQ(b->Delete("OWNED", "client:operator", true), assets::MeshStore::Removal::kRemoved);
   EXPECT_FALSE(b->Exists("owned"));
   EXPECT_EQ(a->List().size(), 1u);  // registered, but gone from disk: dropped at its next Sync
+  std::shared_ptr<const assets::TriangleMesh> mesh;
+  EXPECT_EQ(a->Load("owned", nullptr, &mesh, nullptr, &error), assets::MeshStore::Found::kNotFound) << error;
   EXPECT_EQ(a->Sync(), 1);
   EXPECT_TRUE(a->List().empty());
   EXPECT_EQ(a->Delete("owned", "host:alice", false), assets::MeshStore::Removal::kNotFound);

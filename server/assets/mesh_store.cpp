@@ -148,6 +148,7 @@ MeshStore::Found MeshStore::Load(const std::string& name, const std::function<bo
   if (why.empty() && !(files[0].read && on_disk.ParseFromString(files[0].bytes) && files[1].read))
     why = "its files are missing or unreadable";
   if (!why.empty()) {
+    if (dir_->EntryOf(name).empty()) return Found::kNotFound;  // another server deleted it (not synced here yet)
     *error = "the stored mesh " + name + " cannot be read: " + why;
     return Found::kFailed;
   }

@@ -47,7 +47,8 @@ class MeshStore {
 
   enum class Found { kOk, kNotFound, kFailed };
   // The parsed mesh of `name` (any case) and its MeshInfo: from the cache, else read and parsed (on the caller's
-  // thread; `stop` as ParseMesh asks it). kNotFound when no mesh has that name; kFailed with *error when its file
+  // thread; `stop` as ParseMesh asks it). kNotFound when no mesh has that name (or another server deleted it);
+  // kFailed with *error when its file
   // cannot be read or parsed, or `stop` stopped the parse ("stopped").
   Found Load(const std::string& name, const std::function<bool()>& stop, std::shared_ptr<const TriangleMesh>* out,
              v1::MeshInfo* info, std::string* error);

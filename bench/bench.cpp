@@ -61,7 +61,7 @@ struct Args {
 
 // Section names for --only, in report order.
 const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "slice", "tabulate",
-                                     "render", "noise", "fair-share", "btf"};
+                                     "render", "noise", "fair-share", "btf", "tabulated"};
 // Sections merged into another, still accepted by their old names: "kernel" measures every model.
 const std::pair<const char*, const char*> kSectionAliases[] = {{"woven", "kernel"}, {"transmission", "kernel"}};
 
@@ -79,7 +79,8 @@ void Usage(const char* argv0, const Args& defaults) {
                "usage: %s [--out FILE] [--quick] [--only SECTIONS]\n  --out FILE  report path (default %s)\n"
                "  --quick     small sizes, a smoke run of a few seconds\n"
                "  --only SECTIONS  comma-separated, of: kernel (every model; aliases woven, transmission), sweep\n"
-               "              (accuracy knobs), service, service-cpu, slice, tabulate, render, noise, fair-share, btf\n"
+               "              (accuracy knobs), service, service-cpu, slice, tabulate, render, noise, fair-share, btf,\n"
+               "              tabulated (tabulated BRDFs against the analytic model)\n"
                "              (a partial report: give it its own --out)\n",
                argv0, defaults.out.c_str());
 }
@@ -146,14 +147,15 @@ int main(int argc, char** argv) {
   const CpuSnapshot start = CpuSnapshot::Now();
   auto want = [&args](const char* name) { return args.only.empty() || args.only.count(name) > 0; };
 
-  std::string machine, sections, btf;
+  std::string machine, sections, btf, tabulated;
   {
     std::unique_ptr<loomlight::runtime::ClRuntime> rt = StartRuntime();
     if (!rt) return 1;
     machine = MachineDescription(rt->platform_name(), rt->device_name(), sizes.quick);
     if (want("kernel")) sections += KernelSection(*rt, sizes);
     if (want("sweep")) sections += KnobSweepSection(*rt, sizes);
-    if (want("btf")) btf = BtfSection(*rt, sizes);  // last in the report, the newest section
+    if (want("btf")) btf = BtfSection(*rt, sizes);  // last in the report with the tabulated, the newest sections
+    if (want("tabulated")) tabulated = TabulatedSection(*rt, sizes);
   }
   if (want("service")) sections += ServiceSection(sizes);
   if (want("service-cpu")) sections += ServiceCpuSection(sizes);
@@ -162,7 +164,7 @@ int main(int argc, char** argv) {
   if (want("render")) sections += RenderSection(sizes);
   if (want("noise")) sections += NoiseSection(sizes);
   if (want("fair-share")) sections += FairShareSection(sizes);
-  sections += btf;
+  sections += btf + tabulated;
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   std::string only;

@@ -64,5 +64,8 @@ std::string FairShareSection(const Sizes& sizes);
 // Section 11: a BTF asset (woven twill on the H1 grid) synthesised and compressed in process, its error against
 // storage, and the btf model's reconstruction throughput and error, OpenCL fp32 / fp64 and native.
 std::string BtfSection(runtime::ClRuntime& rt, const Sizes& sizes);
+// Tabulated BRDFs (server/models/tabulated_brdf.h): each tabulated preset's kernel throughput against the analytic
+// model's on the same pairs, OpenCL fp32, and the table's error against the double reference.
+std::string TabulatedSection(runtime::ClRuntime& rt, const Sizes& sizes);
 
 }  // namespace loomlight::bench

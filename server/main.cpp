@@ -250,10 +250,11 @@ void AddOptions(CLI::App& app, loomlight::api::ServerOptions& options) {
                "fiber scenes (fibers' BVH, tubes, openness) kept across calls, in MiB\n"
                "(default 256)",
                &limits.fiber_cache_bytes);
-  AddPositive(app, "--upload-idle-seconds", "an UploadBtf that sends nothing for N s is cancelled (default 60)",
+  AddPositive(app, "--upload-idle-seconds", "an upload (UploadBtf, UploadMesh) that sends nothing for N s is\n"
+              "cancelled (default 60)",
               [&limits](Number n) { limits.upload_idle_timeout = seconds(n); });
   AddPositive(app, "--max-upload-seconds",
-              "an UploadBtf still sending N s after it started is cancelled\n"
+              "an upload still sending N s after it started is cancelled\n"
               "(default 1800)",
               [&limits](Number n) { limits.upload_max_duration = seconds(n); });
   AddMebibytes(app, "--environment-cache-mb", "decoded environment maps kept, in MiB (default 256)",

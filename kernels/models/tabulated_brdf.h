@@ -31,15 +31,12 @@ typedef float tb_stored;
 // Node indices per lane, as integers (a float holds whole numbers only up to 2^24, fewer than a table's values).
 #if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1 && defined(LL_FP64)
 typedef LL_CAT(long, LL_WIDTH) tb_index;
-typedef long tb_index_lane;
 #define TB_TO_INDEX(x) LL_CAT(convert_long, LL_WIDTH)(x)
 #elif defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
 typedef LL_CAT(int, LL_WIDTH) tb_index;
-typedef int tb_index_lane;
 #define TB_TO_INDEX(x) LL_CAT(convert_int, LL_WIDTH)(x)
 #else
 typedef int tb_index;
-typedef int tb_index_lane;
 #define TB_TO_INDEX(x) ((int)(x))
 #endif
 
@@ -52,20 +49,28 @@ LL_INLINE tb_index tb_axis(real x, scalar n, real* t) {
   return TB_TO_INDEX(lower);
 }
 
-// The three values at node index `at` (the node's first value) of every lane: OpenCL C has no vector gather, so
-// the indices go through private memory once and the loads run lane by lane; the arithmetic around stays vectors.
+// The three values at node index `at` (the node's first value) of every lane. OpenCL C has no vector gather: each
+// lane's loads are made into a vector literal from the index vector's components (an array in private memory in
+// between would cost a failed store-to-load forward per vector); the arithmetic around stays vectors.
 #if defined(__OPENCL_C_VERSION__) && LL_WIDTH > 1
+#if LL_WIDTH == 2
+#define TB_VECTOR_OF(p, at, c) ((real)(p[(at).s0 + c], p[(at).s1 + c]))
+#elif LL_WIDTH == 4
+#define TB_VECTOR_OF(p, at, c) ((real)(p[(at).s0 + c], p[(at).s1 + c], p[(at).s2 + c], p[(at).s3 + c]))
+#elif LL_WIDTH == 8
+#define TB_VECTOR_OF(p, at, c)                                                                               \
+  ((real)(p[(at).s0 + c], p[(at).s1 + c], p[(at).s2 + c], p[(at).s3 + c], p[(at).s4 + c], p[(at).s5 + c], \
+          p[(at).s6 + c], p[(at).s7 + c]))
+#elif LL_WIDTH == 16
+#define TB_VECTOR_OF(p, at, c)                                                                               \
+  ((real)(p[(at).s0 + c], p[(at).s1 + c], p[(at).s2 + c], p[(at).s3 + c], p[(at).s4 + c], p[(at).s5 + c], \
+          p[(at).s6 + c], p[(at).s7 + c], p[(at).s8 + c], p[(at).s9 + c], p[(at).sa + c], p[(at).sb + c], \
+          p[(at).sc + c], p[(at).sd + c], p[(at).se + c], p[(at).sf + c]))
+#endif
 LL_INLINE void tb_gather3(LL_GLOBAL const tb_stored* nodes, tb_index at, real* r, real* g, real* b) {
-  tb_index_lane lane[LL_WIDTH];
-  scalar vr[LL_WIDTH], vg[LL_WIDTH], vb[LL_WIDTH];
-  LL_CAT(vstore, LL_WIDTH)(at, 0, lane);
-  for (int i = 0; i < LL_WIDTH; ++i) {
-    LL_GLOBAL const tb_stored* p = nodes + lane[i];
-    vr[i] = p[0], vg[i] = p[1], vb[i] = p[2];
-  }
-  *r = LL_CAT(vload, LL_WIDTH)(0, vr);
-  *g = LL_CAT(vload, LL_WIDTH)(0, vg);
-  *b = LL_CAT(vload, LL_WIDTH)(0, vb);
+  *r = TB_VECTOR_OF(nodes, at, 0);
+  *g = TB_VECTOR_OF(nodes, at, 1);
+  *b = TB_VECTOR_OF(nodes, at, 2);
 }
 #else
 LL_INLINE void tb_gather3(LL_GLOBAL const tb_stored* nodes, tb_index at, real* r, real* g, real* b) {

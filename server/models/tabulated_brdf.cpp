@@ -117,8 +117,9 @@ std::string TabulatedBrdf::PlanGrid(const PreparedMaterial& material, const Tabu
     return "model '" + model.name() + "' is not a reflection model about the surface normal";
   const double lobe = model.NarrowestLobe(material.values);
   if (!(lobe > 0)) return "model '" + model.name() + "' declares no lobe width";
-  if (!(budget.nodes_per_lobe > 0) || budget.difference_nodes < 2)
-    return "tabulation budget: nodes_per_lobe must be positive and difference_nodes at least 2";
+  if (!(budget.nodes_per_lobe > 0) || budget.difference_nodes < 2 || budget.error_pairs == 0)
+    return "tabulation budget: nodes_per_lobe must be positive, difference_nodes at least 2 and error_pairs at "
+           "least 1";
   // Node counts in double first: a tiny lobe must not overflow an int before the byte bound refuses it.
   const double eta_nodes = std::ceil(kPi / (lobe / budget.nodes_per_lobe)) + 1;
   const double d_nodes = static_cast<double>(budget.difference_nodes);

@@ -18,6 +18,7 @@
 // the horizon hold the limit from above (the model's own value there is 0).
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -47,11 +48,11 @@ struct TabulationGrid {
 
 class TabulatedBrdf {
  public:
-  // Tabulates `material`'s BRDF (its model's float host build on every core, a few seconds for a narrow lobe)
-  // and measures its error. Returns "" and sets *out, or why not: the model declares no lobe width
-  // (Model::NarrowestLobe), transmits light or scatters about a fiber axis, the material has a curtain layer,
-  // the grid would need more than budget.max_bytes ("... bytes: ..."), or stop() returned true (checked
-  // between chunks of nodes; "stopped").
+  // Tabulates `material`'s BRDF (its model's float host build on every core: 1-30 s for the microcylinder presets
+  // on two cores) and measures its error. Returns "" and sets *out, or why not: the model declares no lobe width
+  // (Model::NarrowestLobe), transmits light or scatters about a fiber axis, the material has a curtain layer, the
+  // budget is malformed, the grid would need more than budget.max_bytes ("tabulated BRDF needs N bytes (...), over
+  // the budget of M bytes"), or stop() returned true (asked between chunks of 32,768 nodes; "stopped").
   static std::string Build(const PreparedMaterial& material, const TabulationBudget& budget,
                            const std::function<bool()>& stop, std::shared_ptr<const TabulatedBrdf>* out);
   // The grid Build would use for `material` under `budget`, or why none fits ("" on success).
@@ -76,7 +77,8 @@ class TabulatedBrdf {
   const Model& source_model() const { return *source_model_; }
 
   // The device path: the table as a material of KernelModel(), for a ClRuntime launch (LaunchArgs.model =
-  // &KernelModel(), materials = {&packed()}; fp32 and fp64 both read it). The runtime must have built
+  // &KernelModel(), materials = {&packed()}; fp32 and fp64 both read it, but an fp64 launch converts the table to
+  // double once and keeps it, twice bytes(): the render's rung launches fp32). The runtime must have built
   // KernelRegistry()'s programs (ClRuntime::BuildPrograms(TabulatedBrdf::KernelRegistry(), ...)).
   const PackedMaterial& packed() const { return packed_; }
   // The kernel's model: not among the registry's user-facing models (it has no parameters a client could set;

@@ -61,7 +61,7 @@ struct Args {
 
 // Section names for --only, in report order.
 const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "slice", "tabulate",
-                                     "render", "noise", "fair-share", "btf", "tabulated"};
+                                     "render", "noise", "fair-share", "btf", "tabulated", "product"};
 // Sections merged into another, still accepted by their old names: "kernel" measures every model.
 const std::pair<const char*, const char*> kSectionAliases[] = {{"woven", "kernel"}, {"transmission", "kernel"}};
 
@@ -80,7 +80,8 @@ void Usage(const char* argv0, const Args& defaults) {
                "  --quick     small sizes, a smoke run of a few seconds\n"
                "  --only SECTIONS  comma-separated, of: kernel (every model; aliases woven, transmission), sweep\n"
                "              (accuracy knobs), service, service-cpu, slice, tabulate, render, noise, fair-share, btf,\n"
-               "              tabulated (tabulated BRDFs against the analytic model)\n"
+               "              tabulated (tabulated BRDFs against the analytic model), product (a garment against\n"
+               "              Blender Cycles)\n"
                "              (a partial report: give it its own --out)\n",
                argv0, defaults.out.c_str());
 }
@@ -165,6 +166,7 @@ int main(int argc, char** argv) {
   if (want("noise")) sections += NoiseSection(sizes);
   if (want("fair-share")) sections += FairShareSection(sizes);
   sections += btf + tabulated;
+  if (want("product")) sections += ProductSection(sizes);
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   std::string only;

@@ -67,5 +67,8 @@ std::string BtfSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Tabulated BRDFs (server/models/tabulated_brdf.h): each tabulated preset's kernel throughput against the analytic
 // model's on the same pairs, OpenCL fp32, and the table's error against the double reference.
 std::string TabulatedSection(runtime::ClRuntime& rt, const Sizes& sizes);
+// Section 12: product shots (issue 46), a garment mesh on white under the studio preset at 1600 x 1600, Loomlight
+// against Blender Cycles (bench/cycles/product.py, when `blender` is on PATH), each against its own converged image.
+std::string ProductSection(const Sizes& sizes);
 
 }  // namespace loomlight::bench

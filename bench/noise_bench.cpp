@@ -2,29 +2,19 @@
 // timed, with its error against a converged reference of the same renderer, and the time to 30, 35 and 40 dB;
 // and, when `blender` is on PATH, the cylinders scene rebuilt in Cycles (bench/cycles/cylinders.py) and measured
 // the same way against its own converged image, side by side.
-#include <unistd.h>
-
 #include <algorithm>
 #include <cctype>
-#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
-#include <map>
-#include <numbers>
-#include <optional>
-#include <sstream>
 
 #include "bench/bench.h"
+#include "bench/cycles_compare.h"
 #include "bench/in_process.h"
 #include "bench/render_client.h"
 #include "bench/report.h"
 #include "bench/stats.h"
 #include "server/render/environment.h"
-
-// After the protobuf headers: OpenImageIO's byte-swap macros clash with protobuf's port.h.
-#include <OpenImageIO/imageio.h>
 
 namespace loomlight::bench {
 namespace {
@@ -72,52 +62,7 @@ NoiseSizes SizesFor(const Sizes& sizes) {
           2};
 }
 
-struct Point {
-  uint32_t spp = 0;
-  double seconds = 0;         // the server's total (Loomlight) or the render operator's (Cycles)
-  double client_seconds = 0;  // the call as the client sees it (Loomlight only)
-  ImageError error;           // against the renderer's own reference
-  double own_psnr_db = 0;     // against the noise-free image (estimated): the reference's noise taken out
-  bool own_is_floor = false;  // the reference cannot resolve the image's noise: own_psnr_db is a lower bound
-};
-
-// One renderer's sweep over one scene.
-struct Curve {
-  std::string renderer, scene, material, fidelity;
-  uint32_t side = 0, reference_spp = 0;
-  ImageError reference_noise;  // the reference's own, against the noise-free image (estimated)
-  std::vector<Point> points;
-
-  // An image's error against the reference is its own plus the reference's (independent seeds), so its own
-  // MSE is the difference. Under a quarter of the reference's own MSE that difference is not resolved: the
-  // PSNR is then given as a floor, 6 dB above the reference's.
-  void Add(uint32_t spp, double seconds, double client_seconds, const ImageError& error) {
-    Point p{spp, seconds, client_seconds, error};
-    const double own_mse = error.mse - reference_noise.mse, least = reference_noise.mse / 4;
-    p.own_is_floor = own_mse < least;
-    p.own_psnr_db = error.psnr_db + 10 * std::log10(error.mse / std::max(own_mse, least));
-    points.push_back(p);
-  }
-};
-
-std::string Pixels(uint32_t side) { return std::to_string(side) + "x" + std::to_string(side); }
 std::string CurveName(const Curve& c) { return c.scene + ", " + c.material; }
-
-std::string ReadFile(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream bytes;
-  bytes << in.rdbuf();
-  return bytes.str();
-}
-
-// Writes linear RGB rows from the top as a float EXR; returns "" or what failed.
-std::string WriteExr(const std::string& path, const std::vector<float>& rgb, int width, int height) {
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out || !out->open(path, OIIO::ImageSpec(width, height, 3, OIIO::TypeDesc::FLOAT)) ||
-      !out->write_image(OIIO::TypeDesc::FLOAT, rgb.data()) || !out->close())
-    return "cannot write " + path + (out ? ": " + out->geterror() : "");
-  return "";
-}
 
 // With LOOMLIGHT_NOISE_IMAGES=DIR set, each curve's reference and its 16-sample render are kept there as EXR,
 // to look at (the two renderers' framing, the grain).
@@ -130,19 +75,6 @@ void KeepImage(const Curve& curve, const std::string& what, const std::vector<fl
   if (std::string e = WriteExr(std::string(dir) + "/" + name + ".exr", image, int(curve.side), int(curve.side));
       !e.empty())
     Progress("noise: %s\n", e.c_str());
-}
-
-// The mean of two independent halves is the reference. Their difference has twice a half's variance and
-// the mean half of one, so the mean's MSE against the noise-free image is about MSE(a, b) / 4.
-std::vector<float> FromHalves(const std::vector<float>& a, const std::vector<float>& b, ImageError* noise) {
-  std::vector<float> mean(std::min(a.size(), b.size()));
-  for (size_t i = 0; i < mean.size(); ++i) mean[i] = 0.5f * (a[i] + b[i]);
-  const ImageError between = Compare(a, b);
-  const double peak = mean.empty() ? 0 : *std::max_element(mean.begin(), mean.end());
-  noise->mse = between.mse / 4;
-  noise->relative_mse = between.relative_mse / 4;
-  noise->psnr_db = noise->mse > 0 ? 10 * std::log10(peak * peak / noise->mse) : 0;
-  return mean;
 }
 
 Curve LoomlightCurve(v1::Loomlight::Stub& stub, const NoiseScene& s, const NoiseSizes& n) {
@@ -169,45 +101,9 @@ Curve LoomlightCurve(v1::Loomlight::Stub& stub, const NoiseScene& s, const Noise
 
 // ---- Cycles ----
 
-std::string FindOnPath(const char* name) {
-  const char* path = std::getenv("PATH");
-  std::istringstream dirs(path ? path : "");
-  for (std::string dir; std::getline(dirs, dir, ':');) {
-    const std::string candidate = (dir.empty() ? "." : dir) + "/" + name;
-    if (access(candidate.c_str(), X_OK) == 0) return candidate;
-  }
-  return "";
-}
-
-// The server's built-in sky as an equirectangular EXR in Blender's convention: z up, column 0.5 W looking
-// along +x, +y at 0.25 W (Cycles' direction_to_equirectangular), row 0 straight up. Each texel holds the
-// server's radiance toward its centre; a Loomlight direction (x, y, z) is Blender's (x, -z, y), which turns
-// the server's map by a quarter, whole texels, so nothing is resampled. Returns "" or what failed, and the
-// brightest texel (the sun).
-std::string WriteSky(const std::string& path, double* brightest) {
-  const render::Environment sky = render::Environment::Builtin();
-  const int width = kSkyWidth, height = kSkyWidth / 2;
-  std::vector<float> rgb(size_t{3} * width * height);
-  *brightest = 0;
-  for (int j = 0; j < height; ++j)
-    for (int i = 0; i < width; ++i) {
-      const double azimuth = (0.5 - (i + 0.5) / width) * 2 * std::numbers::pi;
-      const double elevation = (0.5 - (j + 0.5) / height) * std::numbers::pi;
-      const double bx = std::cos(elevation) * std::cos(azimuth), by = std::cos(elevation) * std::sin(azimuth),
-                   bz = std::sin(elevation);
-      const render::Rgb radiance = sky.Radiance({bx, bz, -by});
-      for (int c = 0; c < 3; ++c) {
-        rgb[3 * (size_t(j) * width + i) + c] = static_cast<float>(radiance[c]);
-        *brightest = std::max(*brightest, radiance[c]);
-      }
-    }
-  return WriteExr(path, rgb, width, height);
-}
-
 struct CyclesRun {
-  std::string skipped;  // why Cycles did not run, or ""
-  std::string version;  // "3.4.1"
-  double sky_brightest = 0, process_seconds = 0;
+  BlenderRun blender;
+  double sky_brightest = 0;
   Curve curve;
 };
 
@@ -215,99 +111,48 @@ struct CyclesRun {
 // back its images and times. The temporary directory stays, with Blender's log, when something fails.
 CyclesRun RunCycles(const NoiseSizes& n) {
   CyclesRun run;
-  const std::string blender = FindOnPath("blender");
-  if (blender.empty()) {
-    run.skipped = "`blender` is not on PATH (Debian: `apt-get install blender`)";
-    return run;
-  }
-  std::string dir_template = (std::filesystem::temp_directory_path() / "loomlight-noise-XXXXXX").string();
-  if (!mkdtemp(dir_template.data())) {
-    run.skipped = "no temporary directory";
-    return run;
-  }
-  const std::filesystem::path dir = dir_template;
-  const std::string sky = (dir / "sky.exr").string(), log = (dir / "blender.log").string();
-  if (std::string e = WriteSky(sky, &run.sky_brightest); !e.empty()) {
-    run.skipped = e;
+  BlenderRun& b = run.blender;
+  if (!PrepareBlender("loomlight-noise", &b)) return run;
+  const std::string sky = (b.dir / "sky.exr").string();
+  if (std::string e = WriteEnvironment(sky, render::Environment::Builtin(), kSkyWidth, &run.sky_brightest);
+      !e.empty()) {
+    b.skipped = e;
     return run;
   }
   std::string renders;  // NAME:SPP:SEED:RUNS,...
-  for (uint32_t spp : n.samples)
-    renders += "spp" + std::to_string(spp) + ":" + std::to_string(spp) + ":" + std::to_string(kSeed) + ":" +
-               std::to_string(n.runs) + ",";
-  const std::string half = std::to_string(n.cycles_reference_spp / 2);
-  renders += "half_a:" + half + ":1001:1,half_b:" + half + ":1002:1";
-  const std::string command = "'" + blender + "' -b --factory-startup -noaudio --python-exit-code 1 --python '" +
-                              LOOMLIGHT_SOURCE_DIR + "/bench/cycles/cylinders.py' -- --sky '" + sky + "' --out '" +
-                              dir.string() + "' --size " + std::to_string(n.cycles_side) +
-                              " --threads 2 --renders " + renders + " > '" + log + "' 2>&1";
-  Progress("noise: Cycles, cylinders %s, %zu sample counts and a reference of 2 x %s (log: %s)\n",
-           Pixels(n.cycles_side).c_str(), n.samples.size(), half.c_str(), log.c_str());
-  const Clock::time_point start = Clock::now();
-  const int status = std::system(command.c_str());
-  run.process_seconds = SecondsSince(start);
-  if (status != 0) {
-    run.skipped = "Blender failed (exit status " + std::to_string(status) + "; its log: " + log + ")";
-    return run;
-  }
+  for (uint32_t spp : n.samples) renders += RenderJob("spp" + std::to_string(spp), spp, kSeed, n.runs) + ",";
+  const uint32_t half = n.cycles_reference_spp / 2;
+  renders += RenderJob("half_a", half, 1001, 1) + "," + RenderJob("half_b", half, 1002, 1);
+  Progress("noise: Cycles, cylinders %s, %zu sample counts and a reference of 2 x %u (log: %s)\n",
+           Pixels(n.cycles_side).c_str(), n.samples.size(), half, b.log.c_str());
+  RunBlender("cylinders.py",
+             "--sky '" + sky + "' --size " + std::to_string(n.cycles_side) + " --threads 2 --renders " + renders, &b);
+  if (!b.skipped.empty()) return run;
 
-  std::istringstream(ReadFile(dir / "version.txt")) >> run.version;
-  std::map<std::string, double> seconds;  // by render name
-  std::istringstream lines(ReadFile(dir / "times.tsv"));
-  for (std::string name, spp, seed, s; lines >> name >> spp >> seed >> s;) seconds[name] = std::stod(s);
-  const auto image = [&](const std::string& name) { return DecodeExr(ReadFile(dir / (name + ".exr"))); };
+  const auto image = [&](const std::string& name) { return DecodeExr(ReadFile(b.dir / (name + ".exr"))); };
   Curve& curve = run.curve;
   curve = {"Cycles", "cylinders", "Principled BSDF (satin-like)", "", n.cycles_side, n.cycles_reference_spp, {}, {}};
   const std::vector<float> reference = FromHalves(image("half_a"), image("half_b"), &curve.reference_noise);
   for (uint32_t spp : n.samples) {
     const std::string name = "spp" + std::to_string(spp);
     const std::vector<float> render = image(name);
-    if (!seconds.count(name) || render.empty() || reference.empty()) {
-      run.skipped = "Blender wrote no " + name + " or no reference (its log: " + log + ")";
+    if (!b.seconds.count(name) || render.empty() || reference.empty()) {
+      b.skipped = "Blender wrote no " + name + " or no reference (its log: " + b.log + ")";
       return run;
     }
-    curve.Add(spp, seconds[name], 0, Compare(render, reference));
+    curve.Add(spp, b.seconds[name], 0, Compare(render, reference));
     if (spp == 16) KeepImage(curve, "16spp", render);
   }
   KeepImage(curve, "reference", reference);
-  std::filesystem::remove_all(dir);
+  std::filesystem::remove_all(b.dir);
   return run;
 }
 
 // ---- The report ----
 
-struct Crossing {
-  double seconds, spp;
-};
-
-// Where the curve's own PSNR reaches `db`: linear in PSNR against log time (and log samples) between the two
-// measured points around it (when noise dominates, PSNR grows by 10 dB per tenfold time). Nothing past the
-// last point.
-std::optional<Crossing> Reach(const Curve& curve, double db) {
-  const std::vector<Point>& p = curve.points;
-  if (p.empty()) return std::nullopt;
-  if (p[0].own_psnr_db >= db) return Crossing{p[0].seconds, double(p[0].spp)};
-  for (size_t i = 0; i + 1 < p.size(); ++i)
-    if (p[i].own_psnr_db < db && p[i + 1].own_psnr_db >= db) {
-      const double f = (db - p[i].own_psnr_db) / (p[i + 1].own_psnr_db - p[i].own_psnr_db);
-      const auto log_lerp = [f](double a, double b) { return std::exp((1 - f) * std::log(a) + f * std::log(b)); };
-      return Crossing{log_lerp(p[i].seconds, p[i + 1].seconds), log_lerp(p[i].spp, p[i + 1].spp)};
-    }
-  return std::nullopt;
-}
-
-std::string ReachText(const Curve& curve, double db) {
-  const std::optional<Crossing> c = Reach(curve, db);
-  if (!c) return "not reached";
-  return (c->spp <= curve.points[0].spp ? "<= " : "") + Fixed(c->seconds, 3) + " s (" + Fixed(c->spp, 0) + " spp)";
-}
-
-// The seconds to reach `db`, 0 when not reached.
-double SecondsTo(const Curve& curve, double db) { return Reach(curve, db).value_or(Crossing{0, 0}).seconds; }
-
 // The figures: 256 x 256 and 512 x 512 cylinders at 40 dB within a time, and a third of Cycles' time.
 std::string Targets(const std::vector<Curve>& curves, const CyclesRun& cycles) {
-  const double cycles_40 = cycles.skipped.empty() ? SecondsTo(cycles.curve, 40) : 0;
+  const double cycles_40 = cycles.blender.skipped.empty() ? SecondsTo(cycles.curve, 40) : 0;
   std::string lines;
   for (const Curve& c : curves) {
     if (c.scene != "cylinders") continue;
@@ -345,9 +190,10 @@ std::string Method(const NoiseSizes& n, const std::vector<Curve>& curves, const 
       "resolve it). Time to 30, 35, 40 dB (own PSNR): linear in PSNR against log time (and log samples) between "
       "the two measured sample counts around it; not reached: not within " +
       std::to_string(n.samples.back()) + " samples per pixel.\n\n";
-  if (!cycles.skipped.empty())
-    return method + "Cycles: skipped: " + cycles.skipped + ". This section took " + Fixed(loomlight_seconds, 0) + " s.";
-  return method + "Cycles (Blender " + cycles.version +
+  if (!cycles.blender.skipped.empty())
+    return method + "Cycles: skipped: " + cycles.blender.skipped + ". This section took " +
+           Fixed(loomlight_seconds, 0) + " s.";
+  return method + "Cycles (Blender " + cycles.blender.version +
          ", `bench/cycles/cylinders.py`): the cylinders scene rebuilt, the three open tubes as 512-segment smooth "
          "meshes, the same camera, and the server's own sky written as a " +
          std::to_string(kSkyWidth) + " x " + std::to_string(kSkyWidth / 2) +
@@ -359,9 +205,10 @@ std::string Method(const NoiseSizes& n, const std::vector<Curve>& curves, const 
          std::to_string(kSeed) + "; reference halves with seeds 1001 and 1002. Time = the render operator's wall "
          "time inside Blender (scene sync, BVH, world map, sampling; not Blender's start-up nor the file write), "
          "the fastest of " +
-         std::to_string(n.runs) + ". This section took " + Fixed(loomlight_seconds + cycles.process_seconds, 0) +
+         std::to_string(n.runs) + ". This section took " +
+         Fixed(loomlight_seconds + cycles.blender.process_seconds, 0) +
          " s: Loomlight " + Fixed(loomlight_seconds, 0) + " s, the Blender process " +
-         Fixed(cycles.process_seconds, 0) + " s.";
+         Fixed(cycles.blender.process_seconds, 0) + " s.";
 }
 
 }  // namespace
@@ -379,7 +226,7 @@ std::string NoiseSection(const Sizes& sizes) {
   const CyclesRun cycles = RunCycles(n);
   std::vector<const Curve*> all;
   for (const Curve& c : curves) all.push_back(&c);
-  if (cycles.skipped.empty()) all.push_back(&cycles.curve);
+  if (cycles.blender.skipped.empty()) all.push_back(&cycles.curve);
 
   Table points({"renderer", "scene", "pixels", "samples/pixel", "time ms", "client ms", "rel. MSE", "PSNR dB",
                 "own PSNR dB"},

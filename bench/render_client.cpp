@@ -30,12 +30,12 @@ v1::RenderRequest SquareRequest(const char* preset, v1::ScenePreset scene, uint3
   return r;
 }
 
-std::vector<float> DecodeExr(const std::string& bytes) {
+std::vector<float> DecodeExr(const std::string& bytes, int channels) {
   OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
   auto in = OIIO::ImageInput::open("render.exr", nullptr, &reader);
-  if (!in) return {};
-  std::vector<float> pixels(size_t(in->spec().width) * in->spec().height * 3);
-  if (!in->read_image(0, 0, 0, 3, OIIO::TypeDesc::FLOAT, pixels.data())) return {};
+  if (!in || in->spec().nchannels < channels) return {};
+  std::vector<float> pixels(size_t(in->spec().width) * in->spec().height * channels);
+  if (!in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, pixels.data())) return {};
   return pixels;
 }
 

@@ -19,8 +19,8 @@ struct RenderResult {
   std::vector<float> image;  // linear RGB, rows from the top
 };
 
-// The first three channels of an EXR file's bytes as floats; empty when they cannot be decoded.
-std::vector<float> DecodeExr(const std::string& bytes);
+// The first `channels` channels of an EXR file's bytes as floats; empty when they cannot be decoded.
+std::vector<float> DecodeExr(const std::string& bytes, int channels = 3);
 
 // One call; a failed call ends the benchmark.
 RenderResult RenderOnce(v1::Loomlight::Stub& stub, const v1::RenderRequest& request);

@@ -69,8 +69,10 @@ Environment::Sample DrawEnvironment(const RenderSetup& setup, const SamplePoints
 }
 
 // Calls add(direction toward the light, distance to it, incident radiance over pdf times the MIS weight, index of
-// the light in setup.lights or -1) for every light (a rect light: one point on it, by light sampling alone, as
-// material draws look up the environment only), and (with_environment) one direction from each component of the environment (its bright regions,
+// the light in setup.lights or -1) for every light (a rect light: one point on it, by light sampling alone; weighed
+// against the material's draws finding it too, the studio preset's error at 16 samples grew 1.2 to 3.4 times on
+// satin and linen, balance or power heuristic: the draws hit or miss a softbox, its solid angle's points never
+// do), and (with_environment) one direction from each component of the environment (its bright regions,
 // the rest) as seen from `position`. material_density(direction) is the material sampling strategy's density
 // toward a direction times its draws per hit (0 where there is none), against which the environment's samples are
 // weighed. `drawn`: the environment's directions drawn ahead (null: drawn here from `points`).

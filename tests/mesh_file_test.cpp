@@ -512,9 +512,15 @@ TEST(MeshFile, BadValuesAreRefusedByName) {
   PrimitiveData infinite_uv = Rectangle();
   infinite_uv.uvs[1][0] = std::numeric_limits<float>::infinity();
   EXPECT_TRUE(Contains(ParseError(Write(OneMeshModel({infinite_uv}), true)), "TEXCOORD_0[1] is not finite"));
-  // tinyobjloader reads an overflowing number as infinity (and "nan" as 0).
-  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1e400 0 0\nv 0 1 0\nf 1 2 3\n"), "v 2 is not finite"));
+  // tinyobjloader would read an overflowing number as infinity and "nan" or "1,5" as 0 (a vertex silently
+  // moved): every OBJ value is checked as a finite number first, by its line.
+  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1e400 0 0\nv 0 1 0\nf 1 2 3\n"), "line 2: v value '1e400' is not a finite number"));
+  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n"), "line 2: v value 'nan' is not a finite number"));
+  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1 0 0\nv 0 1,5 0\nf 1 2 3\n"), "line 3: v value '1,5' is not a finite number"));
   EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1e39\nf 1//1 2//1 3//1\n"), "vn 1 is not finite"));
+  EXPECT_TRUE(Contains(ParseError("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt inf 0\nf 1/1 2/1 3/1\n"), "line 4: vt value 'inf'"));
+  TriangleMesh signed_mesh;  // what strtod reads, this reads
+  EXPECT_EQ(Parse("v +1 0 0\nv 2. 0 0\nv .5 1 0\nf 1 2 3\n", &signed_mesh, {}, nullptr, v1::MESH_FORMAT_AUTO), "");
 
   PrimitiveData out_of_range = Rectangle();
   out_of_range.indices[4] = 7;

@@ -4,6 +4,7 @@
 #include <tiny_obj_loader.h>
 
 #include <algorithm>
+#include <charconv>
 #include <cfloat>
 #include <cmath>
 #include <cstdlib>
@@ -1051,6 +1052,23 @@ std::string ScanObj(std::string_view text, const MeshLimits& limits, StopCheck* 
       // tinyobjloader sizes a tag's arrays from the counts the line states (up to 8192 values of each kind, some
       // 330 KB for a line of 20 bytes): a file of them would take thousands of times its size.
       return where + ": 't' lines (subdivision surface tags) are not read";
+    }
+    if (token[0] == 'v' && (ObjSpace(token[1]) || ((token[1] == 't' || token[1] == 'n') && ObjSpace(token[2])))) {
+      // tinyobjloader reads a value it cannot parse ("nan", "1,5", "x") as 0: a vertex silently moved. Every
+      // value must be a finite decimal number (std::from_chars would take "nan" and "inf": refused after it).
+      const char* what = token[1] == 't' ? "vt" : token[1] == 'n' ? "vn" : "v";
+      token += std::strlen(what);
+      for (token += std::strspn(token, " \t"); !ObjLineEnd(*token); token += std::strspn(token, " \t\r")) {
+        const size_t length = std::strcspn(token, " \t\r");
+        double value = 0;
+        const char* number = token + (length > 1 && token[0] == '+');  // from_chars takes no '+'; strtod does
+        const auto [rest, code] = std::from_chars(number, token + length, value);
+        if (code != std::errc() || rest != token + length || !std::isfinite(value))
+          return where + ": " + what + " value " + Quote(std::string_view(token, length)) +
+                 " is not a finite number";
+        token += length;
+      }
+      continue;
     }
     const bool face = token[0] == 'f' && ObjSpace(token[1]);
     if (!face && !((token[0] == 'l' || token[0] == 'p') && ObjSpace(token[1]))) continue;

@@ -179,6 +179,13 @@ void Environment::SetTransform(double intensity, double rotation_deg) {
   sin_rotation_ = std::sin(rotation_deg * kDegree);
 }
 
+void Environment::Turn(double degrees) {
+  const double c = std::cos(degrees * kDegree), s = std::sin(degrees * kDegree);
+  const double cos_rotation = cos_rotation_ * c - sin_rotation_ * s;  // the angle sum, without atan2
+  sin_rotation_ = sin_rotation_ * c + cos_rotation_ * s;
+  cos_rotation_ = cos_rotation;
+}
+
 void Environment::ToImage(Vec3 d, double* x, double* y) const {
   // World to map: rotate by -rotation about +y.
   const Vec3 m{d.x * cos_rotation_ - d.z * sin_rotation_, d.y, d.x * sin_rotation_ + d.z * cos_rotation_};
@@ -194,13 +201,6 @@ Vec3 Environment::WorldDirection(double sin_theta, double cos_theta, double sin_
   const Vec3 m{sin_theta * sin_phi, cos_theta, -sin_theta * cos_phi};
   // Map to world: rotate by +rotation about +y.
   return {m.x * cos_rotation_ + m.z * sin_rotation_, m.y, -m.x * sin_rotation_ + m.z * cos_rotation_};
-void Environment::Turn(double degrees) {
-  const double c = std::cos(degrees * kDegree), s = std::sin(degrees * kDegree);
-  const double cos_rotation = cos_rotation_ * c - sin_rotation_ * s;  // the angle sum, without atan2
-  sin_rotation_ = sin_rotation_ * c + cos_rotation_ * s;
-  cos_rotation_ = cos_rotation;
-}
-
 }
 
 Vec3 Environment::FromImage(double x, double y) const {

@@ -51,12 +51,12 @@ class Environment {
 
   // Radiance scale and a rotation about +y (degrees) applied to the map.
   void SetTransform(double intensity, double rotation_deg);
+  // Turns the map a further `degrees` about +y, in the sense SetTransform's rotation turns it (a turntable's view).
+  void Turn(double degrees);
   // Which decoded map this is a copy of (shared between copies; valid while one of them lives) and its
   // transform: equal for environments that give the same radiance everywhere.
   std::string Identity() const;
 
-  // Turns the map a further `degrees` about +y, in the sense SetTransform's rotation turns it (a turntable's view).
-  void Turn(double degrees);
   Rgb Radiance(Vec3 direction) const;
 
   // The map is sampled as two lights: its small bright regions (the sun; pixels above kBrightFactor times the

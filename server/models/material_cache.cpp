@@ -1,5 +1,7 @@
 #include "server/models/material_cache.h"
 
+#include "server/models/tabulated_brdf.h"
+
 #include <cstdio>
 
 namespace loomlight::models {
@@ -237,13 +239,19 @@ void MaterialCache::EvictUntil(size_t incoming) {
 }
 
 void MaterialCache::ChargeSampler(const Entry& entry) {
-  if (!entry.SamplerBuilt()) return;
-  const size_t extra = entry.Sampler().bytes();
+  if (entry.SamplerBuilt()) Charge(entry, &Slot::sampler_charged, entry.Sampler().bytes());
+}
+
+void MaterialCache::ChargeTable(const Entry& entry) {
+  if (entry.TableBuilt() && entry.Table()) Charge(entry, &Slot::table_charged, entry.Table()->bytes());
+}
+
+void MaterialCache::Charge(const Entry& entry, bool Slot::*charged, size_t extra) {
   std::lock_guard<std::mutex> lock(mutex_);
   size_t added = 0;
   for (auto& [key, slot] : map_)
-    if (slot.entry.get() == &entry && !slot.sampler_charged) {
-      slot.sampler_charged = true;
+    if (slot.entry.get() == &entry && !(slot.*charged)) {
+      slot.*charged = true;
       slot.bytes += extra;
       added += extra;
     }

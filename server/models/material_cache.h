@@ -53,6 +53,8 @@ class MaterialCache {
   // Counts an entry's sampling table (PreparedMaterial::Sampler, built on its first use by a render or a Sample
   // call, which then call this) in its bytes, evicting the least recently used entries if that passes the bound.
   void ChargeSampler(const Entry& entry);
+  // The same for its tabulated BRDF (PreparedMaterial::Table, built by a render that takes that rung).
+  void ChargeTable(const Entry& entry);
   // Drops every entry: what a material names changed (a BTF asset was replaced or deleted), so neither a
   // request's bytes nor its resolved values may find the old packing.
   void Clear();
@@ -66,7 +68,10 @@ class MaterialCache {
     size_t bytes;
     bool alias;  // keyed on a request's bytes ("R..."), else on the canonical form ("C...")
     bool sampler_charged = false;  // bytes include the entry's sampling table
+    bool table_charged = false;    // and its tabulated BRDF
   };
+  // Adds `extra` bytes to every slot of `entry` whose `charged` flag is unset (setting it), then evicts.
+  void Charge(const Entry& entry, bool Slot::*charged, size_t extra);
   void EvictUntil(size_t incoming);  // under the lock: drops entries until `incoming` more bytes fit
   static bool HasUnknownFields(const v1::Material& material);
   static std::string CanonicalKey(const ResolvedMaterial& top, const ResolvedMaterial& layer);

@@ -1,5 +1,7 @@
 #include "server/models/material_plan.h"
 
+#include "server/models/tabulated_brdf.h"
+
 #include <algorithm>
 #include <cmath>
 
@@ -94,6 +96,26 @@ void EvaluateNative(const EvaluationPlan& plan, double* f) {
       for (int c = 0; c < 3; ++c) f[3 * q + c] = (scale ? scale[q] : 1.0) * part[3 * i + c];
     }
   }
+}
+
+const TabulatedBrdf* PreparedMaterial::Table() const {
+  std::call_once(table_once_, [this] {
+    if (transmission) table_refusal_ = "a curtain's layer is not tabulated";
+    else table_refusal_ = TabulatedBrdf::Build(*this, TabulationBudget{}, {}, &table_);
+    table_built_.store(true, std::memory_order_release);
+  });
+  return table_.get();
+}
+
+const std::string& PreparedMaterial::TableRefusal() const {
+  Table();
+  return table_refusal_;
+}
+
+std::string PreparedMaterial::Untabulable() const {
+  if (transmission) return "a curtain's layer is not tabulated";
+  TabulationGrid grid;
+  return TabulatedBrdf::PlanGrid(*this, TabulationBudget{}, &grid);
 }
 
 }  // namespace loomlight::models

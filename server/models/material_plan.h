@@ -22,6 +22,8 @@
 
 namespace loomlight::models {
 
+class TabulatedBrdf;  // server/models/tabulated_brdf.h
+
 // A material resolved and packed, ready for the kernels; immutable and shared (the material cache keeps it).
 struct PreparedMaterial {
   const Model* model = nullptr;
@@ -51,12 +53,25 @@ struct PreparedMaterial {
   // Whether Sampler() returns at once.
   bool SamplerBuilt() const { return sampler_built_.load(std::memory_order_acquire); }
 
+  // Its BRDF tabulated (TabulatedBrdf::Build with the default budget: seconds on every core for a narrow lobe; a
+  // worker's job), built on first use and kept; null when the material cannot be tabulated (TableRefusal says
+  // why: a layer, a model without a declared lobe width, a grid over the budget).
+  const TabulatedBrdf* Table() const;
+  const std::string& TableRefusal() const;
+  bool TableBuilt() const { return table_built_.load(std::memory_order_acquire); }
+  // "" when Table() may give a table (its grid fits the budget: cheap, no table is built), else why not.
+  std::string Untabulable() const;
+
  private:
   mutable std::once_flag knob_errors_once_;
   mutable std::vector<double> knob_errors_;
   mutable std::once_flag sampler_once_;
   mutable std::unique_ptr<const DirectionSampler> sampler_;
   mutable std::atomic<bool> sampler_built_{false};
+  mutable std::once_flag table_once_;
+  mutable std::shared_ptr<const TabulatedBrdf> table_;
+  mutable std::string table_refusal_;
+  mutable std::atomic<bool> table_built_{false};
 };
 
 // Resolves a material and its curtain layer, checking the composition (a layer only behind a reflection

@@ -10,9 +10,7 @@
 #include "server/yarn/fiber_scene.h"
 
 namespace loomlight::render {
-namespace {
 
-std::string Format(const char* format, ...) __attribute__((format(printf, 1, 2)));
 std::string Format(const char* format, ...) {
   char buffer[256];
   va_list args;
@@ -21,6 +19,8 @@ std::string Format(const char* format, ...) {
   va_end(args);
   return buffer;
 }
+
+namespace {
 
 struct Knob {
   std::string aspect, name;        // the report's aspect; the parameter ("": no knob)
@@ -54,16 +54,7 @@ MaterialVariants::Setting SettingOf(const Knob& knob, double value) {
   return knob.name.empty() ? MaterialVariants::Setting{} : MaterialVariants::Setting{knob.name, value};
 }
 
-int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e) {
-  for (size_t i = 0; i < evaluators->size(); ++i) {
-    const Evaluator& x = (*evaluators)[i];
-    if (x.material == e.material && x.with_uv == e.with_uv && x.transmission == e.transmission &&
-        x.fiber_axis == e.fiber_axis && x.quantity == e.quantity)
-      return static_cast<int>(i);
-  }
-  evaluators->push_back(e);
-  return static_cast<int>(evaluators->size() - 1);
-}
+
 
 // The evaluator and shading of one object under `config`; false when a variant cannot be packed.
 bool MakeShading(const MaterialInfo& m, MaterialVariants& variants, const Knobs& knobs, const Config& config,
@@ -413,6 +404,17 @@ std::string FoldEnvironment(const RenderSetup& setup, const std::vector<FoldedEn
   for (FidelityChoice& c : *choices)
     if (kept && c.chosen == "folded") c.reason += "; the fold kept from an earlier call";
   return "";
+}
+
+int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e) {
+  for (size_t i = 0; i < evaluators->size(); ++i) {
+    const Evaluator& x = (*evaluators)[i];
+    if (x.material == e.material && x.with_uv == e.with_uv && x.transmission == e.transmission &&
+        x.fiber_axis == e.fiber_axis && x.quantity == e.quantity && x.table == e.table)
+      return static_cast<int>(i);
+  }
+  evaluators->push_back(e);
+  return static_cast<int>(evaluators->size() - 1);
 }
 
 std::string ChooseFidelity(const RenderSetup& setup, const MaterialInfo& m, MaterialVariants& variants,

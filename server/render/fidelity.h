@@ -103,6 +103,12 @@ struct FidelityPlan {
   bool fiber_full_detail = false;
 };
 
+// printf into a string, for the fidelity report's reasons (at most 255 bytes).
+std::string Format(const char* format, ...) __attribute__((format(printf, 1, 2)));
+
+// The index of evaluator `e` among *evaluators, appended when it is not there yet.
+int EvaluatorIndex(std::vector<Evaluator>* evaluators, const Evaluator& e);
+
 // What one object wears: its material and that material's variants.
 struct ObjectMaterial {
   MaterialInfo info;

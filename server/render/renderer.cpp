@@ -6,6 +6,7 @@
 #include <mutex>
 #include <thread>
 
+#include "server/models/tabulated_brdf.h"
 #include "server/render/adaptive_sampling.h"
 #include "server/render/tone_map.h"
 
@@ -72,7 +73,59 @@ Status Renderer::Plan() {
   s.fiber_shadows = plan_.fiber_shadows;
   s.fiber_occlusion = plan_.fiber_occlusion;
   ChooseBtfEnvironment();
+  FindTableCandidates();
   return status_;
+}
+
+// The ladder's cheapest rung: objects whose BRDF path (no texture, no light through the cloth, no fibers) is
+// the analytic model of a material whose model declares its lobe width may take the material's tabulated BRDF,
+// in renders large enough to repay building it (kTabulateFromSamples) or when it is built already.
+void Renderer::FindTableCandidates() {
+  if (in_.force_full_fidelity) return;
+  uint64_t samples = 0;
+  for (const RenderView& view : in_.views) samples += uint64_t(view.width) * view.height * setup_.samples_per_pixel;
+  for (size_t o = 0; o < plan_.objects.size(); ++o) {
+    const int e = plan_.objects[o].evaluator;
+    if (e < 0) continue;
+    const Evaluator& far = plan_.evaluators[e];
+    if (far.with_uv || far.transmission || far.fiber_axis || far.quantity != models::Quantity::kScattering) continue;
+    if (far.material->TableBuilt() && far.material->Table()) {
+      table_candidates_.push_back(o);
+    } else if (samples >= kTabulateFromSamples) {
+      if (std::string why = far.material->TableBuilt() ? far.material->TableRefusal() : far.material->Untabulable();
+          why.empty())
+        table_candidates_.push_back(o);
+      else
+        plan_.fidelity[o].choices.push_back({"brdf_table", "analytic", "analytic", 0, "not tabulated: " + why});
+    }
+  }
+}
+
+// After Build: each candidate takes its material's table where the table's measured error is within the target.
+void Renderer::TakeTables() {
+  for (size_t o : table_candidates_) {
+    ObjectShading& shading = plan_.objects[o];
+    const models::PreparedMaterial* material = plan_.evaluators[shading.evaluator].material;
+    const models::TabulatedBrdf* table = material->Table();
+    FidelityChoice choice{"brdf_table", "analytic", "analytic", 0, ""};
+    if (!table) {
+      choice.reason = "not tabulated: " + material->TableRefusal();
+    } else if (table->measured_error() > error_target_) {
+      choice.reason = Format("the table is %.2g from the analytic model (relative L1), over the target",
+                             table->measured_error());
+    } else {
+      Evaluator tabulated = plan_.evaluators[shading.evaluator];
+      tabulated.table = table;
+      shading.evaluator = EvaluatorIndex(&plan_.evaluators, tabulated);
+      choice.chosen = "tabulated";
+      choice.estimated_error = table->measured_error();
+      choice.reason = Format("the BRDF looked up in a %d x %d x %d x %d table (%.3g MB), %.2g from the analytic "
+                             "model (relative L1)", table->grid().eta_x, table->grid().eta_y, table->grid().psi,
+                             table->grid().chi, table->bytes() / 1e6, table->measured_error());
+    }
+    plan_.fidelity[o].choices.push_back(choice);
+    plan_.fidelity[o].estimated_error += choice.estimated_error;
+  }
 }
 
 // Whether the environment light of the `btf` objects may be folded (btf_environment FOLDED, or AUTO where the
@@ -113,6 +166,8 @@ const models::PreparedMaterial* Renderer::SampledMaterial(size_t o, const Folded
 // there first.
 bool Renderer::NeedsBuild() const {
   if (folding_) return true;
+  for (size_t o : table_candidates_)
+    if (!plan_.evaluators[plan_.objects[o].evaluator].material->TableBuilt()) return true;
   for (size_t o = 0; o < plan_.objects.size() && setup_.environment; ++o)
     if (const models::PreparedMaterial* m = SampledMaterial(o, nullptr); m && !m->SamplerBuilt()) return true;
   return false;
@@ -142,11 +197,19 @@ Status Renderer::Build(const std::function<bool()>& stop, const std::function<bo
       m->Sampler();
       if (in_.materials) in_.materials->ChargeSampler(*m);
     }
+  for (size_t o : table_candidates_) {
+    if (stop()) return {batching::JobStatus::kCancelled, "stopped while tabulating a BRDF"};
+    const models::PreparedMaterial* m = plan_.evaluators[plan_.objects[o].evaluator].material;
+    if (m->TableBuilt()) continue;
+    m->Table();
+    if (in_.materials) in_.materials->ChargeTable(*m);
+  }
   return {};
 }
 
 void Renderer::Start() {
   RenderSetup& s = setup_;
+  TakeTables();
   s.folded_environment = folded_;
   for (size_t o = 0; o < fold_choices_.size() && o < plan_.fidelity.size(); ++o)
     if (!fold_choices_[o].aspect.empty()) {
@@ -467,7 +530,9 @@ void Renderer::FinishView() {
 }
 
 // The rung an evaluator is: fibers, the BTF (texture coordinates) or the BRDF.
-static std::string RungName(const Evaluator& e) { return e.fiber_axis ? "fibers" : e.with_uv ? "BTF" : "BRDF"; }
+static std::string RungName(const Evaluator& e) {
+  return e.fiber_axis ? "fibers" : e.with_uv ? "BTF" : e.table ? "tabulated BRDF" : "BRDF";
+}
 
 std::vector<std::vector<Renderer::RungShare>> Renderer::RungShares() const {
   std::vector<std::vector<RungShare>> out(rung_hits_.size());

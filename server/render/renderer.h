@@ -42,6 +42,10 @@ constexpr size_t kRenderChunkQueries = size_t{1} << 18;
 // Threads a chunk is traced on (ray casting, light and material sampling: the host's share of a render; a BTF
 // capture's pieces too).
 constexpr uint64_t kTraceThreads = 2;
+// Renders of at least this many pixel samples (every view's) tabulate a BRDF path's material when its model can be
+// (server/models/tabulated_brdf.h; seconds, once per material, kept with it in the material cache) and take the
+// table where its measured error is within the target; smaller ones take a table only when it is built already.
+constexpr uint64_t kTabulateFromSamples = uint64_t{1} << 24;
 // Pixels per block the trace threads take turns over: small enough that sky and cloth fall to both, large
 // enough that neighbouring samples make coherent ray packets.
 constexpr uint64_t kTraceBlockPixels = 16;
@@ -171,6 +175,8 @@ class Renderer {
  private:
   struct Chunk;
   void ChooseBtfEnvironment();
+  void FindTableCandidates();
+  void TakeTables();
   const models::PreparedMaterial* SampledMaterial(size_t object, const FoldedEnvironment* folded) const;
   void StartView();
   void NoticeStop();
@@ -197,6 +203,8 @@ class Renderer {
   // Build's results, taken by Start.
   std::shared_ptr<const FoldedEnvironment> folded_;
   std::vector<FidelityChoice> fold_choices_;
+  // Objects whose BRDF path's material may be tabulated (its table built in Build when it is not yet).
+  std::vector<size_t> table_candidates_;
 
   std::unique_ptr<Chunk[]> chunks_;  // two
   bool submitted_[2] = {false, false};

@@ -5,6 +5,7 @@
 #include <numbers>
 
 #include "server/models/material_plan.h"
+#include "server/models/tabulated_brdf.h"
 #include "server/render/folded_environment.h"
 #include "server/render/lighting_presets.h"
 
@@ -491,6 +492,17 @@ Rgb AppendQueries(const ShadingPoint& point, const ObjectShading& shading, const
   const int chosen = EvaluatorFor(point, shading);
   if (chosen < 0) return {};
   const Evaluator& evaluator = evaluators[chosen];
+  if (evaluator.table) {  // looked up here: f x weight, no query
+    Rgb sum;
+    const double wo[3] = {point.wo.x, point.wo.y, point.wo.z};
+    for (const LightSample& light : point.lights) {
+      if (light.wi.z < 0) continue;  // light through the cloth: the table is of reflection
+      const double wi[3] = {light.wi.x, light.wi.y, light.wi.z};
+      const std::array<double, 3> f = evaluator.table->Evaluate(wi, wo);
+      sum = sum + Rgb{f[0] * light.weight.x, f[1] * light.weight.y, f[2] * light.weight.z};
+    }
+    return sum;
+  }
   QueryBucket& bucket = (*buckets)[chosen];
   const auto push = [&](QueryBucket& b, const Evaluator& e, Vec3 wi, Rgb weight) {
     b.wi.insert(b.wi.end(), {float(wi.x), float(wi.y), float(wi.z)});

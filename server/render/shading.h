@@ -135,12 +135,15 @@ void ShadeHit(const RenderSetup& setup, Vec3 direction, double pixel_angle, cons
 // or without, with light through the cloth (pairs on opposite sides, and what is seen through it) or without.
 // A fiber object's evaluators carry each query's fiber axis; its ambient evaluator computes the ambient factor
 // (models::Quantity::kAmbient) toward wo.
+// A tabulated BRDF (`table`, the material's: the fidelity ladder's cheapest rung) is looked up on the host as
+// the sample is traced: its light samples make no queries.
 struct Evaluator {
   const models::PreparedMaterial* material = nullptr;
   bool with_uv = false;
   bool transmission = false;
   bool fiber_axis = false;
   models::Quantity quantity = models::Quantity::kScattering;
+  const models::TabulatedBrdf* table = nullptr;
 };
 
 // How one object's light samples are evaluated: the index of its evaluator (and, on fibers, of its ambient

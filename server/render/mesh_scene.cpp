@@ -22,22 +22,6 @@ Subject SubjectOf(const assets::TriangleMesh& mesh) {
   return s;
 }
 
-CameraSpec FramingCamera(const Subject& subject, int width, int height, double fov_deg) {
-  // The narrower field of view decides: a tall image's horizontal one, a wide image's vertical one.
-  const double half_vertical = 0.5 * fov_deg * kDegree;
-  const double aspect = double(std::max(width, 1)) / double(std::max(height, 1));
-  const double half_narrow = aspect < 1 ? std::atan(std::tan(half_vertical) * aspect) : half_vertical;
-  // The sphere fits the cone of half-angle half_narrow at distance radius / sin; 8% margin around it.
-  const double distance = 1.08 * subject.radius / std::sin(half_narrow);
-  const Vec3 direction = Normalize(Vec3{0, 0.3, 1});  // from the front, a little above (as a shop shows a garment)
-  CameraSpec camera;
-  camera.look_at = subject.centre;
-  camera.position = subject.centre + distance * direction;
-  camera.up = {0, 1, 0};
-  camera.fov_deg = fov_deg;
-  return camera;
-}
-
 namespace {
 // Rodrigues' rotation of v about the unit axis.
 Vec3 Rotate(Vec3 v, Vec3 axis, double angle) {
@@ -45,6 +29,39 @@ Vec3 Rotate(Vec3 v, Vec3 axis, double angle) {
   return c * v + s * Cross(axis, v) + (1 - c) * Dot(axis, v) * axis;
 }
 }  // namespace
+
+CameraSpec FramingCamera(const assets::TriangleMesh& mesh, int width, int height, double elevation_deg,
+                         double fov_deg) {
+  const Subject subject = SubjectOf(mesh);
+  const Vec3 direction{0, std::sin(elevation_deg * kDegree), std::cos(elevation_deg * kDegree)};
+  const Vec3 up{0, 1, 0}, forward = -1.0 * direction;
+  const Vec3 right = Normalize(Cross(forward, up)), camera_up = Cross(right, forward);
+  // Each field of view's half-angle tangent, with a 6% margin around the product.
+  const double tan_v = std::tan(0.5 * fov_deg * kDegree) / 1.06;
+  const double tan_h = tan_v * double(std::max(width, 1)) / double(std::max(height, 1));
+  // The nearest distance at which every corner of the bounding box lies inside the frame, in every turn of a
+  // turntable about +y (16 steps): a point q from the centre is seen at depth d + q.forward, and fits while
+  // |q.right| <= tan_h (d + q.forward) and |q.up| <= tan_v (d + q.forward).
+  double distance = 0;
+  for (int corner = 0; corner < 8; ++corner) {
+    const Vec3 q{(corner & 1 ? mesh.bounds_max[0] : mesh.bounds_min[0]) - subject.centre.x,
+                 (corner & 2 ? mesh.bounds_max[1] : mesh.bounds_min[1]) - subject.centre.y,
+                 (corner & 4 ? mesh.bounds_max[2] : mesh.bounds_min[2]) - subject.centre.z};
+    for (int step = 0; step < 16; ++step) {
+      const Vec3 turned = Rotate(q, up, 2 * std::numbers::pi * step / 16);
+      distance = std::max({distance, std::fabs(Dot(turned, right)) / tan_h - Dot(turned, forward),
+                           std::fabs(Dot(turned, camera_up)) / tan_v - Dot(turned, forward)});
+    }
+  }
+  // Never inside the bounding sphere.
+  distance = std::max(distance, 1.01 * subject.radius);
+  CameraSpec camera;
+  camera.look_at = subject.centre;
+  camera.position = subject.centre + distance * direction;
+  camera.up = up;
+  camera.fov_deg = fov_deg;
+  return camera;
+}
 
 double TurntableAngle(int k, int views) { return 2 * std::numbers::pi * k / std::max(views, 1); }
 
@@ -74,7 +91,8 @@ std::string MeshObjectName(std::string_view material_name) {
                                : "mesh material '" + std::string(material_name.substr(0, 64)) + "'";
 }
 
-Scene MeshScene(std::shared_ptr<const MeshGeometry> geometry, double uv_length, int width, int height) {
+Scene MeshScene(std::shared_ptr<const MeshGeometry> geometry, double uv_length, int width, int height,
+                double elevation_deg) {
   Scene scene;
   const assets::TriangleMesh& mesh = geometry->mesh();
   for (const std::string& name : mesh.material_names) {
@@ -86,7 +104,7 @@ Scene MeshScene(std::shared_ptr<const MeshGeometry> geometry, double uv_length, 
   scene.mesh_first_object = 0;
   scene.mesh_uv_length = uv_length;
   const Subject subject = SubjectOf(mesh);
-  scene.default_camera = FramingCamera(subject, width, height);
+  scene.default_camera = FramingCamera(mesh, width, height, elevation_deg);
   // Repeats per unit of s = u x uv_length: one such unit spans metres_per_uv / uv_length metres of surface.
   const double metres = mesh.metres_per_uv > 0 ? mesh.metres_per_uv : 1.0;
   scene.default_texture_scale = kDefaultMeshRepeatsPerMetre * metres / uv_length;
@@ -96,11 +114,11 @@ Scene MeshScene(std::shared_ptr<const MeshGeometry> geometry, double uv_length, 
   return scene;
 }
 
-Scene ProductScene(std::string_view mesh_name) {
+Scene ProductScene(std::string_view mesh_name, double elevation_deg) {
   std::shared_ptr<const MeshGeometry> geometry = BuiltinMeshGeometry(mesh_name);
   if (!geometry) return {};
   const double metres_per_uv = geometry->mesh().metres_per_uv > 0 ? geometry->mesh().metres_per_uv : 1.0;
-  return MeshScene(std::move(geometry), metres_per_uv);
+  return MeshScene(std::move(geometry), metres_per_uv, 1, 1, elevation_deg);
 }
 
 std::shared_ptr<const MeshGeometry> BuiltinMeshGeometry(std::string_view name) {

@@ -18,6 +18,7 @@ namespace loomlight::render {
 // close-ups).
 constexpr double kDefaultMeshRepeatsPerMetre = 500;
 constexpr double kDefaultMeshFovDeg = 30;
+constexpr double kDefaultMeshElevationDeg = 17;  // the camera a little above the product's middle
 constexpr std::string_view kDefaultMeshLighting = "studio";  // a lighting preset (lighting_presets.h)
 
 // The sphere around the mesh's bounds: what the camera frames and the studio lights are placed around.
@@ -27,9 +28,10 @@ struct Subject {
 };
 Subject SubjectOf(const assets::TriangleMesh& mesh);
 
-// A camera seeing the whole subject from the front (+z, glTF's forward), a little above, with a margin:
-// the subject's sphere fits the narrower of the image's two fields of view.
-CameraSpec FramingCamera(const Subject& subject, int width, int height, double fov_deg = kDefaultMeshFovDeg);
+// A camera seeing the whole mesh from the front (+z, glTF's forward), `elevation_deg` above its middle, as near
+// as lets every corner of its bounding box stay in the frame with a margin, in any turn of a turntable about +y.
+CameraSpec FramingCamera(const assets::TriangleMesh& mesh, int width, int height,
+                         double elevation_deg = kDefaultMeshElevationDeg, double fov_deg = kDefaultMeshFovDeg);
 
 // A turntable: `views` cameras, the first `first`, each turned by 360 / views degrees more about the axis
 // through first.look_at along first.up.
@@ -42,7 +44,8 @@ Light TurnLight(const Light& light, const CameraSpec& first, double angle);
 // scene units are the UVs times uv_length (scene units per UV unit: 1 counts repeats per UV unit, the mesh's
 // metres_per_uv counts them per metre); default camera framing it at `width` x `height` (the request's), lit by
 // the studio preset, on no environment, with kDefaultMeshRepeatsPerMetre converted to uv_length's unit.
-Scene MeshScene(std::shared_ptr<const MeshGeometry> geometry, double uv_length, int width = 1, int height = 1);
+Scene MeshScene(std::shared_ptr<const MeshGeometry> geometry, double uv_length, int width = 1, int height = 1,
+                double elevation_deg = kDefaultMeshElevationDeg);
 // The name the fidelity report gives mesh material `name`.
 std::string MeshObjectName(std::string_view material_name);
 
@@ -52,6 +55,6 @@ std::shared_ptr<const MeshGeometry> BuiltinMeshGeometry(std::string_view name);
 
 // A built-in product scene: its mesh's scene (texture scale in repeats per metre of cloth), framed, lit by the
 // studio preset; every object wears the request's material. A mesh that is missing gives a scene with no objects.
-Scene ProductScene(std::string_view mesh_name);
+Scene ProductScene(std::string_view mesh_name, double elevation_deg = kDefaultMeshElevationDeg);
 
 }  // namespace loomlight::render

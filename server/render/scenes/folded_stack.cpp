@@ -6,7 +6,7 @@
 namespace loomlight::render {
 namespace {
 
-Scene Build(const models::ParamValues&) { return ProductScene("folded_stack"); }
+Scene Build(const models::ParamValues&) { return ProductScene("folded_stack", 40); }  // from above: a stack's top shows
 
 SceneSpec Spec() {
   return {"folded_stack", SceneSpec::kNoPreset, "folded pieces of the fabric stacked as a shop shelves them, folded by cloth simulation", {}, {.uv = true}, Build};

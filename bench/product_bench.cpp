@@ -43,10 +43,10 @@ struct ProductSizes {
   int runs;                       // timed renders per point, the fastest counts
 };
 
-// Sized to about 17 minutes on 2 cores: at 1600 x 1600 both renderers took 5 to 10 s per sample per pixel on this
-// machine (both passed 40 dB near 3 samples per pixel), so the ladder stops at 8 and the references are 2 x 24
-// samples per pixel (an 8-sample image's noise is still 6 times the reference's, which resolves it). One
-// Loomlight call holds at most 2^26 samples (26 per pixel at 1600 x 1600): each half is one call.
+// Sized to 6 to 11 minutes on 2 cores (as loaded by other processes): at 1600 x 1600 each renderer takes 2 to 3.5 s
+// per sample per pixel here, more when loaded, and passes 40 dB at 3 to 6, so the ladder stops at 8 and the
+// references are 2 x 24 samples per pixel (an 8-sample image's noise is still 6 times the reference's, which
+// resolves it). One Loomlight call holds at most 2^26 samples (26 per pixel at 1600 x 1600): each half is one call.
 ProductSizes SizesFor(const Sizes& sizes) {
   if (sizes.quick) return {160, {1, 4, 16}, 64, 64, 1};
   return {1600, {1, 2, 4, 8}, 48, 48, 2};

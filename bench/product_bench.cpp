@@ -82,7 +82,7 @@ std::string LoadScene(uint32_t side, ProductScene* out) {
   const render::LightingPreset* preset = render::FindLightingPreset(kLighting);
   if (!preset) return std::string("no lighting preset ") + kLighting;
   const render::Subject subject = render::SubjectOf(out->mesh);
-  out->camera = render::FramingCamera(subject, int(side), int(side));
+  out->camera = render::FramingCamera(out->mesh, int(side), int(side));
   out->lights = render::PlaceLights(*preset, subject.centre, subject.radius, out->camera);
   out->environment_intensity = preset->environment_intensity;
   return "";

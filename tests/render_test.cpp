@@ -860,7 +860,7 @@ render::RenderSetup FiberSetup(const yarn::YarnGeometry& geometry, render::Vec3 
   setup.scene.fibers = fibers;
   setup.width = setup.height = side;
   setup.camera = render::PinholeCamera({{0.2, 0.05, 0.1}, {0, 0, 0}, {0, 1, 0}, 8}, side, side);
-  setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}}};
+  setup.lights = {{render::Light::Type::kDirectional, light, {}, {2, 2, 2}, {}, {}, 0, 0}};
   return setup;
 }
 render::RenderSetup OneFiberSetup(yarn::FiberType type, double r, render::Vec3 light) {

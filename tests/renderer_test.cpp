@@ -43,7 +43,7 @@ render::RenderInputs SphereInputs(int width, int height, uint32_t samples_per_pi
   s.samples_per_pixel = samples_per_pixel;
   s.seed = 3;
   s.texture_scale = s.scene.default_texture_scale;
-  in.views.push_back({s.scene.default_camera, width, height});
+  in.views.push_back({s.scene.default_camera, width, height, {}, nullptr});
   v1::Material material;
   material.set_preset("velvet");
   std::shared_ptr<const models::PreparedMaterial> prepared;

@@ -243,7 +243,7 @@ render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, render::Scene sc
   s.choose_fiber_occlusion = r.fiber_occlusion() == v1::FIBER_OCCLUSION_AUTO;
   const render::CameraSpec camera = CameraOf(r, s.scene);
   for (const render::CameraSpec& view : render::TurntableCameras(camera, int(ViewsOf(r))))
-    in.views.push_back({view, static_cast<int>(r.width()), static_cast<int>(r.height())});
+    in.views.push_back({view, static_cast<int>(r.width()), static_cast<int>(r.height()), {}, nullptr});
   in.product_only = r.background() != v1::BACKGROUND_ENVIRONMENT;
   s.samples_per_pixel = SamplesPerPixel(r);
   s.seed = r.seed();
@@ -868,8 +868,11 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   if (r.btf_environment() == v1::BTF_ENVIRONMENT_FOLDED) {
     if (needs.fibers) return "btf_environment: FOLDED is for `btf` materials, not the fiber scenes";
     if (r.has_mesh()) return "btf_environment: FOLDED is for the built-in scenes, not a mesh (its materials differ)";
-    const bool default_sky = r.lights().empty() && !r.has_environment() && scene.Build().default_environment;
-    if (!r.has_environment() && !default_sky)
+    const render::LightingPreset* preset = render::FindLightingPreset(r.lighting());
+    const bool studio_map = preset && preset->environment_intensity > 0;
+    const bool default_sky =
+        r.lighting().empty() && r.lights().empty() && !r.has_environment() && scene.Build().default_environment;
+    if (!r.has_environment() && !default_sky && !studio_map)
       return "btf_environment: FOLDED folds the environment map, and this request's lighting has none";
   }
   if (!std::isfinite(r.ambient()) || r.ambient() < 0 || r.ambient() > kMaxLightValue)

@@ -24,7 +24,7 @@ BtfCapture::BtfCapture(std::shared_ptr<const yarn::FiberScene> fibers, const Sce
   for (size_t l = 0; l < grid.size(); ++l) {
     double w[3];
     grid.Direction(l, w);
-    s.lights.push_back({Light::Type::kDirectional, {w[0], w[1], w[2]}, {}, {1, 1, 1}});
+    s.lights.push_back({Light::Type::kDirectional, {w[0], w[1], w[2]}, {}, {1, 1, 1}, {}, {}, 0, 0});
     inverse_cosine_.push_back(1 / w[2]);  // grid directions keep theta <= 89 degrees: w[2] >= 0.017
   }
   ray_start_z_ = double(fibers->upper().z) + 1e-3 * std::max(tile.period_x, tile.period_y);

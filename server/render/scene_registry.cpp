@@ -60,7 +60,7 @@ void SetUpFiberScene(Scene* scene, std::string object, CameraSpec camera, Vec3 t
   scene->objects.push_back({std::move(object), Shape{}, 0, true});
   scene->fiber_object = 0;
   scene->default_camera = camera;
-  scene->default_lights.push_back({Light::Type::kDirectional, Normalize(toward_light), {}, {3, 3, 3}});
+  scene->default_lights.push_back({Light::Type::kDirectional, Normalize(toward_light), {}, {3, 3, 3}, {}, {}, 0, 0});
   scene->default_environment = false;
   scene->default_ambient = 0.25;
 }

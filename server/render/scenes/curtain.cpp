@@ -11,7 +11,7 @@ Scene BuildCurtain(const models::ParamValues& p) {
       {"curtain", QuadShape({0, 0, 0}, {1, 0, 0}, {0, 1, 0}, 0.5 * p.at("width")[0], 0.5 * p.at("height")[0]), 90});
   scene.default_camera = {{0, 0, 3.6}, {0, 0, 0}, {0, 1, 0}, 42};
   scene.default_texture_scale = 8;
-  scene.default_lights.push_back({Light::Type::kDirectional, Normalize({0.3, 0.35, -1}), {}, {4, 3.8, 3.4}});
+  scene.default_lights.push_back({Light::Type::kDirectional, Normalize({0.3, 0.35, -1}), {}, {4, 3.8, 3.4}, {}, {}, 0, 0});
   scene.default_environment_intensity = 0.4;
   return scene;
 }

@@ -4,7 +4,9 @@
 #include <sys/utsname.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <ctime>
@@ -155,6 +157,27 @@ std::string UtcNow() {
   return buf;
 }
 
+// A fixed single-thread loop (2^26 dependent steps of an xorshift and a multiply-add), best of 3, in
+// milliseconds: the same work on every run, so times in reports of different days can be put on one scale.
+double CalibrationMilliseconds() {
+  double best = 1e300;
+  for (int run = 0; run < 3; ++run) {
+    const auto start = std::chrono::steady_clock::now();
+    uint64_t x = 0x9E3779B97F4A7C15ull;
+    double y = 1;
+    for (uint32_t i = 0; i < (1u << 26); ++i) {
+      x ^= x << 13;
+      x ^= x >> 7;
+      x ^= x << 17;
+      y = y * 0.999999 + double(x >> 40) * 1e-12;  // dependent on the last step: no vectorising it away
+    }
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    if (y < 0) std::fprintf(stderr, "%g\n", y);  // keeps y (never true)
+    best = std::min(best, ms);
+  }
+  return best;
+}
+
 }  // namespace
 
 std::string MachineDescription(const std::string& cl_platform, const std::string& cl_device, bool quick) {
@@ -165,6 +188,8 @@ std::string MachineDescription(const std::string& cl_platform, const std::string
     << "\n"
     << "- CPU: " << ProcField("/proc/cpuinfo", "model name") << ", " << std::thread::hardware_concurrency()
     << " hardware threads, " << MemoryGiB() << " memory\n"
+    << "- CPU calibration: a fixed single-thread loop (2^26 dependent xorshift and multiply-add steps) took "
+    << CalibrationMilliseconds() << " ms, best of 3 (divide a time by it to compare reports of different days)\n"
     << "- OS: " << u.sysname << " " << u.release << " " << u.machine << "\n"
     << "- OpenCL: " << cl_platform << " (" << PlatformVersion(cl_platform) << "), device `" << cl_device << "`\n"
     << "- Compiler: " << CompilerName() << "; native baseline -O3 -march=native on all hardware threads\n"

@@ -243,7 +243,7 @@ void AddOptions(CLI::App& app, loomlight::api::ServerOptions& options) {
               [&options](Number n) { options.max_health_watches = n; });
   AddPositive(app, "--max-health-watches-per-client", "of them, one client's (default 8)",
               [&options](Number n) { options.max_health_watches_per_client = n; });
-  AddMebibytes(app, "--material-cache-mb", "packed materials kept, in MiB (default 64)", &limits.material_cache_bytes);
+  AddMebibytes(app, "--material-cache-mb", "packed materials kept, with their sampling tables and tabulated BRDFs, in MiB (default 256)", &limits.material_cache_bytes);
   AddMebibytes(app, "--fold-cache-mb", "BTF environment folds kept across renders, in MiB (default 128)",
                &limits.fold_cache_bytes);
   AddMebibytes(app, "--fiber-cache-mb",

@@ -47,7 +47,9 @@ struct ServiceLimits {
   size_t memory_budget_bytes = size_t{2} << 30;  // every call's buffers, cached environment maps
   size_t max_long_running_calls = 16;            // TextureSlice, Tabulate and Render calls at once
   size_t max_long_calls_per_client = 8;          // of them, one client's (its name, else its address)
-  size_t material_cache_bytes = size_t{64} << 20;
+  // Packed materials with their sampling tables and tabulated BRDFs (each up to 64 MiB: a silk's is 56), so a
+  // catalogue's materials keep their tables from render to render.
+  size_t material_cache_bytes = size_t{256} << 20;
   size_t fold_cache_bytes = size_t{128} << 20;  // BTF environment folds kept across Render calls
   size_t fiber_cache_bytes = size_t{256} << 20;  // fiber scenes (BVH, tubes, openness) kept across calls
   // A client-streaming call (UploadBtf) that sends nothing for this long is cancelled (server/api/idle_streams.h).

@@ -16,10 +16,12 @@ import argparse
 import math
 import os
 import sys
-import time
 
 import bpy
 from mathutils import Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import cycles_common  # noqa: E402 (beside this script)
 
 
 def loomlight_to_blender(x, y, z):
@@ -67,69 +69,16 @@ def build_scene(args):
     camera.data.angle_y = math.radians(36)
     scene.camera = camera
 
-    # The sky: the server's map, looked up per texel as the server does (closest, no filtering).
-    world = bpy.data.worlds.new("sky")
-    world.use_nodes = True
-    nodes = world.node_tree.nodes
-    texture = nodes.new("ShaderNodeTexEnvironment")
-    texture.image = bpy.data.images.load(args.sky)
-    texture.interpolation = "Closest"
-    texture.projection = "EQUIRECTANGULAR"
-    world.node_tree.links.new(texture.outputs["Color"], nodes["Background"].inputs["Color"])
-    world.cycles.sampling_method = "MANUAL"
-    world.cycles.sample_map_resolution = texture.image.size[0]
-    scene.world = world
-
-    scene.render.engine = "CYCLES"
-    cycles = scene.cycles
-    cycles.device = "CPU"
-    cycles.use_adaptive_sampling = False
-    cycles.use_denoising = False
-    cycles.time_limit = 0
-    cycles.use_animated_seed = False
-    cycles.pixel_filter_type = "BOX"
-    cycles.filter_width = 1.0
-    # Direct light only: Loomlight shades the camera ray's hit by the lights and the sky, nothing bounced.
-    cycles.max_bounces = 0
-    for bounces in ("diffuse_bounces", "glossy_bounces", "transmission_bounces", "volume_bounces",
-                    "transparent_max_bounces"):
-        setattr(cycles, bounces, 0)
-    scene.render.threads_mode = "FIXED"
-    scene.render.threads = args.threads
-    scene.render.resolution_x = scene.render.resolution_y = args.size
-    scene.render.resolution_percentage = 100
-    scene.view_settings.view_transform = "Standard"
-    settings = scene.render.image_settings
-    settings.file_format = "OPEN_EXR"
-    settings.color_mode = "RGB"
-    settings.color_depth = "32"
-    settings.exr_codec = "ZIP"
+    cycles_common.set_world_map(scene, args.sky, "sky")
+    cycles_common.configure_cycles(scene, args.threads, args.size, "RGB")
     return scene
-
-
-def render(scene, samples, seed):
-    scene.cycles.samples = samples
-    scene.cycles.seed = seed
-    start = time.perf_counter()
-    bpy.ops.render.render()
-    return time.perf_counter() - start
 
 
 def main():
     args = parse_args()
     scene = build_scene(args)
     os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, "version.txt"), "w") as version:
-        version.write(bpy.app.version_string + "\n")
-    render(scene, 1, 0)  # warm-up
-    with open(os.path.join(args.out, "times.tsv"), "w") as times:
-        for job in args.renders.split(","):
-            name, samples, seed, runs = job.split(":")
-            seconds = min(render(scene, int(samples), int(seed)) for _ in range(int(runs)))
-            bpy.data.images["Render Result"].save_render(os.path.join(args.out, name + ".exr"))
-            times.write(f"{name}\t{samples}\t{seed}\t{seconds:.6f}\n")
-            times.flush()
-            print(f"cycles: {name}, {samples} samples per pixel, seed {seed}: {seconds:.3f} s", file=sys.stderr)
+    cycles_common.run_renders(scene, args.out, args.renders)
 
 
 main()

@@ -349,6 +349,8 @@ TEST_F(ProductRenderTest, EveryBadMeshRequestIsRefusedNamingTheProblem) {
        "mesh.name"},
       {"bad name", [](RenderRequest& r) { r.mutable_mesh()->set_name("../etc"); }, grpc::StatusCode::INVALID_ARGUMENT,
        "mesh.name"},
+      {"absolute path", [](RenderRequest& r) { r.mutable_mesh()->set_name("/etc/passwd"); },
+       grpc::StatusCode::INVALID_ARGUMENT, "mesh.name"},
       {"too large", [](RenderRequest& r) { r.set_width(4097); }, grpc::StatusCode::INVALID_ARGUMENT, "width"},
   };
   for (const Case& c : cases) {

@@ -132,14 +132,6 @@ double UvLength(const v1::RenderRequest& r, const assets::TriangleMesh& mesh) {
                                                                                               : 1.0;
 }
 
-// What a lighting preset is placed around: the mesh's bounding sphere, or the built-in scene's objects'.
-render::Subject SubjectOf(const render::Scene& scene, const render::CameraSpec& camera) {
-  if (scene.mesh) return render::SubjectOf(scene.mesh->mesh());
-  render::Subject subject;
-  render::SubjectSphere(scene, camera, &subject.centre, &subject.radius);
-  return subject;
-}
-
 imaging::Background BackgroundOf(const v1::RenderRequest& r) {
   return r.background() == v1::BACKGROUND_WHITE         ? imaging::Background::kWhite
          : r.background() == v1::BACKGROUND_TRANSPARENT ? imaging::Background::kTransparent
@@ -258,7 +250,8 @@ render::RenderInputs RenderInputsOf(const v1::RenderRequest& r, render::Scene sc
   const bool default_lighting = r.lights().empty() && !r.has_environment() && !preset;
   if (default_lighting) s.lights = s.scene.default_lights;
   if (preset) {  // placed around the subject as the first view sees it; the request's lights join them
-    const render::Subject subject = SubjectOf(s.scene, camera);
+    render::Subject subject;
+    render::SubjectSphere(s.scene, camera, &subject.centre, &subject.radius);
     std::vector<render::Light> placed = render::PlaceLights(*preset, subject.centre, subject.radius, camera);
     s.lights.insert(s.lights.begin(), placed.begin(), placed.end());
   }

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numbers>
 
+#include "server/render/mesh_geometry.h"
 #include "server/yarn/fiber_scene.h"
 
 namespace loomlight::render {
@@ -147,8 +148,17 @@ void SubjectSphere(const Scene& scene, const CameraSpec& camera, Vec3* centre, d
     lower = {std::min(lower.x, p.x), std::min(lower.y, p.y), std::min(lower.z, p.z)};
     upper = {std::max(upper.x, p.x), std::max(upper.y, p.y), std::max(upper.z, p.z)};
   };
-  for (const SceneObject& object : scene.objects) {
-    if (object.fibers) continue;
+  // A mesh's objects stand for its materials (their shapes are never intersected): its bounds count instead.
+  const size_t mesh_begin = scene.mesh ? size_t(scene.mesh_first_object) : scene.objects.size();
+  const size_t mesh_end = scene.mesh ? mesh_begin + scene.mesh->mesh().material_names.size() : mesh_begin;
+  if (scene.mesh) {
+    const assets::TriangleMesh& mesh = scene.mesh->mesh();
+    include({mesh.bounds_min[0], mesh.bounds_min[1], mesh.bounds_min[2]});
+    include({mesh.bounds_max[0], mesh.bounds_max[1], mesh.bounds_max[2]});
+  }
+  for (size_t o = 0; o < scene.objects.size(); ++o) {
+    const SceneObject& object = scene.objects[o];
+    if (object.fibers || (o >= mesh_begin && o < mesh_end)) continue;
     const Shape& s = object.shape;
     switch (s.kind) {
       case Shape::Kind::kSphere:

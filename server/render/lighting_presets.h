@@ -57,8 +57,8 @@ const LightingPreset* FindLightingPreset(std::string_view name);
 // The preset's softboxes placed around the sphere (centre, radius > 0) as seen by `camera`.
 std::vector<Light> PlaceLights(const LightingPreset& preset, Vec3 centre, double radius, const CameraSpec& camera);
 
-// The sphere around a scene's objects (their shapes' bounding box, fibers' bounds) that presets are placed
-// around; a scene with nothing to bound: a sphere at the camera's look-at point, a quarter of its distance.
+// The sphere around a scene's objects (their shapes' bounding box, fibers' and a mesh's bounds) that presets are
+// placed around; a scene with nothing to bound: a sphere at the camera's look-at point, a quarter of its distance.
 void SubjectSphere(const Scene& scene, const CameraSpec& camera, Vec3* centre, double* radius);
 
 }  // namespace loomlight::render

@@ -79,7 +79,7 @@ std::string WovenOf(const models::Registry& registry, const v1::WovenYarnLayout&
   const double warps = double(p.repeats_u) * job->pattern.warps, picks = double(p.repeats_v) * job->pattern.picks;
   const double vertices = warps * (picks * p.points_per_crossing + 1) + picks * (warps * p.points_per_crossing + 1);
   job->layout_bytes = static_cast<size_t>(std::min(vertices, 1e7) * kLayoutBytesPerVertex);
-  job->woven = true;
+  job->kind = yarn::YarnLayoutKind::kWoven;
   return "";
 }
 

@@ -20,7 +20,9 @@ struct SceneNeeds {
   bool uv = false;            // texture coordinates over its surfaces: a spatially varying material's pattern shows
   bool transmission = false;  // lit from behind: a material's `transmission` layer shows
   bool fibers = false;        // its object is fiber curves of RenderRequest.yarn, shaded by a fiber model
-  bool woven = false;         // fibers: laid out as the warp and weft of RenderRequest.woven (else one yarn)
+  bool woven = false;         // fibers: laid out as the warp and weft of RenderRequest.woven
+  bool knit = false;          // fibers: laid out as the knit of RenderRequest.knit
+  bool curves = false;        // fibers: laid out along RenderRequest.curves (none of the three: one straight yarn)
 };
 
 struct SceneSpec {

@@ -83,7 +83,7 @@ FiberSceneOutcome BuildFiberScene(YarnJob* job, const std::function<bool()>& sto
   // A few tubes and a shared cross-section (the other yarns as tubes of the layout's radius).
   std::vector<std::shared_ptr<const YarnCurve>> centres;
   for (const LaidYarn& l : laid) centres.push_back(l.centre);
-  const double tube_radius = job->woven ? job->layout.yarn_radius : job->params.yarn_radius;
+  const double tube_radius = job->kind == YarnLayoutKind::kWoven ? job->layout.yarn_radius : job->params.yarn_radius;
   auto made = std::make_shared<YarnVisibility>();
   if (std::string v = YarnVisibility::Make(job->params, std::move(centres), tube_radius, {}, stopped, made.get());
       !v.empty())

@@ -8,7 +8,7 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<YarnGeometry>* yarns, std:
   yarns->clear();
   laid->clear();
   std::string error;
-  if (job->woven) {
+  if (job->kind == YarnLayoutKind::kWoven) {
     WovenLayout layout;
     error = BuildLayout(job->pattern, job->layout, &layout);
     LayoutGeometry fibers;
@@ -18,6 +18,8 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<YarnGeometry>* yarns, std:
       for (const LayoutYarn& y : layout.yarns)
         laid->push_back({y.warp, y.thread, y.curve.Length(), std::make_shared<PolylineYarnCurve>(y.curve)});
     }
+  } else if (job->kind == YarnLayoutKind::kCurves || job->kind == YarnLayoutKind::kKnit) {
+    error = "internal: curve and knit layouts are not generated yet";
   } else {
     job->params.length = job->straight_length;
     error = GenerateStraightYarn(job->params, job->detail, job->limits, &yarns->emplace_back());
@@ -31,8 +33,9 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<YarnGeometry>* yarns, std:
 }
 
 bool SameFibers(const YarnJob& a, const YarnJob& b) {
-  return a.params == b.params && a.detail.SameOutput(b.detail) && a.limits == b.limits && a.woven == b.woven &&
-         (a.woven ? a.pattern == b.pattern && a.layout == b.layout : a.straight_length == b.straight_length);
+  return a.params == b.params && a.detail.SameOutput(b.detail) && a.limits == b.limits && a.kind == b.kind &&
+         a.pattern == b.pattern && a.layout == b.layout && a.straight_length == b.straight_length &&
+         a.curves == b.curves && a.knit == b.knit;
 }
 
 }  // namespace loomlight::yarn

@@ -9,20 +9,28 @@
 
 #include "server/models/weave/pattern.h"
 #include "server/yarn/curve.h"
+#include "server/yarn/curve_layout.h"
+#include "server/yarn/knit.h"
 #include "server/yarn/layout.h"
 #include "server/yarn/yarn.h"
 
 namespace loomlight::yarn {
 
-// Everything GenerateYarnJob needs: one straight yarn, or the warp and weft of a woven layout.
+// Where a job's yarns run.
+enum class YarnLayoutKind { kStraight, kWoven, kCurves, kKnit };
+
+// Everything GenerateYarnJob needs: one straight yarn, the warp and weft of a woven layout, the client's curves
+// or the courses of a knit.
 struct YarnJob {
-  YarnParams params;
+  YarnParams params;  // the yarn (a curve's own `params` win for it; a knit's courses use these)
   DetailOptions detail;
   YarnLimits limits;
+  YarnLayoutKind kind = YarnLayoutKind::kStraight;
   double straight_length = 1;
-  bool woven = false;  // else one straight yarn
-  models::weave::WeavePattern pattern;
-  LayoutParams layout;
+  models::weave::WeavePattern pattern;  // kWoven
+  LayoutParams layout;                  // kWoven
+  std::vector<CurveYarn> curves;        // kCurves
+  KnitParams knit;                      // kKnit (its yarn_radius: params.yarn_radius)
   size_t layout_bytes = 0;  // the centre polylines' estimated size
 };
 

@@ -229,7 +229,7 @@ void FuzzCreateBtf(const v1::CreateBtfRequest& request) {
   FUZZ_CHECK(bool(fibers) == request.has_fibers(), "fiber source " + std::to_string(bool(fibers)));
   if (!fibers) return;
   FUZZ_CHECK(fibers->samples >= 1 && fibers->samples <= 64, std::to_string(fibers->samples) + " rays per texel");
-  FUZZ_CHECK(fibers->yarn.woven && fibers->yarn.layout.repeats_u == 3 && fibers->yarn.layout.repeats_v == 3,
+  FUZZ_CHECK(fibers->yarn.kind == loomlight::yarn::YarnLayoutKind::kWoven && fibers->yarn.layout.repeats_u == 3 && fibers->yarn.layout.repeats_v == 3,
              "the fiber patch is not 3 x 3 repeats");
   for (size_t v = 0; v < n; ++v) {
     double w[3];

@@ -361,3 +361,12 @@ std::string ParseWif(const std::string& text, WeavePattern* out) {
 }
 
 }  // namespace loomlight::models::weave
+
+namespace loomlight::models::weave {
+// Placeholder until the colour sections are read (being written now).
+std::string ParseWif(const std::string& text, WeavePattern* out, WifColors* colors) {
+  std::string e = ParseWif(text, out);
+  if (e.empty()) *colors = WifColors();
+  return e;
+}
+}  // namespace loomlight::models::weave

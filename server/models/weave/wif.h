@@ -3,8 +3,10 @@
 // WeavePattern.
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <string>
+#include <vector>
 
 #include "server/models/weave/pattern.h"
 
@@ -53,5 +55,21 @@ inline constexpr size_t WifParseBytes(size_t text_bytes) { return text_bytes + (
 // a warp end is under when any of its shafts sinks, so an end on no shaft stays on top. WIF thread i and
 // pick j become warp i-1 and pick j-1, without mirroring. The result always passes ValidatePattern.
 std::string ParseWif(const std::string& text, WeavePattern* out);
+
+// A draft's thread colours ([COLOR TABLE] with [COLOR PALETTE]'s Range, [WARP COLORS], [WEFT COLORS] and the
+// [WARP] / [WEFT] Color= defaults): linear RGB, so a renderer can use them as diffuse albedo.
+struct WifColors {
+  // Colour WIF index i + 1 at table[i]: the table's values mapped from the palette's range to [0, 1] as sRGB, then
+  // to linear. Empty when the draft colours no thread.
+  std::vector<std::array<double, 3>> table;
+  std::vector<int> warp;  // per warp thread (the pattern's warps): its index into table, -1 when uncoloured
+  std::vector<int> weft;  // per pick (the pattern's picks), likewise
+
+  bool operator==(const WifColors&) const = default;
+};
+
+// ParseWif, and the draft's colours into *colors (left untouched on error; empty table, warp and weft when the
+// draft colours no thread). The colour sections are parsed as strictly as the weave's, with the same bounds.
+std::string ParseWif(const std::string& text, WeavePattern* out, WifColors* colors);
 
 }  // namespace loomlight::models::weave

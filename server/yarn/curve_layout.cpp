@@ -1,0 +1,1 @@
+#include "server/yarn/curve_layout.h"

@@ -61,7 +61,8 @@ struct Args {
 
 // Section names for --only, in report order.
 const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "slice", "tabulate",
-                                     "render", "noise", "fair-share", "btf", "tabulated", "product"};
+                                     "render", "noise", "fair-share", "btf", "tabulated", "product",
+                                     "fabrics"};
 // Sections merged into another, still accepted by their old names: "kernel" measures every model.
 const std::pair<const char*, const char*> kSectionAliases[] = {{"woven", "kernel"}, {"transmission", "kernel"}};
 
@@ -81,7 +82,7 @@ void Usage(const char* argv0, const Args& defaults) {
                "  --only SECTIONS  comma-separated, of: kernel (every model; aliases woven, transmission), sweep\n"
                "              (accuracy knobs), service, service-cpu, slice, tabulate, render, noise, fair-share, btf,\n"
                "              tabulated (tabulated BRDFs against the analytic model), product (a garment against\n"
-               "              Blender Cycles)\n"
+               "              Blender Cycles), fabrics (a tartan draft's colours, a knit at fiber level)\n"
                "              (a partial report: give it its own --out)\n",
                argv0, defaults.out.c_str());
 }
@@ -167,6 +168,7 @@ int main(int argc, char** argv) {
   if (want("fair-share")) sections += FairShareSection(sizes);
   sections += btf + tabulated;
   if (want("product")) sections += ProductSection(sizes);
+  if (want("fabrics")) sections += FabricsSection(sizes);
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   std::string only;

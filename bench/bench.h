@@ -70,5 +70,9 @@ std::string TabulatedSection(runtime::ClRuntime& rt, const Sizes& sizes);
 // Section 12: product shots (issue 46), a garment mesh on white under the studio preset at 1600 x 1600, Loomlight
 // against Blender Cycles (bench/cycles/product.py, when `blender` is on PATH), each against its own converged image.
 std::string ProductSection(const Sizes& sizes);
+// Section 13: fabrics as they are designed (issue 47): a tartan WIF draft with its colours on the swatch and as a
+// texture slice, the 40 x 40 stitch jersey at fiber level (generation, BVH bytes and build time at full detail and
+// Eq. 4's LoD) and a knit close-up at full detail and LoD with the LoD's error.
+std::string FabricsSection(const Sizes& sizes);
 
 }  // namespace loomlight::bench

@@ -60,13 +60,6 @@ v1::RenderRequest FiberRequest(uint32_t side, uint32_t spp, const FiberConfig& c
   return r;
 }
 
-// sum x / sum ref - 1: the image's bias, apart from its noise.
-double MeanDifference(const std::vector<float>& image, const std::vector<float>& reference) {
-  double a = 0, b = 0;
-  for (size_t i = 0; i < reference.size() && i < image.size(); ++i) a += image[i], b += reference[i];
-  return b > 0 ? a / b - 1 : 0;
-}
-
 std::string FiberGeometryOf(const v1::RenderUpdate& update) {
   for (const v1::ObjectFidelity& object : update.fidelity())
     for (const v1::FidelityChoice& c : object.choices())

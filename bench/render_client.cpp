@@ -101,6 +101,12 @@ ImageError Compare(const std::vector<float>& image, const std::vector<float>& re
   return {mse, total > 0 ? diff / total : 0, mse > 0 ? 10 * std::log10(peak * peak / mse) : 0};
 }
 
+double MeanDifference(const std::vector<float>& image, const std::vector<float>& reference) {
+  double a = 0, b = 0;
+  for (size_t i = 0; i < reference.size() && i < image.size(); ++i) a += image[i], b += reference[i];
+  return b > 0 ? a / b - 1 : 0;
+}
+
 std::string ChosenSummary(const v1::RenderUpdate& update) {
   std::map<std::string, std::string> by_aspect;
   for (const v1::ObjectFidelity& object : update.fidelity())

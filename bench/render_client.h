@@ -39,6 +39,8 @@ struct ImageError {
   double psnr_db = 0;       // 10 log10(peak^2 / MSE), peak = the reference's largest value
 };
 ImageError Compare(const std::vector<float>& image, const std::vector<float>& reference);
+// sum image / sum reference - 1: the image's bias, apart from its noise.
+double MeanDifference(const std::vector<float>& image, const std::vector<float>& reference);
 
 // The server's fidelity choices over the objects, e.g. "tangent_samples 32/32/32" over the three cylinders.
 std::string ChosenSummary(const v1::RenderUpdate& update);

@@ -52,9 +52,7 @@ std::string PolylineYarnCurve::Make(std::vector<Vec3> vertices, std::vector<Vec3
       return "vertices: the polyline turns 60 degrees or more at vertex " + std::to_string(i);
   }
   std::vector<Vec3> tangents(n);
-  tangents[0] = directions[0];
-  tangents[n - 1] = directions[n - 2];
-  for (size_t i = 1; i + 1 < n; ++i) tangents[i] = Normalized(directions[i - 1] + directions[i]);
+  for (size_t i = 0; i < n; ++i) tangents[i] = VertexTangent(vertices, i);
   for (size_t i = 0; i < n; ++i) {
     const double length = Norm(normals[i]);
     if (std::abs(length - 1) > 1e-6)
@@ -76,6 +74,16 @@ std::string PolylineYarnCurve::Make(std::vector<Vec3> vertices, std::vector<Vec3
   if (advancing)
     for (const Vec3& v : out->vertices_) out->keys_.push_back(Dot(v, out->chord_));
   return "";
+}
+
+Vec3 PolylineYarnCurve::VertexTangent(const std::vector<Vec3>& vertices, size_t i) {
+  const auto direction = [&](size_t k) {
+    const Vec3 d = vertices[k + 1] - vertices[k];
+    return (1 / Norm(d)) * d;  // as Make's segment directions, bit for bit
+  };
+  if (i == 0) return direction(0);
+  if (i + 1 == vertices.size()) return direction(i - 1);
+  return Normalized(direction(i - 1) + direction(i));
 }
 
 void PolylineYarnCurve::ClosestSegment(Vec3 p, size_t* segment, double* u) const {

@@ -82,6 +82,9 @@ class PolylineYarnCurve final : public YarnCurve {
   // perpendicular to its vertex tangent (|cos| < 1e-3), and within 60 degrees of the next vertex's normal.
   // The turning bounds keep the interpolated frame far from degenerate.
   static std::string Make(std::vector<Vec3> vertices, std::vector<Vec3> normals, PolylineYarnCurve* out);
+  // The unit tangent Make gives vertex i of `vertices` (the bisector of its two segments, a segment's direction
+  // at either end), for normals made perpendicular to it; the vertices must be distinct where they meet.
+  static Vec3 VertexTangent(const std::vector<Vec3>& vertices, size_t i);
 
   double Length() const override { return arc_.empty() ? 0 : arc_.back(); }
   CurveFrame At(double arc) const override;

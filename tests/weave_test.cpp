@@ -5,10 +5,14 @@
 #include <malloc.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cstdlib>
+#include <fstream>
 #include <new>
 #include <ostream>
+#include <set>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -749,6 +753,351 @@ TEST(WifCostTest, SectionAndEntryFloodsAreRefusedWhereTheyPassTheLimit) {
   for (int i = 0; i < 200000; ++i) notes += "n=\n";
   EXPECT_LE(PeakHeapOfParse(notes, &error), WifParseBytes(notes.size()));
   EXPECT_EQ(error, "");
+}
+
+// ---- WIF colours (issue 47): expected values worked out apart from the parser (the sRGB curve in Python) ----
+
+void PrintTo(const WifColors& c, std::ostream* os) {
+  *os << "\n  table:";
+  for (const auto& rgb : c.table) *os << " (" << rgb[0] << ", " << rgb[1] << ", " << rgb[2] << ")";
+  *os << "\n  warp:";
+  for (int i : c.warp) *os << " " << i;
+  *os << "\n  weft:";
+  for (int i : c.weft) *os << " " << i;
+}
+
+// Parses a draft that must be valid, with its colours.
+WifColors Colors(const std::string& text, WeavePattern* pattern = nullptr) {
+  WeavePattern p;
+  WifColors colors;
+  EXPECT_EQ(ParseWif(text, &p, &colors), "") << text;
+  if (pattern) *pattern = p;
+  return colors;
+}
+
+void ExpectRgb(const std::array<double, 3>& got, const std::array<double, 3>& want) {
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(got[c], want[c], 1e-12) << "channel " << c;
+}
+
+std::string Fixture(const std::string& name) {
+  std::ifstream in(std::string(LOOMLIGHT_SOURCE_DIR) + "/tests/data/wif/" + name, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  EXPECT_FALSE(text.str().empty()) << name;
+  return text.str();
+}
+
+// The twill draft coloured: white the warp's default, warp thread 3 dark red, picks 2 and 4 blue; the weft has no
+// default, so picks 1 and 3 are uncoloured. Values chosen for the sRGB curve: 0, 255, 128 and 10 (below the
+// curve's linear segment, which ends at 0.04045 * 255 = 10.3).
+const std::string kColorWif =
+    Edit(kTwillWif, "[WARP]\nThreads=4\n", "[WARP]\nThreads=4\nColor=1\n") + R"([COLOR PALETTE]
+Entries=3
+Form=RGB
+Range=0,255
+[COLOR TABLE]
+1=255,255,255
+2=128,0,0
+3=0,10,255
+[WARP COLORS]
+3=2
+[WEFT COLORS]
+2=3
+4=3
+)";
+
+// sRGB 128/255 -> ((128/255 + 0.055) / 1.055)^2.4, 10/255 -> 10/255 / 12.92.
+constexpr double kLinear128 = 0.21586050011389926, kLinear10 = 0.003035269835488375;
+
+TEST(WifColorTest, TableIsLinearAndPerThreadColorsOverrideTheDefault) {
+  WeavePattern p;
+  const WifColors c = Colors(kColorWif, &p);
+  EXPECT_EQ(p, Twill(2, 2, TwillDirection::kRightward)) << "colours change nothing in the weave";
+  ASSERT_EQ(c.table.size(), 3u);
+  ExpectRgb(c.table[0], {1, 1, 1});
+  ExpectRgb(c.table[1], {kLinear128, 0, 0});
+  ExpectRgb(c.table[2], {0, kLinear10, 1});
+  EXPECT_EQ(c.warp, (std::vector<int>{0, 0, 1, 0}));
+  EXPECT_EQ(c.weft, (std::vector<int>{-1, 2, -1, 2}));
+}
+
+TEST(WifColorTest, WithoutAPaletteTheRangeIs0To255) {
+  std::string text = kColorWif;
+  text = Edit(text, "[COLOR PALETTE]\nEntries=3\nForm=RGB\nRange=0,255\n", "");
+  const WifColors c = Colors(text);
+  EXPECT_EQ(c, Colors(kColorWif));
+  ASSERT_EQ(c.table.size(), 3u);
+  ExpectRgb(c.table[1], {kLinear128, 0, 0});
+  // A palette without Range= and Form= (Form=RGB is the only one): the same.
+  EXPECT_EQ(Colors(Edit(kColorWif, "Form=RGB\nRange=0,255\n", "")), c);
+}
+
+TEST(WifColorTest, PaletteRangeScalesTheValues) {
+  // 0..999 (Fiberworks): 500 -> 500/999 as sRGB -> 0.21450468786256824 linear.
+  std::string text = Edit(kColorWif, "Range=0,255", "Range=0,999");
+  text = Edit(text, "1=255,255,255\n2=128,0,0\n3=0,10,255\n", "1=999,999,999\n2=500,0,0\n3=0,0,999\n");
+  const WifColors c = Colors(text);
+  ASSERT_EQ(c.table.size(), 3u);
+  ExpectRgb(c.table[0], {1, 1, 1});
+  ExpectRgb(c.table[1], {0.21450468786256824, 0, 0});
+  ExpectRgb(c.table[2], {0, 0, 1});
+  // A range that does not start at 0: 100..355 is 0..255 moved up by 100, so 228 reads as 128 did.
+  text = Edit(kColorWif, "Range=0,255", "Range=100,355");
+  text = Edit(text, "1=255,255,255\n2=128,0,0\n3=0,10,255\n", "1=355,355,355\n2=228,100,100\n3=100,110,355\n");
+  EXPECT_EQ(Colors(text), Colors(kColorWif));
+}
+
+TEST(WifColorTest, DefaultsEmptyEntriesAndTheIndexRgbForm) {
+  // "index,r,g,b" in Color=: the table's colour, the r,g,b only checked.
+  EXPECT_EQ(Colors(Edit(kColorWif, "Color=1\n", "Color=1,0,0,0\n")), Colors(kColorWif));
+  // An entry without a value keeps the default; a default for the weft colours the picks without an entry.
+  std::string text = Edit(kColorWif, "[WARP COLORS]\n3=2\n", "[WARP COLORS]\n3=\n");
+  text = Edit(text, "[WEFT]\nThreads=4\n", "[WEFT]\nThreads=4\nColor=2\n");
+  const WifColors c = Colors(text);
+  EXPECT_EQ(c.warp, (std::vector<int>{0, 0, 0, 0}));
+  EXPECT_EQ(c.weft, (std::vector<int>{1, 2, 1, 2}));
+  // Only the weft coloured: the warp is all -1, not empty.
+  text = Edit(kColorWif, "Color=1\n", "");
+  text = Edit(text, "[WARP COLORS]\n3=2\n", "");
+  const WifColors weft_only = Colors(text);
+  EXPECT_EQ(weft_only.warp, (std::vector<int>{-1, -1, -1, -1}));
+  EXPECT_EQ(weft_only.weft, (std::vector<int>{-1, 2, -1, 2}));
+}
+
+TEST(WifColorTest, AnIndexTheTableSkipsIsBlackAndNoThreadMayUseIt) {
+  const std::string text = Edit(kColorWif, "2=128,0,0\n", "");
+  const std::string used = Edit(text, "[WARP COLORS]\n3=2\n", "[WARP COLORS]\n3=3\n");
+  const WifColors c = Colors(used);
+  ASSERT_EQ(c.table.size(), 3u);
+  ExpectRgb(c.table[1], {0, 0, 0});
+  EXPECT_EQ(c.warp, (std::vector<int>{0, 0, 2, 0}));
+  WeavePattern p;
+  WifColors untouched{{{0.5, 0.5, 0.5}}, {0}, {0}};
+  WifColors colors = untouched;
+  const std::string err = ParseWif(text, &p, &colors);
+  EXPECT_EQ(err, "line " + std::to_string(LineOf(text, "[WARP COLORS]") + 1) + ": colour 2 is not in [COLOR TABLE]");
+  EXPECT_EQ(colors, untouched);
+}
+
+TEST(WifColorTest, DraftsWithoutThreadColoursHaveNone) {
+  EXPECT_EQ(Colors(kTwillWif), WifColors());
+  // A table that no thread uses.
+  EXPECT_EQ(Colors(kTwillWif + "[COLOR TABLE]\n1=255,0,0\n2=0,255,0\n"), WifColors());
+  // A failed parse leaves the colours as they were.
+  WeavePattern p;
+  WifColors colors{{{1, 1, 1}}, {0}, {0}};
+  EXPECT_NE(ParseWif("[WIF]\nVersion=2\n", &p, &colors), "");
+  EXPECT_EQ(colors, (WifColors{{{1, 1, 1}}, {0}, {0}}));
+}
+
+// The two-argument ParseWif still skips the colour sections unread: loose free text there cannot break it.
+TEST(WifColorTest, TheWeaveAloneIgnoresColourSections) {
+  const std::string text = Edit(kColorWif, "Form=RGB", "Form=HSV\nthis line has no equals sign");
+  EXPECT_EQ(Wif(text), Twill(2, 2, TwillDirection::kRightward));
+  WeavePattern p;
+  WifColors colors;
+  EXPECT_EQ(ParseWif(text, &p, &colors),
+            "line " + std::to_string(LineOf(text, "this line")) + ": expected key=value, found no '='");
+  EXPECT_EQ(ParseWif(text, &p, nullptr), "") << "a null colors is the two-argument ParseWif";
+}
+
+TEST(WifColorTest, GinghamFixture) {
+  WeavePattern p;
+  const WifColors c = Colors(Fixture("gingham.wif"), &p);
+  ASSERT_EQ(p.warps, 8);
+  ASSERT_EQ(p.picks, 8);
+  for (int pick = 0; pick < 8; ++pick)
+    for (int warp = 0; warp < 8; ++warp)
+      EXPECT_EQ(p.cells[pick * 8 + warp], (warp + pick + 1) % 2) << warp << "," << pick;
+  ASSERT_EQ(c.table.size(), 2u);
+  ExpectRgb(c.table[0], {1, 1, 1});
+  ExpectRgb(c.table[1], {0.014443843596092545, 0.05126945837404324, 0.35153259950043936});  // sRGB 32, 64, 160
+  const std::vector<int> four_and_four = {0, 0, 0, 0, 1, 1, 1, 1};
+  EXPECT_EQ(c.warp, four_and_four);
+  EXPECT_EQ(c.weft, four_and_four);
+}
+
+TEST(WifColorTest, PlaidWithRange999Fixture) {
+  WeavePattern p;
+  const WifColors c = Colors(Fixture("plaid_range999.wif"), &p);
+  ASSERT_EQ(p.warps, 16);
+  ASSERT_EQ(p.picks, 16);
+  ASSERT_EQ(c.table.size(), 2u);
+  ExpectRgb(c.table[0], {0, 0.12759883955702317, 0.03193194979304206});     // 0, 392, 196 of 999
+  ExpectRgb(c.table[1], {0.5783587378161046, 0, 0.013068211383941786});     // 784, 0, 118 of 999
+  const std::vector<int> stripes = {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 1, 1};  // 8 green 2 red 4 green 2 red
+  EXPECT_EQ(c.warp, stripes);
+  EXPECT_EQ(c.weft, stripes);
+}
+
+// The threadcount the fixture's comment gives, expanded here: colour codes in the table's order.
+std::vector<int> ExpandSett(const std::string& threadcount, const std::vector<std::string>& codes) {
+  std::vector<int> threads;
+  std::istringstream in(threadcount);
+  for (std::string stripe; in >> stripe;) {
+    const size_t digits = stripe.find_first_of("0123456789");
+    const int color = int(std::find(codes.begin(), codes.end(), stripe.substr(0, digits)) - codes.begin());
+    threads.insert(threads.end(), std::stoi(stripe.substr(digits)), color);
+  }
+  return threads;
+}
+
+TEST(WifColorTest, TartanFixture) {
+  WeavePattern p;
+  const WifColors c = Colors(Fixture("tartan.wif"), &p);
+  ASSERT_EQ(p.warps, 64);
+  ASSERT_EQ(p.picks, 64);
+  // 2/2 twill throughout: the 4 x 4 twill tiled.
+  const WeavePattern twill = Twill(2, 2, TwillDirection::kRightward);
+  for (int pick = 0; pick < 64; ++pick)
+    for (int warp = 0; warp < 64; ++warp)
+      ASSERT_EQ(p.cells[pick * 64 + warp], twill.cells[(pick % 4) * 4 + warp % 4]) << warp << "," << pick;
+  const std::vector<int> sett = ExpandSett("R26 DB2 K3 LY1 K1 W1 K1 G5 R2 K1 R1 W2 R1 K1 R2 G5 K1 W1 K1 LY1 K3 DB2",
+                                           {"R", "DB", "K", "LY", "W", "G"});
+  ASSERT_EQ(sett.size(), 64u);
+  EXPECT_EQ(c.warp, sett);
+  EXPECT_EQ(c.weft, c.warp) << "a tartan: the same sett in warp and weft";
+  EXPECT_GE(std::set<int>(c.warp.begin(), c.warp.end()).size(), 6u);
+  ASSERT_EQ(c.table.size(), 6u);
+  ExpectRgb(c.table[0], {0.5775804404296506, 0.005181516702338386, 0.027320891639074894});  // scarlet 200, 16, 46
+}
+
+TEST(WifColorTest, DraftWithoutColoursFixture) {
+  WeavePattern p;
+  EXPECT_EQ(Colors(Fixture("no_colors.wif"), &p), WifColors());
+  EXPECT_EQ(p, Twill(2, 2, TwillDirection::kRightward));
+}
+
+// Each case edits kColorWif; the line to report carries "; <-- bad".
+TEST(WifColorTest, MalformedColourSectionsReportTheLine) {
+  const std::string no_table = "[COLOR TABLE]\n1=255,255,255\n2=128,0,0\n3=0,10,255\n";
+  const std::vector<BadDraft> cases = {
+      {"two values", {{"2=128,0,0", "2=128,0 ; <-- bad"}}, true,
+       "[COLOR TABLE] colour 2 has 2 value(s), expected 3 (r,g,b)"},
+      {"four values", {{"2=128,0,0", "2=128,0,0,0 ; <-- bad"}}, true, "[COLOR TABLE] colour 2 has more than 3 values"},
+      {"no value", {{"2=128,0,0", "2= ; <-- bad"}}, true, "[COLOR TABLE] colour 2 value '' is not a number"},
+      {"not a number", {{"2=128,0,0", "2=128,0x10,0 ; <-- bad"}}, true, "value '0x10' is not a number"},
+      {"negative value", {{"2=128,0,0", "2=128,-1,0 ; <-- bad"}}, true, "value '-1' is not a number"},
+      {"value over the range", {{"2=128,0,0", "2=128,256,0 ; <-- bad"}}, true,
+       "[COLOR TABLE] colour 2 value 256 out of range 0..255 (COLOR PALETTE Range=0,255)"},
+      {"value under a range's low end", {{"Range=0,255", "Range=100,355"}, {"1=255,255,255", "1=355,99,355 ; <-- bad"}},
+       true, "value 99 out of range 100..355"},
+      {"over the default range", {{"Range=0,255\n", ""}, {"3=0,10,255", "3=0,10,999 ; <-- bad"}}, true,
+       "value 999 out of range 0..255 (the default Range=0,255)"},
+      {"Form=HSV", {{"Form=RGB", "Form=HSV ; <-- bad"}}, true, "[COLOR PALETTE] Form=HSV is not supported (only RGB)"},
+      {"index beyond Entries=", {{"3=0,10,255\n", "3=0,10,255\n4=0,0,0 ; <-- bad\n"}}, true,
+       "colour 4 out of range 1..3 (COLOR PALETTE Entries=3)"},
+      {"index 0", {{"1=255,255,255", "0=255,255,255 ; <-- bad"}}, true, "colour 0 out of range 1..3"},
+      {"index over 256 without Entries=", {{"Entries=3\n", ""}, {"3=0,10,255\n", "3=0,10,255\n257=0,0,0 ; <-- bad\n"}},
+       true, "colour 257 out of range 1..256 (the limit of 256)"},
+      {"index given twice", {{"3=0,10,255\n", "3=0,10,255\n1=0,0,0 ; <-- bad\n"}}, true,
+       "[COLOR TABLE] colour 1 repeated"},
+      {"Entries= over 256", {{"Entries=3", "Entries=257 ; <-- bad"}}, true, "Entries=257 is not a number in 1..256"},
+      {"Entries=0", {{"Entries=3", "Entries=0 ; <-- bad"}}, true, "Entries=0 is not a number in 1..256"},
+      {"Range= reversed", {{"Range=0,255", "Range=255,0 ; <-- bad"}}, true,
+       "Range='255,0' is not two numbers lo,hi with lo < hi"},
+      {"Range= of one number", {{"Range=0,255", "Range=255 ; <-- bad"}}, true, "is not two numbers"},
+      {"Range= negative", {{"Range=0,255", "Range=-1,255 ; <-- bad"}}, true, "is not two numbers"},
+      {"Range= of three numbers", {{"Range=0,255", "Range=0,1,255 ; <-- bad"}}, true, "is not two numbers"},
+      {"Form= given twice", {{"Form=RGB\n", "Form=RGB\nForm=RGB ; <-- bad\n"}}, true, "[COLOR PALETTE] Form= repeated"},
+      {"warp thread beyond WARP Threads=", {{"[WARP COLORS]\n3=2\n", "[WARP COLORS]\n3=2\n5=2 ; <-- bad\n"}}, true,
+       "thread 5 out of range 1..4 (WARP Threads=4)"},
+      {"pick beyond WEFT Threads=", {{"[WEFT COLORS]\n", "[WEFT COLORS]\n9=3 ; <-- bad\n"}}, true,
+       "pick 9 out of range 1..4 (WEFT Threads=4)"},
+      {"warp thread beyond the threaded ones",
+       {{"[WARP]\nThreads=4\n", "[WARP]\n"}, {"3=2\n[WEFT", "3=2\n5=2 ; <-- bad\n[WEFT"}}, true,
+       "thread 5 out of range 1..4 (the threads of [THREADING])"},
+      {"pick beyond the treadled ones",
+       {{"[WEFT]\nThreads=4\n", "[WEFT]\n"}, {"[WEFT COLORS]\n", "[WEFT COLORS]\n5=3 ; <-- bad\n"}}, true,
+       "pick 5 out of range 1..4 (the picks of [TREADLING])"},
+      {"thread given twice", {{"[WARP COLORS]\n3=2\n", "[WARP COLORS]\n3=2\n3=1 ; <-- bad\n"}}, true,
+       "[WARP COLORS] thread 3 repeated"},
+      {"two colours for one thread", {{"[WARP COLORS]\n3=2\n", "[WARP COLORS]\n3=1,2 ; <-- bad\n"}}, true,
+       "colour '1,2' is not a number"},
+      {"thread colour beyond Entries=", {{"[WARP COLORS]\n3=2\n", "[WARP COLORS]\n3=4 ; <-- bad\n"}}, true,
+       "colour 4 out of range 1..3 (COLOR PALETTE Entries=3)"},
+      {"Color= beyond Entries=", {{"Color=1", "Color=9 ; <-- bad"}}, true, "colour 9 out of range 1..3"},
+      {"Color= not a number", {{"Color=1", "Color=white ; <-- bad"}}, true, "colour 'white' is not a number"},
+      {"Color= with two values", {{"Color=1", "Color=1,255,255 ; <-- bad"}}, true, "[WARP] Color= has 2 value(s)"},
+      {"Color= with an r,g,b out of range", {{"Color=1", "Color=1,255,255,256 ; <-- bad"}}, true,
+       "[WARP] Color= value 256 out of range"},
+      {"Color= given twice", {{"Color=1\n", "Color=1\nColor=2 ; <-- bad\n"}}, true, "[WARP] Color= repeated"},
+      {"Color= without a table", {{no_table, ""}, {"Color=1", "Color=1 ; <-- bad"}}, true,
+       "[WARP] Color= names a colour, but the draft has no [COLOR TABLE]"},
+      {"[WARP COLORS] without a table",
+       {{no_table, ""}, {"Color=1\n", ""}, {"[WARP COLORS]\n", "[WARP COLORS] ; <-- bad\n"}}, true,
+       "[WARP COLORS] gives colours, but the draft has no [COLOR TABLE]"},
+      {"[WEFT COLORS] without a table",
+       {{no_table, ""},
+        {"Color=1\n", ""},
+        {"[WARP COLORS]\n3=2\n", ""},
+        {"[WEFT COLORS]\n", "[WEFT COLORS] ; <-- bad\n"}},
+       true, "[WEFT COLORS] gives colours, but the draft has no [COLOR TABLE]"},
+      {"[COLOR TABLE] listed but missing",
+       {{no_table, ""},
+        {"Color=1\n", ""},
+        {"[WARP COLORS]\n3=2\n", ""},
+        {"[WEFT COLORS]\n2=3\n4=3\n", ""},
+        {"WEFT=true\n", "WEFT=true\nCOLOR TABLE=yes ; <-- bad\n"}},
+       true, "listed in [CONTENTS], but the file has no [COLOR TABLE] section"},
+      {"[COLOR TABLE] repeated", {{"[WARP COLORS]\n", "[COLOR TABLE] ; <-- bad\n[WARP COLORS]\n"}}, true,
+       "section [COLOR TABLE] repeated"},
+      {"line without '=' in [COLOR TABLE]", {{"2=128,0,0", "2 128,0,0 ; <-- bad"}}, true, "no '='"},
+  };
+  for (const BadDraft& c : cases) {
+    SCOPED_TRACE(c.name);
+    std::string text = kColorWif;
+    for (const auto& [from, to] : c.edits) text = Edit(text, from, to);
+    const int line = c.at_marker ? LineOf(text, "<-- bad") : 0;
+    WeavePattern p{1, 1, {1}};
+    const WifColors untouched{{{0.5, 0.5, 0.5}}, {0}, {0}};
+    WifColors colors = untouched;
+    const std::string err = ParseWif(text, &p, &colors);
+    EXPECT_EQ(err.rfind("line " + std::to_string(line) + ": ", 0), 0u) << err;
+    EXPECT_NE(err.find(c.reason), std::string::npos) << err;
+    EXPECT_EQ(p, (WeavePattern{1, 1, {1}})) << "output touched on error";
+    EXPECT_EQ(colors, untouched) << "colours touched on error";
+  }
+}
+
+// Every section the colour-reading parse reads, flooded to its limit of 1024 entries: what it holds stays within
+// WifParseBytes. And the largest coloured draft: 256 colours, 256 warp threads and 256 picks each coloured.
+TEST(WifCostTest, ColourSectionsStayWithinTheParseBound) {
+  std::string flood;
+  for (const char* name : {"WIF", "CONTENTS", "WEAVING", "WARP", "WEFT", "THREADING", "TREADLING", "TIEUP", "LIFTPLAN",
+                           "COLOR PALETTE", "COLOR TABLE", "WARP COLORS", "WEFT COLORS"}) {
+    flood.append("[").append(name).append("]\n");
+    for (int i = 0; i < 1024; ++i) flood += "k" + std::to_string(i) + "=" + std::string(20, 'v') + "\n";
+  }
+  ASSERT_LE(flood.size(), kMaxWifBytes);
+  const auto peak_of = [](const std::string& text, std::string* error) {
+    WeavePattern pattern;
+    WifColors colors;
+    const size_t before = ::heap_in_use.load();
+    ::heap_peak = before;
+    *error = ParseWif(text, &pattern, &colors);
+    return ::heap_peak.load() - before;
+  };
+  std::string error;
+  EXPECT_LE(peak_of(flood, &error), WifParseBytes(flood.size()));
+  EXPECT_NE(error, "");
+
+  std::string full = TreadlingDraft(4, 4, kMaxRepeat, "1,2", "1");
+  full += "[COLOR PALETTE]\nEntries=256\nRange=0,65535\n[COLOR TABLE]\n";
+  for (int i = 1; i <= kMaxRepeat; ++i) full += std::to_string(i) + "=" + std::to_string(i * 255) + ",0,65535\n";
+  full += "[WARP COLORS]\n";
+  for (int i = 1; i <= kMaxRepeat; ++i) full += std::to_string(i) + "=" + std::to_string(i) + "\n";
+  full += "[WEFT COLORS]\n";
+  for (int i = 1; i <= kMaxRepeat; ++i) full += std::to_string(i) + "=" + std::to_string(kMaxRepeat + 1 - i) + "\n";
+  EXPECT_LE(peak_of(full, &error), WifParseBytes(full.size()));
+  EXPECT_EQ(error, "");
+  const WifColors c = Colors(full);
+  ASSERT_EQ(c.table.size(), size_t(kMaxRepeat));
+  ASSERT_EQ(c.warp.size(), size_t(kMaxRepeat));
+  ASSERT_EQ(c.weft.size(), size_t(kMaxRepeat));
+  EXPECT_EQ(c.warp[0], 0);
+  EXPECT_EQ(c.weft[0], kMaxRepeat - 1);
+  ExpectRgb(c.table[kMaxRepeat - 1], {0.9911711624342799, 0, 1});  // red 256 * 255 = 65280 of 65535
 }
 
 }  // namespace

@@ -10,15 +10,12 @@
 #include <cmath>
 #include <cstdint>
 
+#include "server/imaging/srgb.h"
+
 namespace loomlight::imaging {
 namespace {
 
 float FiniteOrZero(float v) { return std::isfinite(v) ? v : 0.0f; }
-
-// The inverse of the sRGB transfer function (IEC 61966-2-1).
-double SrgbToLinear(double encoded) {
-  return encoded <= 0.04045 ? encoded / 12.92 : std::pow((encoded + 0.055) / 1.055, 2.4);
-}
 
 // The linear values at which the 8-bit code round(255 srgb(x)) steps from k to k + 1: a code is then the
 // number of thresholds at or below x, found by binary search instead of a pow per channel (5x faster).

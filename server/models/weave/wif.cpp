@@ -8,6 +8,7 @@
 #include <string_view>
 #include <vector>
 
+#include "server/imaging/srgb.h"
 #include "server/models/quote.h"
 
 namespace loomlight::models::weave {
@@ -81,11 +82,14 @@ bool EqualsIgnoringCase(std::string_view a, std::string_view b) {
          });
 }
 
-// The sections this importer interprets; only these are checked line by line.
-bool IsRead(const std::string& name) {
+// The sections this importer interprets; only these are checked line by line. The colour sections only when
+// the caller asks for colours, so that the weave alone reads drafts exactly as it did before colours were read.
+bool IsRead(const std::string& name, bool colors) {
   static const char* const kRead[] = {"WIF",     "CONTENTS",  "WEAVING", "WARP",    "WEFT",
                                       "THREADING", "TREADLING", "TIEUP", "LIFTPLAN"};
-  return std::find(std::begin(kRead), std::end(kRead), name) != std::end(kRead);
+  static const char* const kColors[] = {"COLOR PALETTE", "COLOR TABLE", "WARP COLORS", "WEFT COLORS"};
+  return std::find(std::begin(kRead), std::end(kRead), name) != std::end(kRead) ||
+         (colors && std::find(std::begin(kColors), std::end(kColors), name) != std::end(kColors));
 }
 
 // The next line of `*text` (ending at "\r\n", "\n" or "\r": WIF dates from DOS and classic Mac OS as well as
@@ -103,7 +107,7 @@ bool NextLine(std::string_view* text, std::string_view* line) {
   return true;
 }
 
-std::string Lex(std::string_view text, Sections* sections) {
+std::string Lex(std::string_view text, bool colors, Sections* sections) {
   if (text.substr(0, 3) == "\xEF\xBB\xBF") text.remove_prefix(3);
   Section* current = nullptr;  // the section being read; null before the first header and in unread sections
   bool in_section = false;
@@ -116,11 +120,12 @@ std::string Lex(std::string_view text, Sections* sections) {
       const std::string name = Upper(Trim(line.substr(1, line.size() - 2)));
       if (name.empty()) return LineError(n, "empty section name");
       const auto [it, inserted] = sections->insert({name, Section{n, {}}});
-      if (!inserted && IsRead(name)) return Repeated(n, "section [" + name + "]", it->second.line);
+      const bool read = IsRead(name, colors);
+      if (!inserted && read) return Repeated(n, "section [" + name + "]", it->second.line);
       if (sections->size() > kMaxSections)
         return LineError(n, "more than " + std::to_string(kMaxSections) + " sections");
       in_section = true;
-      current = IsRead(name) ? &it->second : nullptr;
+      current = read ? &it->second : nullptr;
       continue;
     }
     if (!in_section) return LineError(n, "entry before the first [section] header");
@@ -198,6 +203,17 @@ std::string ParseIndex(std::string_view text, const Range& range, int line, int*
   return "";
 }
 
+// The index entry `e`'s key names, in `keys`; an index given twice in section `name` is an error at its second
+// line (first_line[index - 1]: where it was first given, 0 if not yet).
+std::string ParseKey(const Entry& e, const std::string& name, const Range& keys, std::vector<int>* first_line,
+                     int* key) {
+  if (std::string err = ParseIndex(e.key, keys, e.line, key); !err.empty()) return err;
+  int& first = (*first_line)[*key - 1];
+  if (first) return Repeated(e.line, "[" + name + "] " + keys.what + " " + std::to_string(*key), first);
+  first = e.line;
+  return "";
+}
+
 // A set of indices 1..kMaxRepeat (bit i for index i): what a thread is threaded on, a treadle ties up, a
 // pick presses or lifts. A set, so that a list can never hold more than kMaxRepeat values.
 using IndexSet = std::bitset<kMaxRepeat + 1>;
@@ -217,10 +233,7 @@ std::string ParseIndexSection(const Section& s, const std::string& name, const R
   std::vector<int> first_line(keys.max, 0);
   for (const Entry& e : s.entries) {
     int key = 0;
-    if (std::string err = ParseIndex(e.key, keys, e.line, &key); !err.empty()) return err;
-    if (first_line[key - 1])
-      return Repeated(e.line, "[" + name + "] " + keys.what + " " + std::to_string(key), first_line[key - 1]);
-    first_line[key - 1] = e.line;
+    if (std::string err = ParseKey(e, name, keys, &first_line, &key); !err.empty()) return err;
     out->max_key = std::max(out->max_key, key);
     if (e.value.empty()) continue;  // listed without shafts: the same as no entry
     IndexSet& row = out->rows[key - 1];
@@ -339,15 +352,172 @@ WeavePattern Drawdown(const Draft& d, int warps, int picks) {
   return p;
 }
 
+// ---- Colours ----
+
+using Rgb = std::array<double, 3>;
+
+// [COLOR PALETTE]: the indices a colour may have (1..Entries) and the range its values are written in.
+struct Palette {
+  Range colors;
+  int lo = 0, hi = 255;
+  std::string range_key = "the default Range=0,255";  // how messages name the range
+};
+
+std::string ReadPalette(const Sections& sections, Palette* p) {
+  std::optional<int> entries;
+  if (const Section* s = Find(sections, "COLOR PALETTE")) {
+    if (std::string err = ReadCount(*s, "COLOR PALETTE", "Entries", 1, false, &entries); !err.empty()) return err;
+    const Entry* form = nullptr;
+    if (std::string err = FindKey(*s, "COLOR PALETTE", "Form", &form); !err.empty()) return err;
+    if (form && !EqualsIgnoringCase(form->value, "RGB"))
+      return LineError(form->line, "[COLOR PALETTE] Form=" + EchoToken(form->value) + " is not supported (only RGB)");
+    const Entry* range = nullptr;
+    if (std::string err = FindKey(*s, "COLOR PALETTE", "Range", &range); !err.empty()) return err;
+    if (range) {
+      const size_t comma = range->value.find(',');
+      if (comma == std::string_view::npos || !ParseNumber(Trim(range->value.substr(0, comma)), &p->lo) ||
+          !ParseNumber(Trim(range->value.substr(comma + 1)), &p->hi) || p->lo >= p->hi)
+        return LineError(range->line, "[COLOR PALETTE] Range=" + EchoToken(range->value) +
+                                          " is not two numbers lo,hi with lo < hi");
+      p->range_key = "COLOR PALETTE Range=" + std::to_string(p->lo) + "," + std::to_string(p->hi);
+    }
+  }
+  p->colors = CountRange("colour", entries, "COLOR PALETTE Entries");
+  return "";
+}
+
+// "r,g,b", each in the palette's range: mapped to [0, 1], read as sRGB and made linear. `what` names the
+// value in messages.
+std::string ParseRgb(std::string_view text, const Palette& p, const std::string& what, int line, Rgb* out) {
+  Rgb rgb{};
+  size_t n = 0;
+  for (std::string_view rest = text;;) {
+    if (n == rgb.size()) return LineError(line, what + " has more than 3 values (r,g,b)");
+    const size_t comma = rest.find(',');
+    const std::string_view item = Trim(rest.substr(0, comma));
+    int v = 0;
+    if (!ParseNumber(item, &v)) return LineError(line, what + " value " + Quote(item) + " is not a number");
+    if (v < p.lo || v > p.hi)
+      return LineError(line, what + " value " + std::to_string(v) + " out of range " + std::to_string(p.lo) + ".." +
+                                 std::to_string(p.hi) + " (" + p.range_key + ")");
+    rgb[n++] = imaging::SrgbToLinear(double(v - p.lo) / double(p.hi - p.lo));
+    if (comma == std::string_view::npos) break;
+    rest.remove_prefix(comma + 1);
+  }
+  if (n < rgb.size()) return LineError(line, what + " has " + std::to_string(n) + " value(s), expected 3 (r,g,b)");
+  *out = rgb;
+  return "";
+}
+
+struct ColorTable {
+  std::vector<Rgb> linear;  // [index - 1], up to the largest index listed; black where an index is not listed
+  IndexSet listed;          // the indices [COLOR TABLE] lists
+};
+
+std::string ReadColorTable(const Section& s, const Palette& p, ColorTable* out) {
+  std::vector<int> first_line(p.colors.max, 0);
+  for (const Entry& e : s.entries) {
+    int index = 0;
+    Rgb rgb;
+    if (std::string err = ParseKey(e, "COLOR TABLE", p.colors, &first_line, &index); !err.empty()) return err;
+    if (std::string err = ParseRgb(e.value, p, "[COLOR TABLE] colour " + std::to_string(index), e.line, &rgb);
+        !err.empty())
+      return err;
+    if (out->linear.size() < size_t(index)) out->linear.resize(index, Rgb{0, 0, 0});
+    out->linear[index - 1] = rgb;
+    out->listed.set(index);
+  }
+  return "";
+}
+
+// A thread's colour index: in the palette's range and listed in [COLOR TABLE].
+std::string ParseColorIndex(std::string_view text, const Palette& p, const ColorTable& table, int line, int* out) {
+  if (std::string err = ParseIndex(text, p.colors, line, out); !err.empty()) return err;
+  if (!table.listed.test(*out)) return LineError(line, "colour " + std::to_string(*out) + " is not in [COLOR TABLE]");
+  return "";
+}
+
+// [WARP] or [WEFT] Color=: the colour of every thread without an entry of its own; 0 when absent. WIF writes an
+// index; some programs add the colour's r,g,b after it, which are checked but not used (the table is the colour).
+std::string ReadDefaultColor(const Sections& sections, const std::string& name, const Palette& p,
+                             const ColorTable* table, int* out) {
+  *out = 0;
+  const Section* s = Find(sections, name);
+  const Entry* color = nullptr;
+  if (!s) return "";
+  if (std::string err = FindKey(*s, name, "Color", &color); !err.empty()) return err;
+  if (!color) return "";
+  if (!table) return LineError(color->line, "[" + name + "] Color= names a colour, but the draft has no [COLOR TABLE]");
+  const size_t comma = color->value.find(',');
+  if (std::string err = ParseColorIndex(Trim(color->value.substr(0, comma)), p, *table, color->line, out); !err.empty())
+    return err;
+  Rgb unused;
+  if (comma == std::string_view::npos) return "";
+  return ParseRgb(color->value.substr(comma + 1), p, "[" + name + "] Color=", color->line, &unused);
+}
+
+// [WARP COLORS] or [WEFT COLORS]: thread=colour, over the default, into (*colors)[thread - 1] as an index into the
+// table (from 0). An entry without a value leaves its thread the default.
+std::string ReadThreadColors(const Sections& sections, const std::string& name, const Range& threads,
+                             const Palette& p, const ColorTable* table, std::vector<int>* colors) {
+  const Section* s = Find(sections, name);
+  if (!s) return "";
+  if (!table) return LineError(s->line, "[" + name + "] gives colours, but the draft has no [COLOR TABLE]");
+  std::vector<int> first_line(threads.max, 0);
+  for (const Entry& e : s->entries) {
+    int thread = 0, color = 0;
+    if (std::string err = ParseKey(e, name, threads, &first_line, &thread); !err.empty()) return err;
+    if (e.value.empty()) continue;
+    if (std::string err = ParseColorIndex(e.value, p, *table, e.line, &color); !err.empty()) return err;
+    (*colors)[thread - 1] = color - 1;
+  }
+  return "";
+}
+
+// The draft's colours, read once its weave is: the thread colour sections are bounded by the pattern's `warps`
+// and `picks`, however they were found.
+std::string ReadColors(const Sections& sections, const Draft& d, int warps, int picks, WifColors* out) {
+  Palette palette;
+  if (std::string err = ReadPalette(sections, &palette); !err.empty()) return err;
+  std::optional<ColorTable> table;
+  if (const Section* s = Find(sections, "COLOR TABLE"))
+    if (std::string err = ReadColorTable(*s, palette, &table.emplace()); !err.empty()) return err;
+  const ColorTable* listed = table ? &*table : nullptr;
+  int warp_default = 0, weft_default = 0;
+  if (std::string err = ReadDefaultColor(sections, "WARP", palette, listed, &warp_default); !err.empty()) return err;
+  if (std::string err = ReadDefaultColor(sections, "WEFT", palette, listed, &weft_default); !err.empty()) return err;
+  std::vector<int> warp(warps, warp_default - 1), weft(picks, weft_default - 1);
+  const Range threads = d.warps ? CountRange("thread", d.warps, "WARP Threads")
+                                : Range{"thread", warps, "the threads of [THREADING]"};
+  const Range pick_range =
+      d.picks ? CountRange("pick", d.picks, "WEFT Threads")
+              : Range{"pick", picks, d.liftplan ? "the picks of [LIFTPLAN]" : "the picks of [TREADLING]"};
+  if (std::string err = ReadThreadColors(sections, "WARP COLORS", threads, palette, listed, &warp); !err.empty())
+    return err;
+  if (std::string err = ReadThreadColors(sections, "WEFT COLORS", pick_range, palette, listed, &weft); !err.empty())
+    return err;
+  const auto colored = [](const std::vector<int>& v) {
+    return std::any_of(v.begin(), v.end(), [](int c) { return c >= 0; });
+  };
+  if (!colored(warp) && !colored(weft)) {
+    *out = WifColors();
+    return "";
+  }
+  *out = WifColors{std::move(table->linear), std::move(warp), std::move(weft)};
+  return "";
+}
+
 }  // namespace
 
-std::string ParseWif(const std::string& text, WeavePattern* out) {
+std::string ParseWif(const std::string& text, WeavePattern* out) { return ParseWif(text, out, nullptr); }
+
+std::string ParseWif(const std::string& text, WeavePattern* out, WifColors* colors) {
   if (text.size() > kMaxWifBytes)
     return LineError(0, "WIF text of " + std::to_string(text.size()) + " bytes is over the limit of " +
                             std::to_string(kMaxWifBytes));
   Sections sections;
   Draft d;
-  if (std::string err = Lex(text, &sections); !err.empty()) return err;
+  if (std::string err = Lex(text, colors != nullptr, &sections); !err.empty()) return err;
   if (std::string err = CheckHeader(sections); !err.empty()) return err;
   if (std::string err = ReadCounts(sections, &d); !err.empty()) return err;
   if (std::string err = ReadTables(sections, &d); !err.empty()) return err;
@@ -356,17 +526,12 @@ std::string ParseWif(const std::string& text, WeavePattern* out) {
   const int picks = d.picks.value_or((d.liftplan ? d.liftplan : d.treadling)->max_key);
   if (warps == 0) return LineError(0, "no warp threads: no WARP Threads= and no [THREADING] entries");
   if (picks == 0) return LineError(0, "no picks: no WEFT Threads= and no treadling or liftplan entries");
+  WifColors read;
+  if (colors)
+    if (std::string err = ReadColors(sections, d, warps, picks, &read); !err.empty()) return err;
   *out = Drawdown(d, warps, picks);
+  if (colors) *colors = std::move(read);
   return "";
 }
 
-}  // namespace loomlight::models::weave
-
-namespace loomlight::models::weave {
-// Placeholder until the colour sections are read (being written now).
-std::string ParseWif(const std::string& text, WeavePattern* out, WifColors* colors) {
-  std::string e = ParseWif(text, out);
-  if (e.empty()) *colors = WifColors();
-  return e;
-}
 }  // namespace loomlight::models::weave

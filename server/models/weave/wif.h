@@ -29,8 +29,8 @@ inline constexpr size_t WifParseBytes(size_t text_bytes) { return text_bytes + (
 // "\n", "\r\n" or "\r"; a UTF-8 byte-order mark is skipped. Only the sections read below are checked
 // line by line (each non-blank line must contain '=', keys must not repeat, the section must not
 // repeat); any other section (TEXT, NOTES, colours, private sections...) is skipped unread, so free text
-// written loosely by some program cannot make a draft unreadable. Only blank lines and comments may
-// precede the first header.
+// written loosely by some program cannot make a draft unreadable (the colour sections are read by the
+// three-argument ParseWif below). Only blank lines and comments may precede the first header.
 //
 // Sections read:
 // - [WIF] Version= (required, major version 1).
@@ -60,7 +60,8 @@ std::string ParseWif(const std::string& text, WeavePattern* out);
 // [WARP] / [WEFT] Color= defaults): linear RGB, so a renderer can use them as diffuse albedo.
 struct WifColors {
   // Colour WIF index i + 1 at table[i]: the table's values mapped from the palette's range to [0, 1] as sRGB, then
-  // to linear. Empty when the draft colours no thread.
+  // to linear. Up to the largest index [COLOR TABLE] lists; an index it skips is black there, and no thread has it.
+  // Empty when the draft colours no thread.
   std::vector<std::array<double, 3>> table;
   std::vector<int> warp;  // per warp thread (the pattern's warps): its index into table, -1 when uncoloured
   std::vector<int> weft;  // per pick (the pattern's picks), likewise
@@ -69,7 +70,23 @@ struct WifColors {
 };
 
 // ParseWif, and the draft's colours into *colors (left untouched on error; empty table, warp and weft when the
-// draft colours no thread). The colour sections are parsed as strictly as the weave's, with the same bounds.
+// draft colours no thread). With a null `colors` it is the two-argument ParseWif. The colour sections are then read
+// as strictly as the weave's (checked line by line, keys and sections not repeated, at most 1024 entries each,
+// errors "line N: reason"), with the same bounds:
+// - [COLOR PALETTE] (optional): Entries= (1..256; the bound of colour indices, 256 when absent), Form= (RGB, the
+//   only form WIF 1.1 defines, also when absent; anything else is refused), Range=lo,hi (decimal integers,
+//   lo < hi; 0,255 when absent: Fiberworks writes 0,999).
+// - [COLOR TABLE]: index=r,g,b, each value from lo to hi. A value v becomes (v - lo) / (hi - lo), read as sRGB and
+//   made linear (imaging::SrgbToLinear).
+// - [WARP] Color=, [WEFT] Color=: the colour index of every warp thread / pick without an entry of its own. WIF
+//   writes "index"; "index,r,g,b" (written by some programs) is accepted, its r,g,b checked like a table entry's
+//   and not used: the table defines the colour.
+// - [WARP COLORS] thread=index, [WEFT COLORS] pick=index: one colour per thread, over the default; an entry
+//   without a value leaves the default. Threads run from 1 to the pattern's warps and picks from 1 to its picks
+//   (WARP / WEFT Threads= when declared, else the count found from the weave).
+// - Every colour index a thread uses must be listed in [COLOR TABLE]; a Color= key or a thread colour section in a
+//   draft without [COLOR TABLE] is an error at its line. A table that no thread uses gives no colours.
+// - [CONTENTS] lists these sections like the others: one listed as present must exist.
 std::string ParseWif(const std::string& text, WeavePattern* out, WifColors* colors);
 
 }  // namespace loomlight::models::weave

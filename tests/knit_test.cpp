@@ -14,6 +14,8 @@
 #include <numbers>
 #include <vector>
 
+#include "server/yarn/curve_layout.h"
+
 namespace loomlight::yarn {
 namespace {
 
@@ -311,6 +313,22 @@ TEST(KnitTest, PolylinesTurnLessThan60DegreesAndAreFinite) {
   }
 }
 
+// The courses go to the fibers through curve_layout.h as polylines: PolylineYarnCurve's rules must accept them.
+TEST(KnitTest, CoursesAreValidCentreCurves) {
+  for (KnitStitch stitch : {KnitStitch::kJersey, KnitStitch::kRib1x1}) {
+    for (double stretch_x : {1.0, kMaxSpacingStretch}) {
+      KnitParams p = Params(stitch, 4, 2);
+      p.wale_spacing = stretch_x * DefaultWaleSpacing(stitch, p.yarn_radius);
+      const KnitLayout k = Build(p);
+      for (const Polyline& c : k.courses) {
+        PolylineYarnCurve curve;
+        EXPECT_EQ(MakeCentreCurve(c, CurveKind::kPolyline, &curve), "") << Name(stitch) << " " << stretch_x;
+        EXPECT_NEAR(curve.Length(), Length(c), 1e-9 * Length(c));
+      }
+    }
+  }
+}
+
 TEST(KnitTest, BoundsHoldEveryVertex) {
   for (KnitStitch stitch : {KnitStitch::kJersey, KnitStitch::kRib1x1}) {
     const KnitParams p = Params(stitch, 5, 3);
@@ -349,7 +367,7 @@ TEST(KnitTest, FortyByFortyStitchesBuildWithinTheVertexBound) {
 // length l) in yarn diameters D is typically 14 to 20 for jersey, and round incompressible yarns jam at l/D about
 // 16.7 (Chamberlain's and Hepworth and Leaf's models); Munden's dimensionless constants kc = l / course spacing,
 // kw = l / wale spacing. Prints the numbers (they go in the report) and checks l/D against the typical range.
-TEST(KnitTest, LoopLengthIsThatOfARealJersey) {
+TEST(KnitTest, LoopLengthIsThatOfARealKnit) {
   for (KnitStitch stitch : {KnitStitch::kJersey, KnitStitch::kRib1x1}) {
     const KnitParams p = Params(stitch, 8, 1, 256);
     const KnitLayout k = Build(p);

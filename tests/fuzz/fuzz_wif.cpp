@@ -1,11 +1,15 @@
 // Fuzz target: WIF weaving drafts (server/models/weave/wif.h), the one file format clients send in the clear
-// (Param.text of the woven model's pattern.wif). Input: the draft's bytes. Checks ParseWif's contract: an error
-// is "line N: reason", bounded and on one line, and leaves the output untouched; a success is a pattern that
-// passes ValidatePattern and whose floats and area fractions add up.
+// (Param.text of the woven model's pattern.wif). Input: the draft's bytes, parsed with and without its colours.
+// Checks ParseWif's contract: an error is "line N: reason", bounded and on one line, and leaves the outputs
+// untouched; a success is a pattern that passes ValidatePattern and whose floats and area fractions add up, and
+// colours that are none at all or one index per warp thread and pick, each -1 or in the table, the table's values
+// finite in [0, 1]. Reading colours only ever refuses more: where it succeeds, the weave alone succeeds with the
+// same pattern.
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "server/models/weave/pattern.h"
 #include "server/models/weave/wif.h"
@@ -15,6 +19,7 @@ namespace loomlight::fuzz {
 namespace {
 
 using models::weave::WeavePattern;
+using models::weave::WifColors;
 
 bool StartsWithLineNumber(const std::string& message) {
   if (message.rfind("line ", 0) != 0) return false;
@@ -41,6 +46,33 @@ void CheckPattern(const WeavePattern& pattern) {
              "area fractions " + std::to_string(area.warp) + " + " + std::to_string(area.weft));
 }
 
+void CheckColors(const WifColors& colors, const WeavePattern& pattern) {
+  if (colors.table.empty()) {
+    FUZZ_CHECK(colors.warp.empty() && colors.weft.empty(), "thread colours without a table");
+    return;
+  }
+  FUZZ_CHECK(colors.table.size() <= size_t(models::weave::kMaxRepeat),
+             std::to_string(colors.table.size()) + " colours");
+  FUZZ_CHECK(colors.warp.size() == size_t(pattern.warps) && colors.weft.size() == size_t(pattern.picks),
+             std::to_string(colors.warp.size()) + " x " + std::to_string(colors.weft.size()) + " thread colours for " +
+                 std::to_string(pattern.warps) + " x " + std::to_string(pattern.picks) + " threads");
+  bool colored = false;
+  for (const std::vector<int>* threads : {&colors.warp, &colors.weft})
+    for (int index : *threads) {
+      FUZZ_CHECK(index >= -1 && index < int(colors.table.size()),
+                 "colour index " + std::to_string(index) + " of " + std::to_string(colors.table.size()));
+      colored |= index >= 0;
+    }
+  FUZZ_CHECK(colored, "a table but no coloured thread: the colours should be empty");
+  for (const auto& rgb : colors.table)
+    for (double v : rgb) FUZZ_CHECK(std::isfinite(v) && v >= 0 && v <= 1, "colour value " + std::to_string(v));
+}
+
+void CheckError(const std::string& error) {
+  FUZZ_CHECK(MessageDefect(error).empty(), MessageDefect(error) + ": " + error);
+  FUZZ_CHECK(StartsWithLineNumber(error), error);
+}
+
 }  // namespace
 }  // namespace loomlight::fuzz
 
@@ -48,14 +80,23 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace loomlight::fuzz;
   const std::string text(reinterpret_cast<const char*>(data), size);
   const WeavePattern untouched{-1, -1, {7}};
-  WeavePattern pattern = untouched;
-  const std::string error = loomlight::models::weave::ParseWif(text, &pattern);
+  const WifColors untouched_colors{{{-1, -1, -1}}, {7}, {7}};
+  WeavePattern weave = untouched, pattern = untouched;
+  WifColors colors = untouched_colors;
+  const std::string weave_error = loomlight::models::weave::ParseWif(text, &weave);
+  const std::string error = loomlight::models::weave::ParseWif(text, &pattern, &colors);
+  if (weave_error.empty()) {
+    CheckPattern(weave);
+  } else {
+    CheckError(weave_error);
+    FUZZ_CHECK(weave == untouched, "a failed parse changed the output: " + weave_error);
+  }
   if (error.empty()) {
-    CheckPattern(pattern);
+    FUZZ_CHECK(weave_error.empty() && weave == pattern, "reading colours changed the weave: " + weave_error);
+    CheckColors(colors, pattern);
     return 0;
   }
-  FUZZ_CHECK(MessageDefect(error).empty(), MessageDefect(error) + ": " + error);
-  FUZZ_CHECK(StartsWithLineNumber(error), error);
-  FUZZ_CHECK(pattern == untouched, "a failed parse changed the output: " + error);
+  CheckError(error);
+  FUZZ_CHECK(pattern == untouched && colors == untouched_colors, "a failed parse changed the output: " + error);
   return 0;
 }

@@ -2,8 +2,8 @@
 // RPC and every model the registry has (found there, not named here), each option the checks branch on, and a few
 // requests that must be refused; and, with a second directory, the WIF fuzzer's structure-aware seeds
 // (tests/fuzz/corpus/fuzz_wif/seed_*): drafts up to the 1 MiB field limit that repeat indices and fill every
-// count, the shapes that once multiplied a parse's memory (issue 44). Run it again when models or request fields
-// are added:
+// count, the shapes that once multiplied a parse's memory (issue 44), and every colour count filled (issue 47).
+// Run it again when models or request fields are added:
 //
 //     build/tests/fuzz/make_seed_corpus tests/fuzz/corpus/fuzz_request tests/fuzz/corpus/fuzz_wif
 //
@@ -94,12 +94,25 @@ std::vector<std::pair<std::string, std::string>> WifDraftsAtScale() {
   for (int p = 1; p <= 256; ++p) liftplan += std::to_string(p) + "=" + List("2", 1500) + "\n";
   std::string sections = TreadledDraft(4, 4, 4, "1,2", "1");
   for (int i = 0; sections.size() < 900000; ++i) sections += "[PRIVATE" + std::to_string(i) + "]\nfree text\n";
+  // Every count of the colour sections filled (issue 47): 256 colours, each of 256 warp threads and picks coloured.
+  std::string colors = TreadledDraft(4, 4, 256, "1,2", "1");
+  colors += "[COLOR PALETTE]\nEntries=256\nForm=RGB\nRange=0,65535\n[COLOR TABLE]\n";
+  for (int i = 1; i <= 256; ++i) colors += std::to_string(i) + "=" + std::to_string(i * 255) + ",0,65535\n";
+  for (const char* section : {"[WARP COLORS]\n", "[WEFT COLORS]\n"}) {
+    colors += section;
+    for (int i = 1; i <= 256; ++i) colors += std::to_string(i) + "=" + std::to_string(257 - i) + "\n";
+  }
+  // A colour with its values repeated up to the field limit: refused at the fourth.
+  const std::string long_color =
+      TreadledDraft(4, 4, 4, "1,2", "1") + "[WARP]\nColor=1\n[COLOR TABLE]\n1=" + List("0", 400000);
   return {
       {"repeated_tieup_and_treadling", TreadledDraft(4, 1, 256, List("1", 100000), List("1", 1400))},
       {"repeated_treadling", TreadledDraft(4, 4, 256, "1,2", List("3", 1900))},
       {"every_treadle_every_shaft", TreadledDraft(256, 256, 256, List("", 256), List("", 256))},
       {"repeated_liftplan", liftplan},
       {"section_flood", sections},
+      {"every_colour", colors},
+      {"repeated_colour_values", long_color + "\n"},
   };
 }
 

@@ -180,9 +180,9 @@ TEST(KnitTest, NoYarnPassesThroughAnother) {
 // sinker loop to the next, its head in the middle) is closed by running down (-y) from both feet and across far
 // below; course j + 1's sinker loop at a wale boundary (from one head to the next) by running up (+y) from both
 // ends and across far above. Each closing path lies in y beyond the other loop's reach, so the Gauss linking
-// number of the two closed curves is the winding of the two arcs themselves: +-1 where course j + 1's legs pass
-// through course j's loop (in front of its head and behind its legs, as a knit's do), 0 where the two merely lie
-// near each other. In jersey every wale is the same, so the pairs (wale w, boundary w) all link alike; in the
+// number of the two closed curves is the winding of the two arcs themselves: +-1 where course j + 1's yarn passes
+// through course j's loop (its legs in front of course j's head, its sinker behind course j's legs, as in a
+// knit), 0 where the two merely lie near each other. In jersey every wale is the same, so the pairs (wale w, boundary w) all link alike; in the
 // rib a purl wale is a knit wale mirrored, and a mirror reverses linking, so their signs alternate. Lifting
 // course j + 1 in front of course j (z + 4 d) unlinks every pair: the test can fail.
 TEST(KnitTest, LoopsOfNeighbouringCoursesInterlock) {

@@ -12,6 +12,9 @@
 #include <string>
 #include <vector>
 
+#include "server/yarn/knit.h"
+#include "server/yarn/yarn_job.h"
+
 namespace loomlight::yarn {
 namespace {
 
@@ -503,6 +506,82 @@ TEST(YarnCurveTest, LimitsAreCheckedBeforeGeneratingAndCancellationPassesThrough
   LayoutGeometry fibers;
   EXPECT_EQ(GenerateCurveLayout({first, second}, stopping, {}, &fibers, &centres), "cancelled");
   EXPECT_TRUE(fibers.yarns.empty());
+}
+
+// ---- Jobs ----
+
+TEST(YarnCurveTest, CurveJobLaysEachCurveOutAsAYarn) {
+  YarnJob job;
+  job.kind = YarnLayoutKind::kCurves;
+  YarnParams thin;
+  ASSERT_EQ(YarnPreset("silk1", &thin), "");
+  thin.seed = 77;
+  job.curves = {{ArcPolyline(1.5, kPi / 3, 32), CurveKind::kPolyline, YarnParams{}},
+                {SwayingControlPoints(), CurveKind::kBSpline, thin}};
+  std::vector<YarnGeometry> yarns;
+  std::vector<LaidYarn> laid;
+  ASSERT_EQ(GenerateYarnJob(&job, &yarns, &laid), "");
+  ASSERT_EQ(yarns.size(), 2u);
+  ASSERT_EQ(laid.size(), 2u);
+  for (size_t k = 0; k < 2; ++k) {
+    PolylineYarnCurve centre;
+    ASSERT_EQ(MakeCentreCurve(job.curves[k].points, job.curves[k].kind, &centre), "");
+    EXPECT_FALSE(laid[k].warp);
+    EXPECT_EQ(laid[k].thread, int(k));
+    EXPECT_EQ(laid[k].length, centre.Length());
+    EXPECT_EQ(laid[k].centre->CentrePolyline(), centre.CentrePolyline());
+    // Each yarn with its own params, seed as given: silk1's 3 plies of 33 fibers for the second.
+    YarnGeometry alone;
+    ASSERT_EQ(GenerateYarn(job.curves[k].params, centre, job.detail, job.limits, &alone), "");
+    EXPECT_EQ(yarns[k], alone);
+  }
+
+  // A bad curve names its yarn.
+  job.curves[1].points[2] = job.curves[1].points[1];
+  const std::string e = GenerateYarnJob(&job, &yarns, &laid);
+  EXPECT_TRUE(StartsWith(e, "yarns[1].points: point 2 repeats point 1")) << e;
+  EXPECT_TRUE(yarns.empty());
+  EXPECT_TRUE(laid.empty());
+}
+
+TEST(YarnCurveTest, KnitJobLaysEachCourseOutAsAYarnOfItsOwnSeed) {
+  YarnJob job;
+  job.kind = YarnLayoutKind::kKnit;
+  ASSERT_EQ(YarnPreset("cotton2", &job.params), "");  // radius 0.033, not KnitParams' default 0.0378
+  job.params.seed = 5;
+  job.knit.wales = 2;
+  job.knit.courses = 3;
+  std::vector<YarnGeometry> yarns;
+  std::vector<LaidYarn> laid;
+  ASSERT_EQ(GenerateYarnJob(&job, &yarns, &laid), "");
+  KnitParams knit = job.knit;
+  knit.yarn_radius = job.params.yarn_radius;  // the job's yarn sets the loops' size
+  KnitLayout layout;
+  ASSERT_EQ(BuildKnit(knit, &layout), "");
+  ASSERT_EQ(laid.size(), layout.courses.size());
+  ASSERT_EQ(yarns.size(), layout.courses.size());
+  for (size_t c = 0; c < laid.size(); ++c) {
+    EXPECT_FALSE(laid[c].warp);
+    EXPECT_EQ(laid[c].thread, int(c));
+    EXPECT_EQ(laid[c].centre->CentrePolyline(), layout.courses[c]);
+    EXPECT_EQ(laid[c].length, laid[c].centre->Length());
+    EXPECT_EQ(yarns[c].plies.size(), 3u);  // cotton2
+  }
+  // Course c's seed: LayoutYarnSeed(seed, c), as a woven layout's yarns.
+  YarnParams course1 = job.params;
+  course1.seed = LayoutYarnSeed(job.params.seed, 1);
+  YarnGeometry alone;
+  ASSERT_EQ(GenerateYarn(course1, *laid[1].centre, job.detail, job.limits, &alone), "");
+  EXPECT_EQ(yarns[1], alone);
+
+  // Same job, same fibers; another stitch count or yarn, another job.
+  YarnJob other = job;
+  EXPECT_TRUE(SameFibers(job, other));
+  other.knit.wales = 3;
+  EXPECT_FALSE(SameFibers(job, other));
+  other = job;
+  other.params.seed = 6;
+  EXPECT_FALSE(SameFibers(job, other));
 }
 
 }  // namespace

@@ -19,7 +19,33 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<YarnGeometry>* yarns, std:
         laid->push_back({y.warp, y.thread, y.curve.Length(), std::make_shared<PolylineYarnCurve>(y.curve)});
     }
   } else if (job->kind == YarnLayoutKind::kCurves || job->kind == YarnLayoutKind::kKnit) {
-    error = "internal: curve and knit layouts are not generated yet";
+    std::vector<CurveYarn> knit_courses;
+    if (job->kind == YarnLayoutKind::kKnit) {
+      KnitParams knit = job->knit;
+      knit.yarn_radius = job->params.yarn_radius;
+      KnitLayout layout;
+      error = BuildKnit(knit, &layout);
+      // Course c (from y = 0 up) is yarn c of the layout, seeded as a woven layout seeds its yarns.
+      for (size_t c = 0; error.empty() && c < layout.courses.size(); ++c) {
+        CurveYarn& course = knit_courses.emplace_back();
+        course.points = std::move(layout.courses[c]);
+        course.params = job->params;
+        course.params.seed = LayoutYarnSeed(job->params.seed, c);
+      }
+    }
+    const std::vector<CurveYarn>& curves = job->kind == YarnLayoutKind::kKnit ? knit_courses : job->curves;
+    LayoutGeometry fibers;
+    std::vector<PolylineYarnCurve> centres;
+    if (error.empty()) error = GenerateCurveLayout(curves, job->detail, job->limits, &fibers, &centres);
+    // A course BuildKnit made that the curve layout refuses is the knit's fault, not the client's.
+    if (job->kind == YarnLayoutKind::kKnit && error.rfind("yarns", 0) == 0) error = "internal: knit " + error;
+    if (error.empty()) {
+      *yarns = std::move(fibers.yarns);
+      for (size_t k = 0; k < centres.size(); ++k) {
+        const double length = centres[k].Length();
+        laid->push_back({false, int(k), length, std::make_shared<PolylineYarnCurve>(std::move(centres[k]))});
+      }
+    }
   } else {
     job->params.length = job->straight_length;
     error = GenerateStraightYarn(job->params, job->detail, job->limits, &yarns->emplace_back());

@@ -34,16 +34,18 @@ struct YarnJob {
   size_t layout_bytes = 0;  // the centre polylines' estimated size
 };
 
-// One generated yarn of a job: a layout's warp or weft, or the straight yarn.
+// One generated yarn of a job: a layout's warp or weft, the straight yarn, a client curve or a knit's course.
 struct LaidYarn {
-  bool warp = false;
-  int thread = 0;
+  bool warp = false;  // false but for a woven layout's warp yarns
+  int thread = 0;     // woven: the pattern thread; curves: the curve's index; knit: the course, from y = 0 up
   double length = 0;
   std::shared_ptr<const YarnCurve> centre;  // the centre curve its fibers were generated along
 };
 
-// Generates a job's fibers (GenerateLayout or GenerateStraightYarn): one YarnGeometry per yarn. Returns "" or
-// their error ("cancelled", "max_fibers: ...", ...), leaving both outputs empty.
+// Generates a job's fibers (GenerateLayout, GenerateCurveLayout or GenerateStraightYarn): one YarnGeometry per
+// yarn. A knit's course c is a polyline yarn with the job's params and seed LayoutYarnSeed(params.seed, c).
+// Returns "" or their error ("cancelled", "max_fibers: ...", "yarns[k].points: ..." for a curve, ...), leaving
+// both outputs empty.
 std::string GenerateYarnJob(YarnJob* job, std::vector<YarnGeometry>* yarns, std::vector<LaidYarn>* laid);
 
 // Whether two jobs generate the same fibers along the same centres.

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "server/yarn/knit.h"
@@ -363,6 +364,58 @@ TEST(YarnCurveTest, BSplineSamplingRefinesSharpSpansAndRefusesCusps) {
   const std::string e = MakeCentreCurve({{0, 0, 0}, {0, 0, 1}, {0, 0, -1}, {0, 0, 2}}, CurveKind::kBSpline, &centre);
   EXPECT_TRUE(StartsWith(e, "points: ")) << e;
   EXPECT_NE(e.find("cusp"), std::string::npos) << e;
+}
+
+// ---- Closest points ----
+
+// Loops that do not advance along their chord (here Crane's plain-knit course shape, as knit.cpp's, and a
+// spiral) are searched through PolylineYarnCurve's box tree: its answer is the nearest point
+// of the whole polyline, found here by testing every segment.
+TEST(YarnCurveTest, ClosestArcOnLoopingCurvesIsTheNearestPointOfAllSegments) {
+  std::vector<Vec3> course;
+  for (int i = 0; i <= 6 * 32; ++i) {
+    const double t = 2 * kPi * i / 32;
+    course.push_back({0.05 * (t + 1.5 * std::sin(2 * t)), 0.05 * 4 * std::cos(t), 0.05 * std::cos(2 * t)});
+  }
+  std::vector<Vec3> spiral;  // 8 turns 0.1 apart, rising slowly
+  for (int i = 0; i <= 8 * 40; ++i) {
+    const double t = 2 * kPi * i / 40, r = 0.1 + 0.1 * t / (2 * kPi);
+    spiral.push_back({r * std::cos(t), r * std::sin(t), 0.001 * i});
+  }
+  for (const auto& [name, v] : {std::pair{"knit course", course}, std::pair{"spiral", spiral}}) {
+    SCOPED_TRACE(name);
+    PolylineYarnCurve curve;
+    ASSERT_EQ(MakeCentreCurve(v, CurveKind::kPolyline, &curve), "");
+    const std::vector<double> arcs = VertexArcs(v);
+    double worst = 0;
+    uint64_t state = 12345;
+    const auto uniform = [&state] {  // xorshift64*, any fixed sequence will do
+      state ^= state >> 12, state ^= state << 25, state ^= state >> 27;
+      return double((state * 0x2545F4914F6CDD1Dull) >> 11) * 0x1p-53;
+    };
+    for (int q = 0; q < 2000; ++q) {
+      // Near the curve (within 0.2 of a point on it) and anywhere in a box around it.
+      const size_t i = size_t(uniform() * double(v.size() - 1));
+      const Vec3 near = v[i] + Vec3{0.4 * uniform() - 0.2, 0.4 * uniform() - 0.2, 0.4 * uniform() - 0.2};
+      const Vec3 far = {4 * uniform() - 2, 4 * uniform() - 2, 4 * uniform() - 2};
+      for (const Vec3& p : {near, far}) {
+        double nearest = INFINITY, nearest_arc = 0;
+        for (size_t k = 0; k + 1 < v.size(); ++k) {
+          const Vec3 d = v[k + 1] - v[k];
+          const double u = std::clamp(Dot(p - v[k], d) / Dot(d, d), 0.0, 1.0);
+          const double dist = Distance(p, v[k] + u * d);
+          if (dist < nearest) nearest = dist, nearest_arc = arcs[k] + u * (arcs[k + 1] - arcs[k]);
+        }
+        const double arc = curve.ClosestArc(p);
+        worst = std::max(worst, Distance(p, curve.At(arc).position) - nearest);
+        // The same point unless two are equally near.
+        if (std::abs(arc - nearest_arc) > 1e-9) {
+          EXPECT_NEAR(Distance(p, curve.At(arc).position), nearest, 1e-12);
+        }
+      }
+    }
+    EXPECT_LE(worst, 1e-12);
+  }
 }
 
 // ---- Refusals and limits ----

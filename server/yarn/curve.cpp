@@ -71,8 +71,11 @@ std::string PolylineYarnCurve::Make(std::vector<Vec3> vertices, std::vector<Vec3
   out->chord_ = Norm(chord) > 0 ? Normalized(chord) : directions[0];
   bool advancing = true;
   for (const Vec3& d : directions) advancing = advancing && Dot(d, out->chord_) > 0;
+  out->boxes_.clear();
   if (advancing)
     for (const Vec3& v : out->vertices_) out->keys_.push_back(Dot(v, out->chord_));
+  else
+    out->BuildBoxes(0, uint32_t(n - 1));
   return "";
 }
 
@@ -86,26 +89,72 @@ Vec3 PolylineYarnCurve::VertexTangent(const std::vector<Vec3>& vertices, size_t 
   return Normalized(direction(i - 1) + direction(i));
 }
 
+int32_t PolylineYarnCurve::BuildBoxes(uint32_t first, uint32_t count) {
+  const int32_t index = int32_t(boxes_.size());
+  boxes_.push_back({});
+  SegmentBox box;
+  box.first = first;
+  box.count = count;
+  if (count <= kLeafSegments) {
+    box.lower = box.upper = vertices_[first];
+    for (uint32_t i = first + 1; i <= first + count; ++i) {
+      const Vec3& v = vertices_[i];
+      box.lower = {std::min(box.lower.x, v.x), std::min(box.lower.y, v.y), std::min(box.lower.z, v.z)};
+      box.upper = {std::max(box.upper.x, v.x), std::max(box.upper.y, v.y), std::max(box.upper.z, v.z)};
+    }
+  } else {
+    box.left = BuildBoxes(first, count / 2);
+    box.right = BuildBoxes(first + count / 2, count - count / 2);
+    const SegmentBox &l = boxes_[size_t(box.left)], &r = boxes_[size_t(box.right)];
+    box.lower = {std::min(l.lower.x, r.lower.x), std::min(l.lower.y, r.lower.y), std::min(l.lower.z, r.lower.z)};
+    box.upper = {std::max(l.upper.x, r.upper.x), std::max(l.upper.y, r.upper.y), std::max(l.upper.z, r.upper.z)};
+  }
+  boxes_[size_t(index)] = box;
+  return index;
+}
+
 void PolylineYarnCurve::ClosestSegment(Vec3 p, size_t* segment, double* u) const {
   *segment = 0;
   *u = 0;
   if (vertices_.size() < 2 || !Finite(p)) return;
-  const size_t segments = vertices_.size() - 1;
-  size_t lo = 0, hi = segments;
-  if (!keys_.empty()) {
-    // Within a yarn radius of the curve, the nearest point lies on the segment over p's chord coordinate or
-    // close to it (segments turn less than 60 degrees): two on either side are searched.
-    const size_t k = std::upper_bound(keys_.begin(), keys_.end(), Dot(p, chord_)) - keys_.begin();
-    lo = k > 3 ? k - 3 : 0;
-    hi = std::min(segments, k + 2);
-  }
   double best = INFINITY;
-  for (size_t i = lo; i < hi; ++i) {
+  // The lowest-numbered of the nearest segments, whatever order they are tested in.
+  const auto test = [&](size_t i) {
     const Vec3 d = vertices_[i + 1] - vertices_[i];
     const double along = std::clamp(Dot(p - vertices_[i], d) / Dot(d, d), 0.0, 1.0);
     const Vec3 off = p - (vertices_[i] + along * d);
     const double d2 = Dot(off, off);
-    if (d2 < best) best = d2, *segment = i, *u = along;
+    if (d2 < best || (d2 == best && i < *segment)) best = d2, *segment = i, *u = along;
+  };
+  if (!keys_.empty()) {
+    // Within a yarn radius of the curve, the nearest point lies on the segment over p's chord coordinate or
+    // close to it (segments turn less than 60 degrees): two on either side are searched.
+    const size_t segments = vertices_.size() - 1;
+    const size_t k = std::upper_bound(keys_.begin(), keys_.end(), Dot(p, chord_)) - keys_.begin();
+    for (size_t i = k > 3 ? k - 3 : 0; i < std::min(segments, k + 2); ++i) test(i);
+    return;
+  }
+  const auto box_distance2 = [&](const SegmentBox& b) {
+    const double x = std::max({b.lower.x - p.x, 0.0, p.x - b.upper.x});
+    const double y = std::max({b.lower.y - p.y, 0.0, p.y - b.upper.y});
+    const double z = std::max({b.lower.z - p.z, 0.0, p.z - b.upper.z});
+    return x * x + y * y + z * z;
+  };
+  // Depth first, the nearer child first; a box farther than the best segment so far cannot hold a nearer one.
+  // Depth is at most log2(kMaxCurveVertices / kLeafSegments) + 1 = 18, and each level leaves one box waiting.
+  int32_t stack[64];
+  int top = 0;
+  stack[top++] = 0;
+  while (top > 0) {
+    const SegmentBox& b = boxes_[size_t(stack[--top])];
+    if (box_distance2(b) > best) continue;
+    if (b.left < 0) {
+      for (uint32_t i = b.first; i < b.first + b.count; ++i) test(i);
+      continue;
+    }
+    const bool left_first = box_distance2(boxes_[size_t(b.left)]) <= box_distance2(boxes_[size_t(b.right)]);
+    stack[top++] = left_first ? b.right : b.left;
+    stack[top++] = left_first ? b.left : b.right;
   }
 }
 

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -89,7 +90,9 @@ class PolylineYarnCurve final : public YarnCurve {
   double Length() const override { return arc_.empty() ? 0 : arc_.back(); }
   CurveFrame At(double arc) const override;
   // Polylines that advance along their chord (every segment does: a woven layout's yarns) are searched by
-  // binary search on the chord and the neighbouring segments; others segment by segment.
+  // binary search on the chord and the neighbouring segments; others (loops: a knit's courses, a client's
+  // curves) through a tree of boxes over runs of consecutive segments, nearer boxes first, so a query near the
+  // curve tests a few runs instead of every segment.
   double ClosestArc(Vec3 p) const override;
   // The frame on the closest segment found, without At's search for the segment again (once per shading point
   // of a fiber render).
@@ -108,6 +111,16 @@ class PolylineYarnCurve final : public YarnCurve {
   std::vector<double> arc_;     // arc length at each vertex, arc_[0] = 0
   Vec3 chord_;                  // unit, first vertex to last
   std::vector<double> keys_;    // Dot(vertex, chord_) per vertex when increasing, else empty
+  // The box tree (when keys_ is empty): boxes_[0] is the root, a box holds segments [first, first + count) and
+  // either has two children (halves of its run) or is a leaf of at most kLeafSegments.
+  struct SegmentBox {
+    Vec3 lower, upper;
+    uint32_t first = 0, count = 0;
+    int32_t left = -1, right = -1;
+  };
+  static constexpr uint32_t kLeafSegments = 8;
+  int32_t BuildBoxes(uint32_t first, uint32_t count);
+  std::vector<SegmentBox> boxes_;
 };
 
 }  // namespace loomlight::yarn

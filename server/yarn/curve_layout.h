@@ -53,8 +53,9 @@ struct CurveYarn {
 
 inline constexpr int kMaxCurveYarns = 4096;
 inline constexpr int64_t kMaxCurveLayoutPoints = 1'000'000;  // control points of all yarns together
-// Centre polyline vertices of all yarns together once sampled (about 90 bytes each built; a polyline has one
-// per point, a B-spline at least kBSplineSegmentsPerSpan per span). One yarn: kMaxCurveVertices (curve.h).
+// Centre polyline vertices of all yarns together once sampled (up to 120 bytes each built, a looping curve's
+// search boxes included; a polyline has one per point, a B-spline at least kBSplineSegmentsPerSpan per span).
+// One yarn: kMaxCurveVertices (curve.h).
 inline constexpr int64_t kMaxCurveLayoutVertices = 2'000'000;
 inline constexpr int kBSplineSegmentsPerSpan = 8;
 inline constexpr int kMaxBSplineSegmentsPerSpan = 64;

@@ -302,7 +302,7 @@ TEST(YarnCurveTest, HelixFrameTurnsByTheRotationMinimizingTwist) {
   EXPECT_LE(Distance(f0.tangent, f1.tangent), 1e-12);
   const double turned = std::atan2(Dot(Cross(f0.normal, f1.normal), f0.tangent), Dot(f0.normal, f1.normal));
   const double expected = -2 * kPi * h / c;  // in (-pi, pi] for these a, h
-  // The double reflection method is fourth order in the chord (Wang et al. 2008, Sec. 4); measured here: 3.7e-7
+  // The double reflection method's global error is fourth order in the chord (Wang et al. 2008); measured: 3.7e-7
   // rad off at 64 chords a turn, 2.3e-8 at 128, 1.4e-9 at 256 (each halving 16 times closer). Allowed 1e-7.
   std::printf("helix, %d chords a turn: the frame turns by %.9f rad over a turn, expected %.9f (Frenet: 0)\n", per_turn,
               turned, expected);

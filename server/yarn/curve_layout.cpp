@@ -115,7 +115,7 @@ Vec3 InitialNormal(Vec3 t) {
 }
 
 // Normal r at vertex x0 (tangent t0) carried to x1 (tangent t1) by the double reflection method (Wang, Juettler,
-// Zheng and Liu 2008, Sec. 4). The tangents lie within 30 degrees of the segment (PolylineYarnCurve's turning
+// Zheng and Liu 2008). The tangents lie within 30 degrees of the segment (PolylineYarnCurve's turning
 // rule), so the second reflection's vector t1 - t0' is at least sqrt(3) long and the reflection is well defined.
 Vec3 DoubleReflection(Vec3 r, Vec3 x0, Vec3 t0, Vec3 x1, Vec3 t1) {
   const Vec3 v1 = x1 - x0;

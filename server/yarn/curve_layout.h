@@ -10,16 +10,16 @@
 //   (Piegl and Tiller, The NURBS Book, 2.2; evaluated with Eigen's Splines module).
 // - Sampling rule: each span becomes kBSplineSegmentsPerSpan chords of equal parameter step, doubled (up to
 //   kMaxBSplineSegmentsPerSpan) while a chord turns by more than kBSplineRefineDegrees from the one before it
-//   (the previous span's last chord included); a span still turning by 60 degrees or more at the most (a cusp,
-//   where the control points double back) is refused. So a span costs at most 8 + 16 + 32 + 64 evaluations, and
-//   the polyline always passes PolylineYarnCurve::Make's 60-degree rule. The chord of a span turning by theta
-//   over 8 chords sits within about L theta / 512 of the curve (L the span's length, theta in radians, as for a
-//   circular arc): 0.2% of L at 60 degrees.
+//   (the previous span's last chord included); a span whose chords still turn by 60 degrees or more at 64 chords
+//   (a cusp, where the control points double back) is refused. So a span costs at most 8 + 16 + 32 + 64
+//   evaluations, and the polyline always passes PolylineYarnCurve::Make's 60-degree rule. Each of the 8 chords of
+//   a span that turns by theta radians sits within about L theta / 512 of the curve (L the span's length; exactly
+//   so for a circular arc): 0.2% of L at 60 degrees.
 // - Frames: the polyline's vertex tangents are PolylineYarnCurve's (the bisector of the two segments); the first
 //   normal is the world axis least aligned with the first tangent (x, then y, then z on ties) made
 //   perpendicular to it, so a two-point polyline from the origin along +z has StraightYarnCurve's frame; each
 //   next normal is the last one carried over by the double reflection method (Wang, Juettler, Zheng and Liu,
-//   "Computation of rotation minimizing frames", ACM TOG 27(1), 2008, Sec. 4): reflect the frame in the plane
+//   "Computation of rotation minimizing frames", ACM TOG 27(1), article 2, 2008): reflect the frame in the plane
 //   bisecting the segment, then in the plane that takes the reflected tangent to the next one. Along a planar
 //   curve both reflection planes contain the plane's normal, so the normal's component along it stays exactly
 //   as it started.

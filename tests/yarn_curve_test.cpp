@@ -498,6 +498,9 @@ TEST(YarnCurveTest, TooManyYarnsPointsOrVerticesAreRefused) {
   EXPECT_GT(CurveLayoutVerticesAtMost(splines), kMaxCurveLayoutVertices);
   e = GenerateCurveLayout(splines, {}, {}, &fibers, &centres);
   EXPECT_TRUE(StartsWith(e, "yarns: the centre curves need at least 2399977 vertices")) << e;
+  // One B-spline over kMaxCurveVertices once sampled, refused as it is sampled (8 x 149,997 spans > 1,000,000).
+  e = GenerateCurveLayout({{line(150'000), CurveKind::kBSpline, YarnParams{}}}, {}, {}, &fibers, &centres);
+  EXPECT_TRUE(StartsWith(e, "yarns[0].points: the B-spline samples to more than 1000000 vertices")) << e;
   EXPECT_EQ(CurveLayoutVerticesAtMost({good, good}), 4);
   EXPECT_EQ(CurveLayoutVerticesAtMost({{line(10), CurveKind::kBSpline, YarnParams{}}}),
             7 * kMaxBSplineSegmentsPerSpan + 1);

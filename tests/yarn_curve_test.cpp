@@ -485,19 +485,19 @@ TEST(YarnCurveTest, TooManyYarnsPointsOrVerticesAreRefused) {
   };
   e = GenerateCurveLayout({{line(int64_t(kMaxCurveVertices) + 1), CurveKind::kPolyline, YarnParams{}}}, {}, {}, &fibers,
                           &centres);
-  EXPECT_TRUE(StartsWith(e, "yarns: more than 1000000 points in all (at yarns[0])")) << e;
+  EXPECT_TRUE(StartsWith(e, "yarns[0].points: the yarns up to this one have more than 1000000 points in all")) << e;
   e = GenerateCurveLayout({good, {line(600'000), CurveKind::kPolyline, YarnParams{}},
                            {line(600'000), CurveKind::kPolyline, YarnParams{}}},
                           {}, {}, &fibers, &centres);
-  EXPECT_TRUE(StartsWith(e, "yarns: more than 1000000 points in all (at yarns[2])")) << e;
+  EXPECT_TRUE(StartsWith(e, "yarns[2].points: the yarns up to this one have more than 1000000 points")) << e;
   PolylineYarnCurve centre;
   e = MakeCentreCurve(line(int64_t(kMaxCurveVertices) + 1), CurveKind::kPolyline, &centre);
   EXPECT_TRUE(StartsWith(e, "points: has 1000001 points, more than 1000000")) << e;
   // B-splines: 8 vertices a span at least, counted before any is sampled.
-  const std::vector<CurveYarn> splines = {{line(300'000), CurveKind::kBSpline, YarnParams{}}};
+  const std::vector<CurveYarn> splines = {good, {line(300'000), CurveKind::kBSpline, YarnParams{}}};
   EXPECT_GT(CurveLayoutVerticesAtMost(splines), kMaxCurveLayoutVertices);
   e = GenerateCurveLayout(splines, {}, {}, &fibers, &centres);
-  EXPECT_TRUE(StartsWith(e, "yarns: the centre curves need at least 2399977 vertices")) << e;
+  EXPECT_TRUE(StartsWith(e, "yarns[1].points: the centre curves up to this yarn need at least 2399979 vertices")) << e;
   // One B-spline over kMaxCurveVertices once sampled, refused as it is sampled (8 x 149,997 spans > 1,000,000).
   e = GenerateCurveLayout({{line(150'000), CurveKind::kBSpline, YarnParams{}}}, {}, {}, &fibers, &centres);
   EXPECT_TRUE(StartsWith(e, "yarns[0].points: the B-spline samples to more than 1000000 vertices")) << e;

@@ -210,16 +210,18 @@ std::string GenerateCurveLayout(const std::vector<CurveYarn>& yarns, const Detai
     const CurveYarn& y = yarns[k];
     const std::string at = "yarns[" + std::to_string(k) + "]";
     points += int64_t(y.points.size());
+    // The layout-wide sizes name the yarn that takes them over, so a client knows where to cut.
     if (points > kMaxCurveLayoutPoints)
-      return "yarns: more than " + std::to_string(kMaxCurveLayoutPoints) + " points in all (at " + at + ")";
+      return at + ".points: the yarns up to this one have more than " + std::to_string(kMaxCurveLayoutPoints) +
+             " points in all";
     fewest_vertices += CentreVertices(y, kBSplineSegmentsPerSpan);
+    if (fewest_vertices > kMaxCurveLayoutVertices)
+      return at + ".points: the centre curves up to this yarn need at least " + std::to_string(fewest_vertices) +
+             " vertices (" + std::to_string(kBSplineSegmentsPerSpan) + " per B-spline span), more than " +
+             std::to_string(kMaxCurveLayoutVertices) + " in all; use fewer B-spline points";
     if (!(e = ValidateYarnParams(y.params)).empty()) return at + "." + e;
     all_fibers += int64_t(y.params.plies) * y.params.fibers_per_ply;
   }
-  if (fewest_vertices > kMaxCurveLayoutVertices)
-    return "yarns: the centre curves need at least " + std::to_string(fewest_vertices) + " vertices (" +
-           std::to_string(kBSplineSegmentsPerSpan) + " per B-spline span), more than " +
-           std::to_string(kMaxCurveLayoutVertices) + "; use fewer B-spline points";
   if (all_fibers > limits.max_fibers)
     return "max_fibers: the layout's " + std::to_string(yarns.size()) + " yarns have " + std::to_string(all_fibers) +
            " fibers (plies x fibers_per_ply), more than the limit " + std::to_string(limits.max_fibers);
@@ -234,8 +236,8 @@ std::string GenerateCurveLayout(const std::vector<CurveYarn>& yarns, const Detai
     if (!(e = BuildCentre(yarns[k].points, yarns[k].kind, &built[k], &n)).empty()) return at + "." + e;
     vertices += int64_t(n);
     if (vertices > kMaxCurveLayoutVertices)
-      return "yarns: the centre curves sample to more than " + std::to_string(kMaxCurveLayoutVertices) +
-             " vertices in all (at " + at + "); use fewer B-spline points";
+      return at + ".points: the centre curves up to this yarn sample to more than " +
+             std::to_string(kMaxCurveLayoutVertices) + " vertices in all; use fewer B-spline points";
     const double length = built[k].Length();
     if (!(length >= kMinLength && length <= kMaxLength))
       return at + ".points: the curve is " + Number(length) + " long, must be in [" + Number(kMinLength) + ", " +

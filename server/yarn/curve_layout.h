@@ -77,9 +77,9 @@ int64_t CurveLayoutVerticesAtMost(const std::vector<CurveYarn>& yarns);
 // summed) and a lower bound on the control points from the curve lengths are checked before any fiber is
 // generated, and a yarn that takes a total over its limit is the last one generated. Returns "" and fills
 // *fibers (one YarnGeometry per yarn) and *centres, or the first problem, leaving both empty: "yarns: ..." (none,
-// more than kMaxCurveYarns, more than kMaxCurveLayoutPoints or kMaxCurveLayoutVertices in all), "yarns[k].field:
-// reason" for a bad yarn (its points or a YarnParams field), "max_fibers: ..." or "max_control_points: ..." for
-// the limits, "cancelled" as GenerateLayout.
+// more than kMaxCurveYarns), "yarns[k].field: reason" for a bad yarn (its points or a YarnParams field; the yarn
+// that takes the layout past kMaxCurveLayoutPoints or kMaxCurveLayoutVertices: "yarns[k].points: ..."),
+// "max_fibers: ..." or "max_control_points: ..." for the limits, "cancelled" as GenerateLayout.
 std::string GenerateCurveLayout(const std::vector<CurveYarn>& yarns, const DetailOptions& options,
                                 const YarnLimits& limits, LayoutGeometry* fibers,
                                 std::vector<PolylineYarnCurve>* centres);

@@ -3,6 +3,7 @@
 #include <grpcpp/alarm.h>
 
 #include <algorithm>
+#include <cmath>
 #include <mutex>
 #include <thread>
 
@@ -141,13 +142,36 @@ constexpr uint32_t kDefaultFiberSamples = 4;
 constexpr uint32_t kMaxFiberSamples = 64;
 // The patch traced: this many weave repeats per side, the tile the central one (Scene::tiling needs 3).
 constexpr int kFiberTileRepeats = 3;
-// The request's fiber source: its yarn on its weave (cotton_twill by default), laid out 3 x 3 repeats, at full
-// detail within Render's fiber limits. "" or "fibers.field: reason".
+// A knit's patch: at least 5 stitch repeats each way (a rib's repeat is 2 wales), the tile the central one. A
+// loop reaches into the courses beside its own, so the 3 x 3 repeats around the tile need one more all round
+// to be whole.
+constexpr int kKnitPatchWales = 10;
+constexpr int kKnitPatchCourses = 5;
+// The request's fiber source: its yarn on its weave (cotton_twill by default) laid out 3 x 3 repeats, or in its
+// knit laid out kKnitPatchWales x kKnitPatchCourses, at full detail within Render's fiber limits. "" or
+// "fibers.field: reason".
 std::string FiberSourceOf(const models::Registry& registry, const v1::FiberBtfSource& f, FiberSource* out) {
   if (f.samples_per_texel() > kMaxFiberSamples)
     return "fibers.samples_per_texel: at most " + std::to_string(kMaxFiberSamples) + ", got " +
            std::to_string(f.samples_per_texel());
   out->samples = int(f.samples_per_texel() == 0 ? kDefaultFiberSamples : f.samples_per_texel());
+  YarnJob& job = out->yarn;
+  job.limits.max_fibers = static_cast<int64_t>(kMaxRenderFibers);
+  job.limits.max_control_points = static_cast<int64_t>(kMaxRenderFiberPoints);
+  job.detail.threads = 2;
+  job.detail.footprint = 0;  // every fiber: the texels are finer than a ply
+  if (f.has_knit()) {
+    if (f.has_woven()) return "fibers.knit: give a knit or a woven layout, not both";
+    v1::KnitYarnLayout knit = f.knit();
+    for (const auto& [field, stitches] : {std::pair{"wales", knit.wales()}, {"courses", knit.courses()}})
+      if (stitches != 0)
+        return std::string("fibers.knit.") + field +
+               ": the tile is one repeat of the stitch and the server lays out the patch around it; leave it 0";
+    knit.set_wales(kKnitPatchWales);
+    knit.set_courses(kKnitPatchCourses);
+    if (std::string e = YarnJobOf(registry, f.yarn(), {.knit = &knit}, &job); !e.empty()) return "fibers." + e;
+    return "";
+  }
   v1::WovenYarnLayout woven = f.woven();
   for (const auto& [field, repeats] : {std::pair{"repeats_u", woven.repeats_u()}, {"repeats_v", woven.repeats_v()}})
     if (repeats != 0)
@@ -156,11 +180,6 @@ std::string FiberSourceOf(const models::Registry& registry, const v1::FiberBtfSo
   if (!woven.has_weave()) woven.mutable_weave()->set_preset("cotton_twill");
   woven.set_repeats_u(kFiberTileRepeats);
   woven.set_repeats_v(kFiberTileRepeats);
-  YarnJob& job = out->yarn;
-  job.limits.max_fibers = static_cast<int64_t>(kMaxRenderFibers);
-  job.limits.max_control_points = static_cast<int64_t>(kMaxRenderFiberPoints);
-  job.detail.threads = 2;
-  job.detail.footprint = 0;  // every fiber: the texels are finer than a ply
   if (std::string e = YarnJobOf(registry, f.yarn(), &woven, 0, &job); !e.empty()) return "fibers." + e;
   return "";
 }
@@ -274,8 +293,16 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     if (!s.ok()) return s;
     const YarnJob& y = fibers_->yarn;
     const double spacing = y.layout.spacing;
-    const render::Scene::Tiling tile{y.pattern.warps * spacing, y.pattern.picks * spacing, y.pattern.warps * spacing,
-                                      y.pattern.picks * spacing};
+    render::Scene::Tiling tile{y.pattern.warps * spacing, y.pattern.picks * spacing, y.pattern.warps * spacing,
+                               y.pattern.picks * spacing};
+    if (y.kind == yarn::YarnLayoutKind::kKnit) {
+      // The stitch repeat at the middle of the patch, on its grid (courses from y = 0, wales from x = 0).
+      yarn::KnitLayout knit;
+      if (std::string e = yarn::BuildKnit(y.knit, &knit); !e.empty()) return {grpc::StatusCode::INTERNAL, e};
+      const auto middle = [](double size, double period) { return std::floor(0.5 * size / period) * period; };
+      tile = {middle(y.knit.wales * knit.wale_spacing, knit.period_x),
+              middle(y.knit.courses * knit.course_spacing, knit.period_y), knit.period_x, knit.period_y};
+    }
     *capture = std::make_unique<render::BtfCapture>(scene, tile, job_.grid, job_.width, job_.height, fibers_->samples,
                                                     fibers_->yarn.params.seed);
     return grpc::Status::OK;
@@ -337,13 +364,24 @@ class CreateBtfCall final : public WorkerStreamCall<v1::CreateBtfProgress> {
     if (!fibers_) return s + ", synthesised at texel centres";
     const YarnJob& y = fibers_->yarn;
     char text[200];
-    std::snprintf(text, sizeof text, "fibers: %d x %d weave, spacing %.4g, crimp %.3g, yarn seed %llu, shaded by ",
-                  y.pattern.warps, y.pattern.picks, y.layout.spacing, y.layout.crimp,
-                  static_cast<unsigned long long>(y.params.seed));
+    const yarn::KnitParams& k = y.knit;
+    if (y.kind == yarn::YarnLayoutKind::kKnit)
+      std::snprintf(text, sizeof text, "fibers: %s knit, wale spacing %.4g, course spacing %.4g, yarn seed %llu, shaded by ",
+                    k.stitch == yarn::KnitStitch::kRib1x1 ? "1 x 1 rib" : "jersey",
+                    k.wale_spacing > 0 ? k.wale_spacing : yarn::DefaultWaleSpacing(k.stitch, k.yarn_radius),
+                    k.course_spacing > 0 ? k.course_spacing : yarn::DefaultCourseSpacing(k.stitch, k.yarn_radius),
+                    static_cast<unsigned long long>(y.params.seed));
+    else
+      std::snprintf(text, sizeof text, "fibers: %d x %d weave, spacing %.4g, crimp %.3g, yarn seed %llu, shaded by ",
+                    y.pattern.warps, y.pattern.picks, y.layout.spacing, y.layout.crimp,
+                    static_cast<unsigned long long>(y.params.seed));
     return std::string(text) + s + ", " + std::to_string(fibers_->samples) + " rays per texel";
   }
 
   double ThreadsPerTile() const {
+    // A knit's tile: its wales (a rib's repeat has two), each a loop of two legs across.
+    if (fibers_ && fibers_->yarn.kind == yarn::YarnLayoutKind::kKnit)
+      return fibers_->yarn.knit.stitch == yarn::KnitStitch::kRib1x1 ? 2 : 1;
     if (fibers_) return std::max(fibers_->yarn.pattern.warps, fibers_->yarn.pattern.picks);
     return prepared_->model->ThreadsPerRepeat(prepared_->values);
   }

@@ -1,7 +1,9 @@
 #include "server/api/render_rpc.h"
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
+#include <numbers>
 #include <vector>
 
 #include "server/api/admission.h"
@@ -149,8 +151,63 @@ imaging::ImageFormat FormatOf(const v1::RenderRequest& r) {
 
 uint32_t ViewsOf(const v1::RenderRequest& r) { return std::max<uint32_t>(1, r.views()); }
 
-// The request's scene (a fiber scene's fibers are generated and built separately).
-render::Scene SceneOf(const v1::RenderRequest& r) { return ResolvedSceneOf(r).Build(); }
+// The box a knit's or the curves' yarns fill, for framing: the curves' control points (a B-spline stays in
+// their hull), or a knit of at most 4 x 4 stitches built and stretched by the stitches left out (a knit is
+// periodic, and the small one keeps this cheap at any size), widened by the yarn's radius. False for other
+// layouts.
+bool LayoutBox(const YarnJob& job, Vec3* lower, Vec3* upper) {
+  const auto widen = [&](yarn::Vec3 lo, yarn::Vec3 hi, double by) {
+    *lower = {std::min(lower->x, lo.x - by), std::min(lower->y, lo.y - by), std::min(lower->z, lo.z - by)};
+    *upper = {std::max(upper->x, hi.x + by), std::max(upper->y, hi.y + by), std::max(upper->z, hi.z + by)};
+  };
+  *lower = Vec3{INFINITY, INFINITY, INFINITY};
+  *upper = -1.0 * *lower;
+  if (job.kind == yarn::YarnLayoutKind::kCurves) {
+    for (const yarn::CurveYarn& c : job.curves)
+      for (const yarn::Vec3& p : c.points) widen(p, p, c.params.yarn_radius);
+  } else if (job.kind == yarn::YarnLayoutKind::kKnit) {
+    yarn::KnitParams small = job.knit;
+    small.wales = std::min(small.wales, 4);
+    small.courses = std::min(small.courses, 4);
+    yarn::KnitLayout knit;
+    if (!yarn::BuildKnit(small, &knit).empty()) return false;
+    const yarn::Vec3 more{(job.knit.wales - small.wales) * knit.wale_spacing,
+                          (job.knit.courses - small.courses) * knit.course_spacing, 0};
+    widen(knit.lower, knit.upper + more, 0);  // KnitLayout's box is widened already
+  } else {
+    return false;
+  }
+  return std::isfinite(lower->x) && std::isfinite(upper->x);
+}
+
+// The request's scene (a fiber scene's fibers are generated and built separately). A knit's or curves' scene,
+// its camera not given, sees their box whole: the scene's default camera moved along its line of sight to look at
+// the box's centre from the nearest distance at which every corner of the box lies in the frame, with a 6%
+// margin, at the scene's default field of view (so a narrower fov_deg parameter closes in on the centre).
+render::Scene SceneOf(const v1::RenderRequest& r, const YarnJob* fibers = nullptr) {
+  const render::ResolvedScene resolved = ResolvedSceneOf(r);
+  render::Scene scene = resolved.Build();
+  Vec3 lower, upper;
+  if (r.has_camera() || !fibers || !LayoutBox(*fibers, &lower, &upper)) return scene;
+  const double fov = resolved.spec->build(models::DefaultValues(resolved.spec->params)).default_camera.fov_deg;
+  const double tan_v = std::tan(0.5 * fov * std::numbers::pi / 180) / 1.06;
+  const double tan_h = tan_v * double(std::max(r.width(), 1u)) / double(std::max(r.height(), 1u));
+  render::CameraSpec& camera = scene.default_camera;
+  const Vec3 forward = render::Normalize(camera.look_at - camera.position);
+  const Vec3 right = render::Normalize(render::Cross(forward, camera.up)), up = render::Cross(right, forward);
+  camera.look_at = 0.5 * (lower + upper);
+  // A corner q from the centre is seen at depth d + q.forward, and is in the frame while |q.right| and |q.up| are
+  // within tan_h and tan_v times that.
+  double distance = 0;
+  for (int corner = 0; corner < 8; ++corner) {
+    const Vec3 q = Vec3{corner & 1 ? upper.x : lower.x, corner & 2 ? upper.y : lower.y,
+                        corner & 4 ? upper.z : lower.z} - camera.look_at;
+    distance = std::max({distance, std::fabs(render::Dot(q, right)) / tan_h - render::Dot(q, forward),
+                         std::fabs(render::Dot(q, up)) / tan_v - render::Dot(q, forward)});
+  }
+  camera.position = camera.look_at - distance * forward;
+  return scene;
+}
 
 // The camera a request asks for, or its scene's.
 render::CameraSpec CameraOf(const v1::RenderRequest& r, const render::Scene& scene) {
@@ -164,19 +221,39 @@ render::CameraSpec CameraOf(const v1::RenderRequest& r, const render::Scene& sce
   return camera;
 }
 
-// A fiber scene's yarn: the request's yarn and layout (the woven patch's default: cotton_twill, 2 x 2 repeats),
-// at the detail it asks for. Validation only (cheap); `detail` is filled in by ChooseFiberDetail.
+// yarn_curves' curves when the request gives none: one yarn arching over another across it (cubic B-splines
+// about 1 long, the arch 0.12 above the lower yarn's centre at the crossing: clear of it for cotton1).
+v1::CurveYarnLayout DefaultCurves() {
+  v1::CurveYarnLayout curves;
+  const auto add = [&](std::initializer_list<double> points) {
+    v1::YarnCentreCurve* c = curves.add_yarns();
+    c->mutable_points()->Add(points.begin(), points.end());
+    c->set_bspline(true);
+  };
+  add({-0.5, 0, -0.03, -0.25, 0, 0.0, 0, 0, 0.06, 0.25, 0, 0.0, 0.5, 0, -0.03});
+  add({0, -0.5, 0.03, 0, -0.25, 0.0, 0, 0, -0.06, 0, 0.25, 0.0, 0, 0.5, 0.03});
+  return curves;
+}
+
+// A fiber scene's yarn: the request's yarn and layout (defaults: the woven patch's cotton_twill, 2 x 2 repeats;
+// the knit's jersey, 8 x 8; DefaultCurves), at the detail it asks for. Validation only (cheap); `detail` is
+// filled in by ChooseFiberDetail.
 std::string FiberJobOf(const models::Registry& registry, const v1::RenderRequest& r, YarnJob* job) {
+  const render::SceneNeeds needs = NeedsOf(r);
   v1::WovenYarnLayout woven = r.woven();
-  const bool woven_layout = NeedsOf(r).woven;
-  if (woven_layout) {
+  if (needs.woven) {
     if (!woven.has_weave()) woven.mutable_weave()->set_preset("cotton_twill");
     if (woven.repeats_u() == 0) woven.set_repeats_u(2);
     if (woven.repeats_v() == 0) woven.set_repeats_v(2);
   }
+  const v1::CurveYarnLayout curves = needs.curves && !r.has_curves() ? DefaultCurves() : r.curves();
   job->limits.max_fibers = static_cast<int64_t>(kMaxRenderFibers);
   job->limits.max_control_points = static_cast<int64_t>(kMaxRenderFiberPoints);
-  return YarnJobOf(registry, r.yarn(), woven_layout ? &woven : nullptr, 0, job);
+  YarnLayoutRequest layout;
+  if (needs.woven) layout.woven = &woven;
+  if (needs.curves) layout.curves = &curves;
+  if (needs.knit) layout.knit = &r.knit();  // unset: 8 x 8 jersey (0 = 8 stitches)
+  return YarnJobOf(registry, r.yarn(), layout, job);
 }
 
 // Eq. 4's level of detail for a fiber scene: from the pixel footprint at the camera's look-at point (AUTO, LOD),
@@ -185,7 +262,7 @@ std::string FiberJobOf(const models::Registry& registry, const v1::RenderRequest
 void ChooseFiberDetail(const v1::RenderRequest& r, YarnJob* job, render::RenderSetup::FiberDetail* report,
                        bool* check) {
   *check = false;
-  const render::Scene scene = SceneOf(r);
+  const render::Scene scene = SceneOf(r, job);
   const render::CameraSpec camera = CameraOf(r, scene);
   const render::PinholeCamera pinhole(camera, static_cast<int>(r.height()), static_cast<int>(r.height()));
   const double footprint = pinhole.pixel_angle() * render::Length(camera.look_at - camera.position);
@@ -463,7 +540,9 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
   void SetUp() {
     const v1::RenderRequest& r = request_;
     render::RenderInputs in = RenderInputsOf(
-        r, mesh_ ? render::MeshScene(mesh_, UvLength(r, mesh_->mesh()), int(r.width()), int(r.height())) : SceneOf(r),
+        r,
+        mesh_ ? render::MeshScene(mesh_, UvLength(r, mesh_->mesh()), int(r.width()), int(r.height()))
+              : SceneOf(r, fiber_job_.get()),
         std::move(environment_));
     if ((mesh_ || r.materials_size() > 0) && !(status_ = BindMeshMaterials(&in)).ok()) return;
     in.setup.scene.fibers = std::move(fibers_);
@@ -878,6 +957,9 @@ std::string ValidateRenderRequest(const v1::RenderRequest& r) {
   }
   if (r.has_woven() && !needs.woven)
     return "woven: only for the fiber scenes laid out as a weave, not '" + scene_label + "'";
+  if (r.has_knit() && !needs.knit) return "knit: only for the fiber scenes laid out as a knit, not '" + scene_label + "'";
+  if (r.has_curves() && !needs.curves)
+    return "curves: only for the fiber scenes laid out along curves, not '" + scene_label + "'";
   return "";
 }
 

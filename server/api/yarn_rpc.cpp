@@ -83,10 +83,82 @@ std::string WovenOf(const models::Registry& registry, const v1::WovenYarnLayout&
   return "";
 }
 
+// The client's centre curves, each with its yarn (the request's, seeded per curve, unless it names its own) at
+// its radius. The counts are bounded before anything is allocated; the points themselves are checked when the
+// centres are built (MakeCentreCurve), where the turn at a vertex is known.
+std::string CurvesOf(const v1::CurveYarnLayout& c, YarnJob* job) {
+  if (c.yarns().empty()) return "curves.yarns: no yarn given";
+  if (c.yarns_size() > yarn::kMaxCurveYarns)
+    return "curves.yarns: " + std::to_string(c.yarns_size()) + " yarns exceed the limit of " +
+           std::to_string(yarn::kMaxCurveYarns);
+  int64_t values = 0;
+  for (const v1::YarnCentreCurve& y : c.yarns()) values += y.points_size();
+  if (values > 3 * yarn::kMaxCurveLayoutPoints)
+    return "curves.yarns: " + std::to_string(values / 3) + " points in all exceed the limit of " +
+           std::to_string(yarn::kMaxCurveLayoutPoints);
+  job->curves.reserve(size_t(c.yarns_size()));
+  int64_t centre_vertices = 0;
+  for (int k = 0; k < c.yarns_size(); ++k) {
+    const v1::YarnCentreCurve& y = c.yarns(k);
+    const std::string field = "curves.yarns[" + std::to_string(k) + "]";
+    if (y.points_size() % 3 != 0)
+      return field + ".points: " + std::to_string(y.points_size()) + " values are not whole xyz points";
+    yarn::CurveYarn& out = job->curves.emplace_back();
+    if (y.has_yarn()) {
+      if (std::string e = YarnParamsOf(y.yarn(), &out.params); !e.empty()) return field + "." + e;
+    } else {
+      out.params = job->params;
+    }
+    // Neighbouring curves of one yarn get distinct fibers, each the same at every call.
+    if (!y.has_yarn() || !y.yarn().has_seed()) out.params.seed = yarn::LayoutYarnSeed(job->params.seed, uint64_t(k));
+    if (!std::isfinite(y.radius()) || y.radius() < 0)
+      return field + ".radius: must be finite and >= 0 (0 = the yarn's own)";
+    if (y.radius() > 0) {
+      ScaleYarn(y.radius(), &out.params);
+      if (std::string e = yarn::ValidateYarnParams(out.params); !e.empty())
+        return field + ".radius: the yarn scaled to " + std::to_string(y.radius()) + " has " + e;
+    }
+    out.kind = y.bspline() ? yarn::CurveKind::kBSpline : yarn::CurveKind::kPolyline;
+    out.points.reserve(size_t(y.points_size() / 3));
+    for (int i = 0; i + 2 < y.points_size(); i += 3) out.points.push_back({y.points(i), y.points(i + 1), y.points(i + 2)});
+    // A B-spline's centre is sampled more finely than its control polygon: at most this many chords a span.
+    centre_vertices += y.bspline() ? int64_t(out.points.size()) * yarn::kMaxBSplineSegmentsPerSpan
+                                   : int64_t(out.points.size());
+  }
+  job->layout_bytes = size_t(std::min(centre_vertices, yarn::kMaxCurveLayoutVertices)) * kLayoutBytesPerVertex;
+  job->kind = yarn::YarnLayoutKind::kCurves;
+  return "";
+}
+
+// A knit's stitch, size and spacings; its yarn radius is the yarn's (the loops are shaped for it).
+std::string KnitOf(const v1::KnitYarnLayout& k, YarnJob* job) {
+  if (!v1::KnitStitch_IsValid(k.stitch())) return "knit.stitch: unknown value " + std::to_string(k.stitch());
+  yarn::KnitParams& p = job->knit;
+  p.stitch = k.stitch() == v1::KNIT_RIB_1X1 ? yarn::KnitStitch::kRib1x1 : yarn::KnitStitch::kJersey;
+  // Past the limit stays past it (ValidateKnitParams names it) without overflowing int.
+  p.wales = int(std::min<uint32_t>(k.wales() == 0 ? 8 : k.wales(), 1u << 20));
+  p.courses = int(std::min<uint32_t>(k.courses() == 0 ? 8 : k.courses(), 1u << 20));
+  p.yarn_radius = job->params.yarn_radius;
+  for (const auto& [field, value] : {std::pair{"wale_spacing", k.wale_spacing()}, {"course_spacing", k.course_spacing()}})
+    if (!std::isfinite(value) || value < 0) return std::string("knit.") + field + ": must be finite and >= 0 (0 = the default)";
+  p.wale_spacing = k.wale_spacing();
+  p.course_spacing = k.course_spacing();
+  if (std::string e = yarn::ValidateKnitParams(p); !e.empty()) return "knit." + e;
+  const int64_t vertices = int64_t(p.wales) * p.courses * p.points_per_loop + p.courses;
+  job->layout_bytes = size_t(vertices) * kLayoutBytesPerVertex;
+  job->kind = yarn::YarnLayoutKind::kKnit;
+  return "";
+}
+
 std::string Validate(const models::Registry& registry, const v1::YarnGeometryRequest& r, YarnJob* job) {
   if (std::string e = DetailOf(r.detail(), &job->detail); !e.empty()) return e;
   if (std::string e = LimitsOf(r, &job->limits); !e.empty()) return e;
-  return YarnJobOf(registry, r.yarn(), r.has_woven() ? &r.woven() : nullptr, r.straight().length(), job);
+  YarnLayoutRequest layout;
+  if (r.has_woven()) layout.woven = &r.woven();
+  if (r.has_curves()) layout.curves = &r.curves();
+  if (r.has_knit()) layout.knit = &r.knit();
+  layout.straight_length = r.straight().length();
+  return YarnJobOf(registry, r.yarn(), layout, job);
 }
 
 // One YarnGeometry call in flight: generation on the geometry worker, then chunks written from the host worker.
@@ -121,8 +193,11 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
       } else if (!error.empty()) {
         // Only the limits can stop a validated request here (they need the geometry's size to check).
         const bool limit = error.rfind("max_", 0) == 0;
+        const std::string curve = CurveError(error);  // a bad curve is found as its centre is built
         if (status_.ok())
-          status_ = limit ? Invalid(error) : grpc::Status(grpc::StatusCode::INTERNAL, error);
+          status_ = limit             ? Invalid(error)
+                    : !curve.empty()  ? Invalid(curve)
+                                      : grpc::Status(grpc::StatusCode::INTERNAL, error);
       } else {
         geometry_ = geometry;
         curves_.emplace(geometry_->yarns);
@@ -259,17 +334,37 @@ void DescribeYarnModel(v1::YarnModelInfo* out) {
   out->set_max_control_points(kMaxYarnControlPoints);
 }
 
-std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const v1::WovenYarnLayout* woven,
-                      double straight_length, YarnJob* job) {
+std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const YarnLayoutRequest& layout,
+                      YarnJob* job) {
   if (std::string e = YarnParamsOf(yarn, &job->params); !e.empty()) return e;
-  if (woven) return WovenOf(registry, *woven, job);
-  const double length = straight_length == 0 ? 1.0 : straight_length;
+  if (layout.woven) return WovenOf(registry, *layout.woven, job);
+  if (layout.curves) return CurvesOf(*layout.curves, job);
+  if (layout.knit) return KnitOf(*layout.knit, job);
+  const double length = layout.straight_length == 0 ? 1.0 : layout.straight_length;
   if (!(length >= yarn::kMinLength && length <= yarn::kMaxLength))
     return "straight.length: must be a finite number in [" + std::to_string(yarn::kMinLength) + ", " +
            std::to_string(yarn::kMaxLength) + "]";
   job->straight_length = length;
   job->params.length = length;  // set here, not only when generating, so SameFibers compares like with like
   return "";
+}
+
+std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const v1::WovenYarnLayout* woven,
+                      double straight_length, YarnJob* job) {
+  return YarnJobOf(registry, yarn, {.woven = woven, .straight_length = straight_length}, job);
+}
+
+void ScaleYarn(double radius, yarn::YarnParams* p) {
+  const double k = radius / p->yarn_radius;
+  for (double* length : {&p->yarn_radius, &p->ellipse_n, &p->ellipse_b, &p->fiber_width, &p->alpha, &p->alpha_yarn})
+    *length *= k;
+  p->yarn_radius = radius;  // exactly as asked
+  p->hair_density /= k;
+  p->loop_density /= k;
+}
+
+std::string CurveError(const std::string& error) {
+  return error.rfind("yarns[", 0) == 0 ? "curves." + error : "";
 }
 
 grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& stop,
@@ -283,6 +378,7 @@ grpc::Status BuildFiberScene(YarnJob* job, const std::function<grpc::Status()>& 
     case Kind::kOk: return grpc::Status::OK;
     case Kind::kStopped: return stop();
     case Kind::kLimits:
+      if (std::string curve = CurveError(outcome.message); !curve.empty()) return Invalid(curve);
       return Invalid(yarn_field + ": " + outcome.message +
                      " (the fiber limits; docs/fibers.md#shadows-ambient-occlusion-and-level-of-detail)");
     case Kind::kNoMemory: return {grpc::StatusCode::RESOURCE_EXHAUSTED, outcome.message};

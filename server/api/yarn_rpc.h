@@ -46,11 +46,33 @@ using yarn::LaidYarn;
 using yarn::SameFibers;
 using yarn::YarnJob;
 
-// The yarn of a request and its layout: a woven patch (`woven` not null; fields under "woven.") or one
-// straight yarn of `straight_length` (0 = 1; "straight.length"). Detail and limits are the caller's. Returns ""
-// or "field: reason".
+// A request's layout: at most one of these set (none: one straight yarn of straight_length, 0 = 1).
+struct YarnLayoutRequest {
+  const v1::WovenYarnLayout* woven = nullptr;
+  const v1::CurveYarnLayout* curves = nullptr;
+  const v1::KnitYarnLayout* knit = nullptr;
+  double straight_length = 0;
+};
+
+// The yarn of a request and its layout: a woven patch (fields under "woven."), the client's curves
+// ("curves.yarns[k].field"; each curve's yarn is its own or the request's with the seed
+// yarn::LayoutYarnSeed(seed, k), scaled to its radius by ScaleYarn), a knit ("knit.") or one straight yarn
+// ("straight.length"). Everything is checked that needs no geometry built (a curve's points are checked when its
+// centre is built: "yarns[k].points: ..." from generation, which CurveError names). job->layout_bytes: the
+// centres' estimated bytes, for admission. Detail and limits are the caller's. Returns "" or "field: reason".
+std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const YarnLayoutRequest& layout,
+                      YarnJob* job);
+// The same for a woven patch (`woven` not null) or a straight yarn.
 std::string YarnJobOf(const models::Registry& registry, const v1::Yarn& yarn, const v1::WovenYarnLayout* woven,
                       double straight_length, YarnJob* job);
+
+// A geometrically similar yarn of yarn radius `radius`: every length scaled by radius / yarn_radius (yarn_radius,
+// ellipse_n, ellipse_b, fiber_width, alpha, alpha_yarn) and the densities per unit length divided by it.
+void ScaleYarn(double radius, yarn::YarnParams* p);
+
+// A generation error of a curve layout's yarn ("yarns[k].field: reason") as the request's field
+// ("curves.yarns[k].field: reason"), or "" for any other error.
+std::string CurveError(const std::string& error);
 
 // A job's fibers in an Embree BVH, for ray tracing them (Render's fiber scenes, CreateBtf's fiber source):
 // generates them, admits the BVH's estimated bytes through `grow` (RESOURCE_EXHAUSTED when it refuses) before

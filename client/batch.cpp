@@ -57,7 +57,9 @@ struct Job {
 
 // ---- reading the CSV ----
 
-// One CSV record with RFC 4180 quoting ("a ""b"", c" is one field holding `a "b", c`); a record is one line.
+}  // namespace
+
+// cli.h; `loomlight yarn --curves` reads its CSV with it too.
 std::vector<std::string> split_csv_record(std::string_view line, const std::string& where) {
   if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
   std::vector<std::string> fields(1);
@@ -84,6 +86,8 @@ std::vector<std::string> split_csv_record(std::string_view line, const std::stri
   if (quoted) throw UsageError(where + ": unterminated quoted field");
   return fields;
 }
+
+namespace {
 
 // The options column as arguments: split at whitespace; single quotes keep whitespace inside one argument
 // (--env-file 'my sky.exr'), as a shell would.

@@ -18,6 +18,7 @@
 #include "client/material.h"
 #include "client/progress.h"
 #include "client/rpc.h"
+#include "client/yarn_layouts.h"
 
 namespace loomlight::client {
 namespace {
@@ -204,10 +205,13 @@ int run_create(const ParsedOptions& options) {
   request.set_replace(options.has("replace"));
   const bool fibers = options.has("fibers");
   if (!fibers && (options.has("yarn") || options.has("weave") || options.has("spacing") || options.has("crimp") ||
-                  options.has("rays")))
-    throw UsageError("--yarn, --weave, --spacing, --crimp and --rays are for --fibers");
+                  options.has("rays") || options.has("knit")))
+    throw UsageError("--yarn, --weave, --spacing, --crimp, --knit and --rays are for --fibers");
   if (fibers) {
     v1::FiberBtfSource& source = *request.mutable_fibers();
+    if (!knit_from_options(options, source.mutable_knit(), false)) source.clear_knit();
+    else if (options.has("weave") || options.has("spacing") || options.has("crimp"))
+      throw UsageError("--knit: a knit has no --weave, --spacing or --crimp (its spacings: --wale-spacing, --course-spacing)");
     if (auto yarn = options.last("yarn")) source.mutable_yarn()->set_preset(*yarn);
     if (auto weave = options.last("weave")) source.mutable_woven()->mutable_weave()->set_preset(*weave);
     if (auto spacing = options.last("spacing"))
@@ -402,6 +406,9 @@ OptionList create_options() {
       {"crimp", "C", "--fibers: how far yarns bend over and under, 0..1 (default 1)"},
       {"rays", "N", "--fibers: rays per texel, 1..64 (default 4)"},
   });
+  // --fibers --knit: a knit's tile (one repeat of its stitch; the server lays out the patch around it).
+  const OptionList knit = knit_options(false);
+  options.insert(options.end(), knit.begin(), knit.end());
   const OptionList compression = compression_options();
   options.insert(options.end(), compression.begin(), compression.end());
   return options;
@@ -430,18 +437,20 @@ const Command& create_command() {
   static const Command command = {
       "btf create",
       "NAME MATERIAL [--grid h1|h2] [--resolution N] [--components N] [--target-psnr DB] [--replace]\n"
-      "  [--fibers [--yarn PRESET] [--weave PRESET] [--spacing S] [--crimp C] [--rays N]]\n"
+      "  [--fibers [--yarn PRESET] [--weave PRESET [--spacing S] [--crimp C] | --knit jersey|rib] [--rays N]]\n"
       "  MATERIAL: " LOOMLIGHT_MATERIAL_SYNOPSIS,
       "make a BTF asset from a spatially varying material, or rendered fibers, on the server",
       "The server samples f at the texel centres of one pattern repeat for every view and light of the grid,\n"
       "compresses each view slot's light images with PCA and stores the asset as NAME (1-64 of A-Za-z0-9_.-).\n"
       "With --fibers it renders instead a fiber-level woven patch (the yarn laid out by the weave, each fiber\n"
-      "shaded by MATERIAL, a fiber model), one repeat seen by parallel rays from each view and lit from each light.\n"
+      "shaded by MATERIAL, a fiber model), one repeat seen by parallel rays from each view and lit from each light;\n"
+      "with --knit a knit's instead, its tile one repeat of the stitch.\n"
       "A progress bar per stage is drawn on stderr when it is a terminal; then the asset's summary is\n"
       "printed: grid, texels, components, size, the fewest components reaching 40 dB, and the error table.\n"
       "Large assets may need a longer --timeout (0 = none).\n"
       "Example: loomlight btf create twill --preset cotton_twill --components 16 --target-psnr 40\n"
-      "Fibers:  loomlight btf create twill_fibers --preset cotton --fibers --grid h2 --resolution 32",
+      "Fibers:  loomlight btf create twill_fibers --preset cotton --fibers --grid h2 --resolution 32\n"
+      "A knit:  loomlight btf create jersey_fibers --preset cotton --fibers --knit jersey --grid h2 --resolution 32",
       create_options(),
       run_create,
       1,

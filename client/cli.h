@@ -62,5 +62,8 @@ double parse_number(std::string_view text, std::string_view what);
 int parse_int(std::string_view text, std::string_view what, int lo, int hi);
 // A comma-separated list "v1,v2,..."; with `count` > 0 exactly that many values are required.
 std::vector<double> parse_numbers(std::string_view text, std::string_view what, std::size_t count = 0);
+// One CSV record with RFC 4180 quoting ("a ""b"", c" is one field holding `a "b", c`); a record is one line.
+// `where` ("FILE:LINE") prefixes the UsageError of an unterminated quote.
+std::vector<std::string> split_csv_record(std::string_view line, const std::string& where);
 
 }  // namespace loomlight::client

@@ -12,6 +12,7 @@
 #include "client/material.h"
 #include "client/progress.h"
 #include "client/rpc.h"
+#include "client/yarn_layouts.h"
 
 namespace loomlight::client {
 namespace {
@@ -128,7 +129,13 @@ v1::RenderRequest render_request(const ParsedOptions& options, const std::string
     *request.mutable_material() = material.material();
     request.set_precision(material.precision());
   }
-  if (!request.has_mesh()) set_scene(options.last("scene").value_or("sphere"), request);
+  const bool knit = knit_from_options(options, request.mutable_knit());
+  if (!knit) request.clear_knit();
+  const bool curves = curves_from_options(options, request.mutable_curves());
+  if (!curves) request.clear_curves();
+  // A knit or curves without --scene: the scene that shows them.
+  const char* default_scene = knit ? "knit_patch" : curves ? "yarn_curves" : "sphere";
+  if (!request.has_mesh()) set_scene(options.last("scene").value_or(default_scene), request);
   else if (options.has("scene")) throw UsageError("--scene: a mesh is the scene; give one or the other");
   if (auto v = enum_option(options, "background", "BACKGROUND_", v1::Background_Parse)) request.set_background(*v);
   if (auto views = options.last("views")) request.set_views(static_cast<uint32_t>(parse_int(*views, "--views", 1, 1000)));
@@ -260,7 +267,7 @@ int run_render(const ParsedOptions& options) {
 OptionList render_options() {
   OptionList options = material_options();
   options.insert(options.end(), {
-      {"scene", "NAME", "sphere (default), cylinders, swatch, curtain; fiber scenes: yarn, woven-patch (`loomlight scenes`)"},
+      {"scene", "NAME", "sphere (default), cylinders, swatch, curtain; fiber scenes: yarn, woven-patch, knit_patch, yarn_curves (`loomlight scenes`)"},
       {"mesh", "FILE", "render this glTF 2.0 (.glb, .gltf with embedded buffers) or OBJ file, sent with the request"},
       {"mesh-name", "NAME", "render a mesh stored on the server (`loomlight mesh upload`)"},
       {"material", "MESH_MATERIAL=PRESET", "dress one of the mesh's materials in a preset (repeatable; the rest wear MATERIAL)"},
@@ -298,6 +305,8 @@ OptionList render_options() {
       {"format", "png|jpeg|webp|exr", "output format (default: from the --out extension)"},
       {"out", "FILE", "output file (required)"},
   });
+  // knit_patch's knit and yarn_curves' curves (each, given without --scene, picks its scene).
+  for (const OptionList& layout : {knit_options(), curves_options()}) options.insert(options.end(), layout.begin(), layout.end());
   return options;
 }
 
@@ -317,6 +326,7 @@ const Command& render_command() {
       "Example: loomlight render --preset polyester_satin_charmeuse_front --scene cylinders --size 512x256 \\\n"
       "           --spp 64 --out satin.png\n"
       "Fibers: loomlight render --preset cotton --scene yarn --yarn cotton1 --size 512x256 --out yarn.png\n"
+      "A knit: loomlight render --preset cotton --scene knit_patch --knit jersey --stitches 8,8 --out knit.png\n"
       "A garment: loomlight render --mesh garment.glb --material body=polyester_satin_charmeuse_front \\\n"
       "           --material collar=cotton_twill --background white --views 8 --size 1600x1600 --out shot.png",
       render_options(),

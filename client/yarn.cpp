@@ -3,16 +3,80 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <optional>
+#include <sstream>
 #include <stdexcept>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "client/commands.h"
 #include "client/material.h"
 #include "client/progress.h"
 #include "client/rpc.h"
+#include "client/yarn_layouts.h"
 
 namespace loomlight::client {
 namespace {
+
+// One yarn of a curves CSV as it is read: its points, and its optional columns as first given.
+struct CsvYarn {
+  std::vector<double> points;
+  std::optional<std::string> preset;
+  std::optional<double> radius;
+  std::optional<bool> bspline;
+};
+
+// An optional column's value on one line: the first given for the yarn, or the same again.
+template <class T>
+void agree(std::optional<T>* kept, const T& value, const std::string& where, const std::string& column, int yarn) {
+  if (!*kept) *kept = value;
+  else if (**kept != value)
+    throw UsageError(where + ": " + column + " differs from the one given before for yarn " + std::to_string(yarn));
+}
+
+void read_curves_csv(const std::string& text, const std::string& file, bool bspline, v1::CurveYarnLayout* out) {
+  std::istringstream lines(text);
+  std::string line;
+  std::vector<CsvYarn> yarns;
+  bool first = true;
+  for (int number = 1; std::getline(lines, line); ++number) {
+    const std::string where = file + ":" + std::to_string(number);
+    const size_t start = line.find_first_not_of(" \t\r");
+    if (start == std::string::npos || line[start] == '#') continue;
+    const std::vector<std::string> fields = split_csv_record(line, where);
+    // A header is a first line whose first field is not a number.
+    const bool header = first && fields[0].find_first_of("0123456789") == std::string::npos;
+    first = false;
+    if (header) continue;
+    if (fields.size() < 4 || fields.size() > 7)
+      throw UsageError(where + ": expected yarn,x,y,z[,preset[,radius[,bspline]]], got " +
+                       std::to_string(fields.size()) + " fields");
+    // Far more yarns than the server takes (its limit, docs/fibers.md) stays cheap here and is refused there.
+    const int k = parse_int(fields[0], where + " yarn", 0, 1 << 20);
+    if (size_t(k) >= yarns.size()) yarns.resize(size_t(k) + 1);
+    CsvYarn& y = yarns[size_t(k)];
+    for (int c = 1; c <= 3; ++c) y.points.push_back(parse_number(fields[size_t(c)], where + " " + "xyz"[c - 1]));
+    if (fields.size() > 4 && !fields[4].empty()) agree(&y.preset, fields[4], where, "preset", k);
+    if (fields.size() > 5 && !fields[5].empty()) agree(&y.radius, parse_number(fields[5], where + " radius"), where, "radius", k);
+    if (fields.size() > 6 && !fields[6].empty()) {
+      if (fields[6] != "0" && fields[6] != "1")
+        throw UsageError(where + ": bspline must be 1 (a B-spline) or 0 (a polyline), got '" + fields[6] + "'");
+      agree(&y.bspline, fields[6] == "1", where, "bspline", k);
+    }
+  }
+  if (yarns.empty()) throw UsageError(file + ": no control points");
+  for (size_t k = 0; k < yarns.size(); ++k) {
+    const CsvYarn& y = yarns[k];
+    if (y.points.empty())
+      throw UsageError(file + ": yarn " + std::to_string(k) + " has no points (yarns are numbered from 0 without gaps)");
+    v1::YarnCentreCurve* c = out->add_yarns();
+    c->mutable_points()->Add(y.points.begin(), y.points.end());
+    c->set_bspline(y.bspline.value_or(bspline));
+    if (y.preset) c->mutable_yarn()->set_preset(*y.preset);
+    if (y.radius) c->set_radius(*y.radius);
+  }
+}
 
 const char* fiber_type_name(int type) {
   switch (type) {
@@ -34,6 +98,15 @@ v1::YarnGeometryRequest yarn_request(const ParsedOptions& options) {
       throw UsageError("--seed: expected an integer in [0, 2^53], got '" + *seed + "'");
     yarn.set_seed(static_cast<uint64_t>(s));
   }
+  // Read aside: the layouts are one oneof, and setting one clears another.
+  v1::CurveYarnLayout curve_layout;
+  v1::KnitYarnLayout knit_layout;
+  const bool curves = curves_from_options(options, &curve_layout);
+  const bool knit = knit_from_options(options, &knit_layout);
+  if (int(curves) + int(knit) + int(options.has("weave")) + int(options.has("length")) > 1)
+    throw UsageError("give one layout: --length, --weave, --curves or --knit");
+  if (curves) *request.mutable_curves() = std::move(curve_layout);
+  if (knit) *request.mutable_knit() = std::move(knit_layout);
   if (auto weave = options.last("weave")) {
     v1::WovenYarnLayout& woven = *request.mutable_woven();
     woven.mutable_weave()->set_preset(*weave);
@@ -136,7 +209,7 @@ int run_yarn(const ParsedOptions& options) {
 }
 
 OptionList yarn_options() {
-  return {
+  OptionList options = {
       {"out", "FILE", "output pbrt-v4 scene fragment (required): one `curve` shape per fiber"},
       {"yarn", "PRESET", "cotton1 (default), cotton2, polyester1, rayon2 or silk1 (see `loomlight models`)"},
       {"yarn-param", "NAME=V", "override a yarn parameter (repeatable)"},
@@ -154,19 +227,77 @@ OptionList yarn_options() {
       {"max-fibers", "N", "refuse geometry with more fiber curves than N"},
       {"max-points", "N", "refuse geometry with more control points than N"},
   };
+  for (const OptionList& layout : {curves_options(), knit_options()})  // after the woven layout's
+    options.insert(options.begin() + 10, layout.begin(), layout.end());
+  return options;
 }
 
 }  // namespace
 
+bool curves_from_options(const ParsedOptions& options, v1::CurveYarnLayout* out) {
+  const auto file = options.last("curves");
+  if (!file) {
+    if (options.has("bspline")) throw UsageError("--bspline is for --curves");
+    return false;
+  }
+  read_curves_csv(read_local_file(*file, "--curves"), *file, options.has("bspline"), out);
+  return true;
+}
+
+bool knit_from_options(const ParsedOptions& options, v1::KnitYarnLayout* out, bool stitches) {
+  const auto stitch = options.last("knit");
+  if (!stitch) {
+    if (options.has("stitches") || options.has("wale-spacing") || options.has("course-spacing"))
+      throw UsageError("--stitches, --wale-spacing and --course-spacing need --knit jersey|rib");
+    return false;
+  }
+  if (*stitch == "jersey") out->set_stitch(v1::KNIT_JERSEY);
+  else if (*stitch == "rib") out->set_stitch(v1::KNIT_RIB_1X1);
+  else throw UsageError("--knit: expected jersey or rib, got '" + *stitch + "'");
+  if (auto n = options.last("stitches"); n && stitches) {
+    const size_t comma = n->find(',');
+    if (comma == std::string::npos) throw UsageError("--stitches needs WALES,COURSES, got '" + *n + "'");
+    out->set_wales(uint32_t(parse_int(n->substr(0, comma), "--stitches wales", 1, 1 << 20)));
+    out->set_courses(uint32_t(parse_int(n->substr(comma + 1), "--stitches courses", 1, 1 << 20)));
+  }
+  if (auto w = options.last("wale-spacing")) out->set_wale_spacing(parse_number(*w, "--wale-spacing"));
+  if (auto c = options.last("course-spacing")) out->set_course_spacing(parse_number(*c, "--course-spacing"));
+  return true;
+}
+
+OptionList knit_options(bool stitches) {
+  OptionList options = {
+      {"knit", "jersey|rib", "a weft knit: stockinette jersey or 1 x 1 rib, one yarn per course (docs/fibers.md \"Knits\")"},
+      {"wale-spacing", "S", "with --knit: centre to centre of neighbouring wales (default: the server's for the yarn)"},
+      {"course-spacing", "S", "with --knit: centre to centre of neighbouring courses (default: the server's)"},
+  };
+  if (stitches)
+    options.insert(options.begin() + 1, {"stitches", "WALES,COURSES", "with --knit: stitches across and rows (default 8,8)"});
+  return options;
+}
+
+OptionList curves_options() {
+  return {
+      {"curves", "FILE",
+       "yarns along centre curves from a CSV, one line per control point: yarn,x,y,z[,preset[,radius[,bspline]]] "
+       "(docs/fibers.md \"Yarn curves\")"},
+      {"bspline", "", "with --curves: curves without a bspline column are cubic B-splines (default: polylines)"},
+  };
+}
+
 const Command& yarn_command() {
   static const Command command = {
       "yarn",
-      "--out FILE.pbrt [--yarn PRESET] [--yarn-param NAME=V]... [--length L | --weave PRESET [layout options]]\n"
+      "--out FILE.pbrt [--yarn PRESET] [--yarn-param NAME=V]...\n"
+      "  [--length L | --weave PRESET [layout options] | --curves FILE [--bspline] | --knit jersey|rib [knit options]]\n"
       "  [--footprint W] [--no-core] [--core-radius R] [--points-per-twist N] [--seed N]",
       "write a procedural yarn's fiber curves as pbrt-v4 curve shapes",
       "The server generates the yarn (plies, fibers, flyaways, core fibers; docs/fibers.md \"Yarn geometry\")\n"
       "and streams the curves; each becomes a pbrt-v4 \"curve\" shape (cylinder, cubic B-spline). Include the\n"
-      "file from a pbrt-v4 scene. Example: loomlight yarn --yarn silk1 --length 2 --out silk1.pbrt",
+      "file from a pbrt-v4 scene. Example: loomlight yarn --yarn silk1 --length 2 --out silk1.pbrt\n"
+      "Curves: loomlight yarn --curves yarns.csv --bspline --out curves.pbrt, yarns.csv holding lines\n"
+      "  yarn,x,y,z[,preset[,radius[,bspline]]] (a header line is optional), e.g. \"0,0,0,0,silk1,0.05,1\"\n"
+      "Knits:  loomlight yarn --knit jersey --stitches 40,40 --footprint 0.01 --out jersey.pbrt",
       yarn_options(),
       run_yarn,
   };

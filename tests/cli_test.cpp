@@ -6,6 +6,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <set>
 #include <sstream>
 #include <string>
 #include <utility>
@@ -93,11 +95,14 @@ TEST(Cli, EveryCommandHelpListsItsOptions) {
       {"plot", {"--preset", "--incidence", "--plane-phi", "--samples", "--size", "--view", "--full-circle"}},
       {"slice", {"--preset", "--wi", "--wo-deg", "--size", "--region", "--spp", "--format", "--out"}},
       {"tab", {"--preset", "--grid", "--dims", "--incidence", "--phi-h-samples", "--format", "--out"}},
-      {"render", {"--preset", "--scene", "--size", "--spp", "--light", "--env", "--error-target", "--out"}},
+      {"render", {"--preset", "--scene", "--size", "--spp", "--light", "--env", "--error-target", "--out", "--knit",
+                  "--stitches", "--curves", "--bspline"}},
       {"batch", {"--csv", "--jobs", "--retries", "--backoff", "--log"}},
-      {"yarn", {"--yarn", "--weave", "--weave-wif", "--max-fibers", "--points-per-twist", "--out"}},
+      {"yarn", {"--yarn", "--weave", "--weave-wif", "--max-fibers", "--points-per-twist", "--out", "--curves",
+                "--bspline", "--knit", "--stitches", "--wale-spacing", "--course-spacing"}},
       {"btf", {}},
-      {"btf create", {"--grid", "--resolution", "--components", "--target-psnr", "--replace", "--fibers"}},
+      {"btf create", {"--grid", "--resolution", "--components", "--target-psnr", "--replace", "--fibers", "--knit",
+                      "--wale-spacing"}},
       {"btf list", {"--plot"}},
       {"btf delete", {}},
       {"btf images", {"--grid", "--format", "--exposure"}},
@@ -151,6 +156,12 @@ TEST(Cli, ClientRefusalsExitTwoNamingTheOption) {
       {"btf delete", "missing arguments"},
       {"btf", "'btf' needs a command"},
       {"btf rename", "unknown command 'btf rename'"},
+      {"yarn --knit wool --out x.pbrt", "--knit: expected jersey or rib, got 'wool'"},
+      {"yarn --stitches 4,4 --out x.pbrt", "--stitches, --wale-spacing and --course-spacing need --knit"},
+      {"yarn --knit jersey --stitches 4 --out x.pbrt", "--stitches needs WALES,COURSES"},
+      {"yarn --knit jersey --length 2 --out x.pbrt", "give one layout"},
+      {"yarn --bspline --out x.pbrt", "--bspline is for --curves"},
+      {"btf create k --preset cotton --knit jersey", "--yarn, --weave, --spacing, --crimp, --knit and --rays are for --fibers"},
       {"no-such-command", "unknown command 'no-such-command'"},
   };
   for (const auto& [args, message] : refusals) {
@@ -240,6 +251,44 @@ TEST_F(CliServer, AmbientPrintsOneRowPerWo) {
   }
   EXPECT_EQ(rows, 2) << ambient.output;
   EXPECT_NE(ambient.output.find("\n0,0,1,"), std::string::npos) << ambient.output;
+}
+
+// The knit and curve layouts end to end: `yarn` writes one curve shape per fiber for a knit and for curves from a
+// CSV; `render` with --knit or --curves picks the scene that shows them and renders it.
+TEST_F(CliServer, KnitsAndCurvesFromTheCommandLine) {
+  const std::string dir = ::testing::TempDir(), server = "--server " + server_->address() + " ";
+  const Result knit = Client(server + "yarn --knit rib --stitches 4,3 --footprint 0.02 --out " + dir + "/cli_knit.pbrt");
+  ASSERT_EQ(knit.exit_code, 0) << knit.output;
+  EXPECT_NE(knit.output.find(" fibers, "), std::string::npos) << knit.output;
+  {
+    std::ofstream csv(dir + "/cli_curves.csv");
+    // Yarn 0 a B-spline by --bspline, yarn 1 a polyline by its column.
+    csv << "yarn,x,y,z,preset,radius,bspline\n0,0,0,0\n0,0.3,0,0.5\n0,0,0,1\n0,0.3,0,1.5\n1,1,0,0,,,0\n1,1,0,1\n";
+  }
+  const Result curves =
+      Client(server + "yarn --curves " + dir + "/cli_curves.csv --bspline --footprint 0.02 --out " + dir + "/cli_curves.pbrt");
+  ASSERT_EQ(curves.exit_code, 0) << curves.output;
+  std::ifstream pbrt(dir + "/cli_curves.pbrt");
+  std::string line;
+  std::set<std::string> yarns;
+  while (std::getline(pbrt, line))
+    if (line.rfind("# ", 0) == 0 && line.find(" yarn ") != std::string::npos)
+      yarns.insert(line.substr(line.find(" yarn ") + 6, 2));
+  EXPECT_EQ(yarns, (std::set<std::string>{"0 ", "1 "}));
+
+  const Result knit_render = Client(server + "render --preset cotton --knit jersey --stitches 3,3 --size 24x16 --spp 1 "
+                                    "--fiber-detail lod --out " + dir + "/cli_knit.png");
+  ASSERT_EQ(knit_render.exit_code, 0) << knit_render.output;
+  EXPECT_NE(knit_render.output.find("knit patch (fibers)"), std::string::npos) << knit_render.output;
+  const Result curve_render = Client(server + "render --preset cotton --curves " + dir + "/cli_curves.csv --bspline --size 24x16 "
+                                     "--spp 1 --fiber-detail lod --out " + dir + "/cli_curves.png");
+  ASSERT_EQ(curve_render.exit_code, 0) << curve_render.output;
+  EXPECT_NE(curve_render.output.find("yarn curves (fibers)"), std::string::npos) << curve_render.output;
+  // The server refuses a knit on a scene that does not lay one out, naming the field.
+  const Result refused = Client(server + "render --preset cotton --scene yarn --knit jersey --size 24x16 --out " + dir +
+                                "/cli_refused.png");
+  EXPECT_EQ(refused.exit_code, 1) << refused.output;
+  EXPECT_NE(refused.output.find("knit: only for"), std::string::npos) << refused.output;
 }
 
 TEST_F(CliServer, ServerComesFromTheEnvironmentWhenNotGiven) {

@@ -7,7 +7,9 @@
 #include <chrono>
 #include <cmath>
 #include <fstream>
+#include <functional>
 #include <map>
+#include <numbers>
 #include <sstream>
 #include <thread>
 
@@ -460,6 +462,367 @@ TEST_F(YarnRpcTest, BadWovenLayoutsNameTheirField) {
     EXPECT_EQ(s.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.field;
     EXPECT_EQ(s.status.error_message().rfind(c.field, 0), 0u) << s.status.error_message();
   }
+}
+// ---- Yarn curves and knits (docs/fibers.md "Yarn curves", "Knits") ----
+
+v1::YarnCentreCurve* AddCurve(v1::CurveYarnLayout* layout, std::initializer_list<double> points, bool bspline = false) {
+  v1::YarnCentreCurve* c = layout->add_yarns();
+  c->mutable_points()->Add(points.begin(), points.end());
+  c->set_bspline(bspline);
+  return c;
+}
+
+void ExpectSameCurves(const v1::FiberCurves& a, const v1::FiberCurves& b) {
+  ASSERT_GT(a.point_counts_size(), 0);
+  EXPECT_TRUE(std::equal(a.point_counts().begin(), a.point_counts().end(), b.point_counts().begin(),
+                         b.point_counts().end()));
+  EXPECT_TRUE(std::equal(a.widths().begin(), a.widths().end(), b.widths().begin(), b.widths().end()));
+  ASSERT_EQ(a.points_size(), b.points_size());
+  // The curve's frames are the straight yarn's to rounding (1e-16 in double), here in float.
+  int differ = 0;
+  for (int i = 0; i < a.points_size(); ++i) differ += std::fabs(a.points(i) - b.points(i)) > 1e-6f;
+  EXPECT_EQ(differ, 0) << "of " << a.points_size() << " coordinates";
+}
+
+// A curve from the origin to (0, 0, 1) is the straight yarn of length 1: with the same yarn and seed, the same
+// fibers (to float rounding). Its radius scales the yarn: the same fibers as the preset with every length doubled by hand.
+TEST_F(YarnRpcTest, AStraightCurveGivesTheStraightYarnsFibersAndItsRadiusScalesTheYarn) {
+  auto stub = Stub();
+  v1::YarnGeometryRequest curve;
+  v1::YarnCentreCurve* c = AddCurve(curve.mutable_curves(), {0, 0, 0, 0, 0, 1});
+  c->mutable_yarn()->set_preset("cotton1");
+  c->mutable_yarn()->set_seed(5);
+  curve.mutable_detail()->set_footprint(0.01);
+  v1::YarnGeometryRequest straight = Straight("cotton1", 1);
+  straight.mutable_yarn()->set_seed(5);
+  straight.mutable_detail()->set_footprint(0.01);
+  const Streamed along = Fetch(*stub, curve), line = Fetch(*stub, straight);
+  ASSERT_TRUE(along.status.ok()) << along.status.error_message();
+  ASSERT_TRUE(line.status.ok()) << line.status.error_message();
+  ASSERT_EQ(along.summary.yarns_size(), 1);
+  EXPECT_EQ(along.summary.yarns(0).length(), 1.0);
+  EXPECT_EQ(along.summary.yarns(0).thread(), 0u);
+  ExpectSameCurves(along.curves, line.curves);
+
+  // cotton1 (SPEC.md section 6) at twice its radius: lengths doubled, densities per length halved.
+  c->set_radius(2 * 0.0378);
+  v1::YarnGeometryRequest doubled = straight;
+  for (const auto& [name, value] : std::vector<std::pair<std::string, double>>{
+           {"yarn_radius", 2 * .0378}, {"ellipse_n", 2 * .0200}, {"ellipse_b", 2 * .0257}, {"alpha", 2 * .366},
+           {"alpha_yarn", 2 * .453}, {"fiber_width", 2 * 0.005235774377619163}, {"hair_density", 30.36 / 2},
+           {"loop_density", 19.10 / 2}})
+    SetParam(&doubled, name, value);
+  const Streamed scaled = Fetch(*stub, curve), by_hand = Fetch(*stub, doubled);
+  ASSERT_TRUE(scaled.status.ok()) << scaled.status.error_message();
+  ASSERT_TRUE(by_hand.status.ok()) << by_hand.status.error_message();
+  ExpectSameCurves(scaled.curves, by_hand.curves);
+  EXPECT_NEAR(scaled.summary.bounds_max(0), 2 * line.summary.bounds_max(0), 0.2 * line.summary.bounds_max(0));
+}
+
+// Curves without a yarn of their own take the request's, each with its own seed: two parallel curves get
+// different fibers, and each the same fibers at every call and wherever it is moved.
+TEST_F(YarnRpcTest, CurvesOfTheRequestsYarnGetFibersOfTheirOwnAndKeepThemWhenMoved) {
+  auto stub = Stub();
+  v1::YarnGeometryRequest r;
+  r.mutable_yarn()->set_preset("polyester1");
+  r.mutable_detail()->set_footprint(0.01);
+  AddCurve(r.mutable_curves(), {0, 0, 0, 0, 0, 1});
+  AddCurve(r.mutable_curves(), {1, 0, 0, 1, 0, 1});
+  const Streamed two = Fetch(*stub, r);
+  ASSERT_TRUE(two.status.ok()) << two.status.error_message();
+  ASSERT_EQ(two.summary.yarns_size(), 2);
+  // Each yarn's fibers relative to its curve's start.
+  std::vector<std::vector<float>> relative(2);
+  size_t first = 0;
+  for (int i = 0; i < two.curves.point_counts_size(); ++i) {
+    const uint32_t yarn = two.curves.yarns(i);
+    for (size_t k = 0; k < 3 * size_t(two.curves.point_counts(i)); ++k)
+      relative[yarn].push_back(two.curves.points(int(3 * first + k)) - (k % 3 == 0 ? float(yarn) : 0.0f));
+    first += two.curves.point_counts(i);
+  }
+  EXPECT_NE(relative[0], relative[1]);
+  // The second curve alone at the first one's index is the first curve moved: the same fibers, moved.
+  v1::YarnGeometryRequest moved = r;
+  moved.mutable_curves()->mutable_yarns()->RemoveLast();
+  for (int i = 0; i < 6; i += 3) moved.mutable_curves()->mutable_yarns(0)->set_points(i, 0.5);
+  const Streamed one = Fetch(*stub, moved);
+  ASSERT_TRUE(one.status.ok()) << one.status.error_message();
+  std::vector<float> back;
+  for (int i = 0; i < one.curves.points_size(); ++i) back.push_back(one.curves.points(i) - (i % 3 == 0 ? 0.5f : 0.0f));
+  ASSERT_EQ(back.size(), relative[0].size());
+  for (size_t i = 0; i < back.size(); ++i) ASSERT_NEAR(back[i], relative[0][i], 1e-6) << i;
+}
+
+TEST_F(YarnRpcTest, BadCurvesNameTheYarnAndItsField) {
+  const double nan = std::nan("");
+  struct Case {
+    std::function<void(v1::CurveYarnLayout*)> edit;  // on a layout of one good curve
+    std::string field;
+  };
+  const std::vector<Case> cases = {
+      {[](auto* l) { AddCurve(l, {0, 0, 0, 0, 0}); }, "curves.yarns[1].points"},
+      {[&](auto* l) { AddCurve(l, {0, 0, 0, 0, nan, 1}); }, "curves.yarns[1].points"},
+      {[](auto* l) { AddCurve(l, {0, 0, 0, 0, 0, 0.5, 0, 0, 0.5}); }, "curves.yarns[1].points"},  // repeated
+      {[](auto* l) { AddCurve(l, {0, 0, 0}); }, "curves.yarns[1].points"},
+      {[](auto* l) { AddCurve(l, {0, 0, 0, 0, 0, 1, 0, 0, 2}, true); }, "curves.yarns[1].points"},  // 3 B-spline points
+      {[](auto* l) { AddCurve(l, {0, 0, 0, 0, 0, 1})->set_radius(-1); }, "curves.yarns[1].radius"},
+      {[&](auto* l) { AddCurve(l, {0, 0, 0, 0, 0, 1})->set_radius(nan); }, "curves.yarns[1].radius"},
+      {[](auto* l) { AddCurve(l, {0, 0, 0, 0, 0, 1})->mutable_yarn()->set_preset("no_such_yarn"); },
+       "curves.yarns[1].yarn.preset"},
+      {[](auto* l) {
+         for (int k = 0; k < 4096; ++k) AddCurve(l, {0, 0, 0, 0, 0, 1});
+       },
+       "curves.yarns"},
+      {[](auto* l) {
+         v1::YarnCentreCurve* c = l->add_yarns();
+         for (int k = 0; k < 1'000'001; ++k) c->add_points(0), c->add_points(0), c->add_points(k);
+       },
+       "curves.yarns"},
+  };
+  auto stub = Stub();
+  for (const Case& c : cases) {
+    v1::YarnGeometryRequest request;
+    request.mutable_detail()->set_footprint(0.02);
+    AddCurve(request.mutable_curves(), {0, 0, 0, 0, 0, 1});
+    c.edit(request.mutable_curves());
+    const Streamed s = Fetch(*stub, request);
+    EXPECT_EQ(s.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.field << ": " << s.status.error_message();
+    EXPECT_EQ(s.status.error_message().rfind(c.field + (c.field == "curves.yarns" ? ":" : ""), 0), 0u)
+        << s.status.error_message();
+  }
+  v1::YarnGeometryRequest none;
+  none.mutable_curves();
+  EXPECT_EQ(Fetch(*stub, none).status.error_message().rfind("curves.yarns: no yarn", 0), 0u);
+}
+
+// A jersey of 4 wales x 3 courses at wale spacing 0.4 and course spacing 0.3: one yarn per course, from x = 0 to
+// 1.6; course j's legs about y = (j + 1/2) 0.3 and its loops 4/4.5 of a course spacing above and below them; the
+// legs and heads a loop depth (1.34 yarn radii) to either side of the fabric plane (server/yarn/knit.h).
+TEST_F(YarnRpcTest, KnitLaysOneYarnPerCourse) {
+  v1::YarnGeometryRequest r;
+  r.mutable_yarn()->set_preset("cotton1");
+  v1::KnitYarnLayout& knit = *r.mutable_knit();
+  knit.set_wales(4);
+  knit.set_courses(3);
+  knit.set_wale_spacing(0.4);
+  knit.set_course_spacing(0.3);
+  r.mutable_detail()->set_footprint(0.02);
+  const Streamed s = Fetch(*Stub(), r);
+  ASSERT_TRUE(s.status.ok()) << s.status.error_message();
+  ASSERT_EQ(s.summary.yarns_size(), 3);
+  for (int j = 0; j < 3; ++j) {
+    EXPECT_FALSE(s.summary.yarns(j).warp());
+    EXPECT_EQ(s.summary.yarns(j).thread(), uint32_t(j));
+    EXPECT_GT(s.summary.yarns(j).length(), 2 * 1.6);  // each stitch a loop up and down
+  }
+  std::vector<int> per_yarn(3, 0);
+  for (int i = 0; i < s.curves.point_counts_size(); ++i) {
+    ASSERT_LT(s.curves.yarns(i), 3u);
+    per_yarn[s.curves.yarns(i)]++;
+  }
+  for (int j = 0; j < 3; ++j) EXPECT_GE(per_yarn[j], 3) << j;
+  const double radius = 0.0378, h = 0.3 * 4 / 4.5, d = 1.34 * radius;
+  EXPECT_NEAR(s.summary.bounds_min(0), 0, 3 * radius);
+  EXPECT_NEAR(s.summary.bounds_max(0), 1.6, 3 * radius);
+  EXPECT_NEAR(s.summary.bounds_min(1), 0.15 - h, 3 * radius);
+  EXPECT_NEAR(s.summary.bounds_max(1), 0.75 + h, 3 * radius);
+  EXPECT_NEAR(s.summary.bounds_max(2), d, 3 * radius);
+  EXPECT_NEAR(s.summary.bounds_min(2), -d, 3 * radius);
+
+  // A rib of the same size: as many yarns.
+  knit.set_stitch(v1::KNIT_RIB_1X1);
+  const Streamed rib = Fetch(*Stub(), r);
+  ASSERT_TRUE(rib.status.ok()) << rib.status.error_message();
+  EXPECT_EQ(rib.summary.yarns_size(), 3);
+}
+
+TEST_F(YarnRpcTest, BadKnitsNameTheirField) {
+  struct Case {
+    std::function<void(v1::KnitYarnLayout*)> edit;
+    std::string field;
+  };
+  const std::vector<Case> cases = {
+      {[](auto* k) { k->set_stitch(static_cast<v1::KnitStitch>(7)); }, "knit.stitch"},
+      {[](auto* k) { k->set_wales(100000); }, "knit.wales"},
+      {[](auto* k) { k->set_courses(513); }, "knit.courses"},
+      {[](auto* k) { k->set_wale_spacing(-1); }, "knit.wale_spacing"},
+      {[](auto* k) { k->set_wale_spacing(std::nan("")); }, "knit.wale_spacing"},
+      {[](auto* k) { k->set_course_spacing(0.01); }, "knit.course_spacing"},  // loops would pass through
+  };
+  auto stub = Stub();
+  for (const Case& c : cases) {
+    v1::YarnGeometryRequest request;
+    c.edit(request.mutable_knit());
+    const Streamed s = Fetch(*stub, request);
+    EXPECT_EQ(s.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.field << ": " << s.status.error_message();
+    EXPECT_EQ(s.status.error_message().rfind(c.field, 0), 0u) << s.status.error_message();
+  }
+}
+
+// ---- The knit and curves scenes (Render) ----
+
+struct RenderResult {
+  grpc::Status status;
+  v1::RenderUpdate last;
+};
+
+RenderResult RenderScene(v1::Loomlight::Stub& stub, const v1::RenderRequest& request) {
+  RenderResult out;
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+  auto reader = stub.Render(&ctx, request);
+  v1::RenderUpdate update;
+  while (reader->Read(&update))
+    if (!update.image().empty()) out.last = update;
+  out.status = reader->Finish();
+  return out;
+}
+
+v1::RenderRequest FiberRender(const std::string& scene) {
+  v1::RenderRequest r;
+  r.mutable_material()->set_preset("cotton");
+  r.set_scene_name(scene);
+  r.set_width(48);
+  r.set_height(32);
+  r.set_samples_per_pixel(2);
+  r.set_fiber_detail(v1::FIBER_DETAIL_LOD);
+  r.set_format(v1::RENDER_FORMAT_EXR);
+  return r;
+}
+
+// The share of the image's pixels that are not black (the fiber scenes' background without a sky), every
+// value finite and >= 0.
+double LitShare(const std::string& exr) {
+  const testing::DecodedImage image = testing::DecodeImage(exr, "x.exr");
+  EXPECT_EQ(image.width, 48);
+  EXPECT_EQ(image.height, 32);
+  size_t lit = 0, pixels = size_t(image.width) * size_t(image.height);
+  for (size_t p = 0; p < pixels; ++p) {
+    bool any = false;
+    for (int c = 0; c < std::min(image.channels, 3); ++c) {
+      const float v = image.pixels[p * size_t(image.channels) + size_t(c)];
+      EXPECT_TRUE(std::isfinite(v) && v >= 0) << p;
+      any = any || v > 0;
+    }
+    lit += any;
+  }
+  return pixels ? double(lit) / double(pixels) : 0;
+}
+
+// knit_patch frames the request's knit whole (a default 8 x 8 jersey, and a 3 x 12 rib of another shape), and
+// yarn_curves the request's curves; the knit fills much of the frame and the curves some of it, and neither the
+// whole frame (the camera sees past them).
+TEST_F(YarnRpcTest, KnitAndCurveScenesFrameTheirFibers) {
+  auto stub = Stub();
+  const RenderResult jersey = RenderScene(*stub, FiberRender("knit_patch"));
+  ASSERT_TRUE(jersey.status.ok()) << jersey.status.error_message();
+  const double jersey_lit = LitShare(jersey.last.image());
+  EXPECT_GT(jersey_lit, 0.2);
+  EXPECT_LT(jersey_lit, 1.0);
+  v1::RenderRequest rib = FiberRender("knit_patch");
+  rib.mutable_knit()->set_stitch(v1::KNIT_RIB_1X1);
+  rib.mutable_knit()->set_wales(3);
+  rib.mutable_knit()->set_courses(12);
+  const RenderResult tall = RenderScene(*stub, rib);
+  ASSERT_TRUE(tall.status.ok()) << tall.status.error_message();
+  EXPECT_GT(LitShare(tall.last.image()), 0.05);
+
+  v1::RenderRequest curves = FiberRender("yarn_curves");
+  // A loop of 8 polyline points about (10, 10, 0), 2 across, far from the scene's default framing.
+  for (int k = 0; k < 8; ++k) {
+    const double a = 2 * std::numbers::pi * k / 8;
+    if (k == 0) curves.mutable_curves()->add_yarns();
+    v1::YarnCentreCurve* c = curves.mutable_curves()->mutable_yarns(0);
+    c->add_points(10 + std::cos(a)), c->add_points(10 + std::sin(a)), c->add_points(0.1 * k);
+  }
+  const RenderResult loop = RenderScene(*stub, curves);
+  ASSERT_TRUE(loop.status.ok()) << loop.status.error_message();
+  const double loop_lit = LitShare(loop.last.image());
+  EXPECT_GT(loop_lit, 0.01);
+  EXPECT_LT(loop_lit, 1.0);
+
+  // A bad curve is refused naming it; the layouts only on their own scenes.
+  curves.mutable_curves()->mutable_yarns(0)->set_points(4, std::nan(""));
+  const RenderResult bad = RenderScene(*stub, curves);
+  EXPECT_EQ(bad.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(bad.status.error_message().rfind("curves.yarns[0].points", 0), 0u) << bad.status.error_message();
+  v1::RenderRequest knit_on_curves = FiberRender("yarn_curves");
+  knit_on_curves.mutable_knit()->set_wales(2);
+  const RenderResult refused = RenderScene(*stub, knit_on_curves);
+  EXPECT_EQ(refused.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(refused.status.error_message().rfind("knit: only for", 0), 0u) << refused.status.error_message();
+  v1::RenderRequest curves_on_patch = FiberRender("woven_patch");
+  AddCurve(curves_on_patch.mutable_curves(), {0, 0, 0, 0, 0, 1});
+  const RenderResult refused2 = RenderScene(*stub, curves_on_patch);
+  EXPECT_EQ(refused2.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(refused2.status.error_message().rfind("curves: only for", 0), 0u) << refused2.status.error_message();
+}
+
+// `loomlight yarn --curves` reads the CSV (header, comments, interleaved yarns, per-yarn columns) into the same
+// request as built here; `--knit` likewise.
+TEST_F(YarnRpcTest, ClientSendsCurvesFromACsvAndKnits) {
+  const std::string csv = ::testing::TempDir() + "/yarn_rpc_test_curves.csv";
+  {
+    std::ofstream out(csv);
+    out << "yarn,x,y,z,preset,radius,bspline\n# a comment\n0,0,0,0\n1,1,0,0,silk1,0.05\n0,0,0,0.5\n"
+           "1,1,0,0.5\n0,0,0,1\n1,1,0,1,,0.05\n";
+  }
+  const std::string path = ::testing::TempDir() + "/yarn_rpc_test_curves.pbrt";
+  std::string output;
+  ASSERT_EQ(testing::RunClient(server_->port(), "yarn --curves " + csv + " --seed 4 --footprint 0.02 --out " + path,
+                               &output),
+            0)
+      << output;
+  v1::YarnGeometryRequest request;
+  request.mutable_yarn()->set_seed(4);
+  request.mutable_detail()->set_footprint(0.02);
+  AddCurve(request.mutable_curves(), {0, 0, 0, 0, 0, 0.5, 0, 0, 1});
+  v1::YarnCentreCurve* silk = AddCurve(request.mutable_curves(), {1, 0, 0, 1, 0, 0.5, 1, 0, 1});
+  silk->mutable_yarn()->set_preset("silk1");
+  silk->set_radius(0.05);
+  const Streamed s = Fetch(*Stub(), request);
+  ASSERT_TRUE(s.status.ok()) << s.status.error_message();
+  // The file's first line counts the fibers and points it holds.
+  const auto counts_match = [&path](const v1::YarnGeometrySummary& summary) {
+    std::ifstream in(path);
+    std::string first;
+    std::getline(in, first);
+    EXPECT_NE(first.find(", " + std::to_string(summary.fibers()) + " fibers, " +
+                         std::to_string(summary.control_points()) + " control points"),
+              std::string::npos)
+        << first << " against " << summary.fibers() << " fibers, " << summary.control_points() << " points";
+  };
+  counts_match(s.summary);
+
+  // Bad CSV lines are refused naming the file and line.
+  for (const auto& [bad, message] : std::vector<std::pair<std::string, std::string>>{
+           {"0,0,0\n", ":1: expected yarn,x,y,z"},
+           {"0,0,0,0\n2,0,0,1\n", "yarn 1 has no points"},
+           {"0,0,0,0,silk1\n0,0,0,1,cotton1\n", ":2: preset differs"},
+           {"0,0,0,0,,,2\n", ":1: bspline must be 1"},
+           {"0,a,0,0\n", "a"}}) {
+    {
+      std::ofstream out(csv, std::ios::trunc);
+      out << bad;
+    }
+    std::string refused;
+    EXPECT_EQ(testing::RunClient(server_->port(), "yarn --curves " + csv + " --out " + path, &refused), 2) << bad;
+    EXPECT_NE(refused.find(message), std::string::npos) << bad << ": " << refused;
+  }
+
+  ASSERT_EQ(testing::RunClient(server_->port(),
+                               "yarn --knit rib --stitches 3,2 --footprint 0.02 --seed 2 --out " + path, &output),
+            0)
+      << output;
+  v1::YarnGeometryRequest knit;
+  knit.mutable_yarn()->set_seed(2);
+  knit.mutable_detail()->set_footprint(0.02);
+  knit.mutable_knit()->set_stitch(v1::KNIT_RIB_1X1);
+  knit.mutable_knit()->set_wales(3);
+  knit.mutable_knit()->set_courses(2);
+  const Streamed k = Fetch(*Stub(), knit);
+  ASSERT_TRUE(k.status.ok()) << k.status.error_message();
+  counts_match(k.summary);
 }
 }  // namespace
 }  // namespace loomlight

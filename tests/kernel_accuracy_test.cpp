@@ -237,7 +237,7 @@ std::vector<models::PackedMaterial> WovenPresets(const Model** model) {
 TEST(Woven, BtfKernelsMatchDoubleReference) {
   const Model* model = nullptr;
   const auto packed = WovenPresets(&model);
-  ASSERT_EQ(packed.size(), 3u);
+  ASSERT_EQ(packed.size(), 4u);  // cotton_twill, cotton_plain, cotton_satin, cotton_gingham
   Pairs p = RandomPairs(50000, 99);
   const Pairs near = accuracy::NearSpecularPairs(50000, 98);
   p.wi.insert(p.wi.end(), near.wi.begin(), near.wi.end());

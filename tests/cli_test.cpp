@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <iterator>
 #include <set>
 #include <sstream>
 #include <string>
@@ -289,6 +290,58 @@ TEST_F(CliServer, KnitsAndCurvesFromTheCommandLine) {
                                 "/cli_refused.png");
   EXPECT_EQ(refused.exit_code, 1) << refused.output;
   EXPECT_NE(refused.output.find("knit: only for"), std::string::npos) << refused.output;
+}
+
+// A WIF draft's colours reach the woven model through --param-file pattern.wif=FILE unchanged: the gingham
+// (tests/data/wif/gingham.wif, read here: warp and weft threads 1-4 white 255,255,255, 5-8 blue 32,64,160) slices
+// white where white crosses white (u and v below 1/2) and blue where blue crosses blue; its BRDF (eval) and a
+// swatch render are blue on the whole, where the preset's own yarns are not.
+TEST_F(CliServer, WifDraftColoursReachEvalSliceAndRender) {
+  const std::string dir = ::testing::TempDir(), server = "--server " + server_->address() + " ";
+  const std::string draft = " --preset cotton_twill --param-file pattern.wif=" + std::string(LOOMLIGHT_SOURCE_DIR) +
+                            "/tests/data/wif/gingham.wif ";
+  const Result slice = Client(server + "slice" + draft + "--wi-deg 30,0 --wo-deg 20,180 --size 16x16 --out " + dir +
+                              "/cli_gingham.exr");
+  ASSERT_EQ(slice.exit_code, 0) << slice.output;
+  std::ifstream file(dir + "/cli_gingham.exr", std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  const testing::DecodedImage image = testing::DecodeImage(bytes, "x.exr");
+  ASSERT_EQ(image.width, 16);
+  // Sums of blue over red in a quadrant (the top row is v = 1).
+  const auto blue_over_red = [&](int x0, int y0) {
+    double r = 0, b = 0;
+    for (int y = y0; y < y0 + 8; ++y)
+      for (int x = x0; x < x0 + 8; ++x) {
+        const size_t at = (size_t(y) * 16 + size_t(x)) * size_t(image.channels);
+        r += image.pixels[at], b += image.pixels[at + 2];
+      }
+    return b / r;
+  };
+  EXPECT_NEAR(blue_over_red(0, 8), 1.0, 0.1);  // white on white: u, v < 1/2
+  EXPECT_GT(blue_over_red(8, 0), 3.0);         // 160 / 32 in sRGB, more in linear
+  const auto last_rgb = [](const std::string& output) {
+    const std::string row = output.substr(output.rfind('\n', output.size() - 2) + 1);
+    std::vector<double> values;
+    std::istringstream cells(row);
+    for (std::string cell; std::getline(cells, cell, ',');) values.push_back(std::stod(cell));
+    return std::vector<double>(values.end() - 3, values.end());
+  };
+  const Result plain = Client(server + "eval --preset cotton_twill --wi-deg 30,0 --wo-deg 20,180");
+  const Result gingham = Client(server + "eval" + draft + "--wi-deg 30,0 --wo-deg 20,180");
+  ASSERT_EQ(plain.exit_code, 0) << plain.output;
+  ASSERT_EQ(gingham.exit_code, 0) << gingham.output;
+  EXPECT_LT(last_rgb(plain.output)[2], last_rgb(plain.output)[0]);
+  EXPECT_GT(last_rgb(gingham.output)[2], 1.2 * last_rgb(gingham.output)[0]);
+  const Result render = Client(server + "render" + draft + "--scene swatch --size 24x16 --spp 1 --format exr --out " +
+                               dir + "/cli_gingham_swatch.exr");
+  ASSERT_EQ(render.exit_code, 0) << render.output;
+  std::ifstream swatch_file(dir + "/cli_gingham_swatch.exr", std::ios::binary);
+  const testing::DecodedImage swatch = testing::DecodeImage(
+      std::string((std::istreambuf_iterator<char>(swatch_file)), std::istreambuf_iterator<char>()), "x.exr");
+  double r = 0, b = 0;
+  for (size_t at = 0; at + 2 < swatch.pixels.size(); at += size_t(swatch.channels))
+    r += swatch.pixels[at], b += swatch.pixels[at + 2];
+  EXPECT_GT(b, 1.2 * r);
 }
 
 TEST_F(CliServer, ServerComesFromTheEnvironmentWhenNotGiven) {

@@ -222,7 +222,8 @@ render::CameraSpec CameraOf(const v1::RenderRequest& r, const render::Scene& sce
 }
 
 // yarn_curves' curves when the request gives none: one yarn arching over another across it (cubic B-splines
-// about 1 long, the arch 0.12 above the lower yarn's centre at the crossing: clear of it for cotton1).
+// about 1 long; at the crossing, the middle of each, a curve is at half its middle control point's height, so the
+// centres pass 0.16 apart: cotton1's plies, 0.045 from their centre at most, stay clear).
 v1::CurveYarnLayout DefaultCurves() {
   v1::CurveYarnLayout curves;
   const auto add = [&](std::initializer_list<double> points) {
@@ -230,8 +231,8 @@ v1::CurveYarnLayout DefaultCurves() {
     c->mutable_points()->Add(points.begin(), points.end());
     c->set_bspline(true);
   };
-  add({-0.5, 0, -0.03, -0.25, 0, 0.0, 0, 0, 0.06, 0.25, 0, 0.0, 0.5, 0, -0.03});
-  add({0, -0.5, 0.03, 0, -0.25, 0.0, 0, 0, -0.06, 0, 0.25, 0.0, 0, 0.5, 0.03});
+  add({-0.5, 0, -0.04, -0.25, 0, 0.0, 0, 0, 0.16, 0.25, 0, 0.0, 0.5, 0, -0.04});
+  add({0, -0.5, 0.04, 0, -0.25, 0.0, 0, 0, -0.16, 0, 0.25, 0.0, 0, 0.5, 0.04});
   return curves;
 }
 
@@ -246,12 +247,12 @@ std::string FiberJobOf(const models::Registry& registry, const v1::RenderRequest
     if (woven.repeats_u() == 0) woven.set_repeats_u(2);
     if (woven.repeats_v() == 0) woven.set_repeats_v(2);
   }
-  const v1::CurveYarnLayout curves = needs.curves && !r.has_curves() ? DefaultCurves() : r.curves();
+  const v1::CurveYarnLayout default_curves = needs.curves && !r.has_curves() ? DefaultCurves() : v1::CurveYarnLayout();
   job->limits.max_fibers = static_cast<int64_t>(kMaxRenderFibers);
   job->limits.max_control_points = static_cast<int64_t>(kMaxRenderFiberPoints);
   YarnLayoutRequest layout;
   if (needs.woven) layout.woven = &woven;
-  if (needs.curves) layout.curves = &curves;
+  if (needs.curves) layout.curves = r.has_curves() ? &r.curves() : &default_curves;
   if (needs.knit) layout.knit = &r.knit();  // unset: 8 x 8 jersey (0 = 8 stitches)
   return YarnJobOf(registry, r.yarn(), layout, job);
 }

@@ -191,7 +191,8 @@ class YarnGeometryCall final : public WorkerStreamCall<v1::YarnGeometryChunk> {
       if (error == "cancelled") {
         NoticeStop();
       } else if (!error.empty()) {
-        // Only the limits can stop a validated request here (they need the geometry's size to check).
+        // Only the limits and a curve's points can stop a validated request here (they need the geometry's size
+        // or the curve's centre built to check).
         const bool limit = error.rfind("max_", 0) == 0;
         const std::string curve = CurveError(error);  // a bad curve is found as its centre is built
         if (status_.ok())

@@ -10,7 +10,7 @@ Scene BuildYarnCurves(const models::ParamValues& p) {
   // it along this line of sight to frame the request's curves whole (at the default field of view: a narrower
   // one closes in).
   Scene scene;
-  SetUpFiberScene(&scene, "yarn curves (fibers)", {{0, -1.642, 1.950}, {0, 0, 0}, {0, 1, 0}, p.at("fov_deg")[0]},
+  SetUpFiberScene(&scene, "yarn curves (fibers)", {{0, -1.691, 2.008}, {0, 0, 0}, {0, 1, 0}, p.at("fov_deg")[0]},
                   {-0.5, 0.4, 0.8});
   return scene;
 }

@@ -6,10 +6,18 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <cstdio>
 #include <string>
 #include <string_view>
 
 namespace loomlight::models {
+
+// A number as error messages show it: six significant digits ("0.0378", "1e+06", "nan").
+inline std::string Number(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
 
 // The most bytes of (escaped) client text a quote shows.
 inline constexpr size_t kMaxQuotedBytes = 200;

@@ -3,17 +3,15 @@
 #include <algorithm>
 #include <cstdio>
 
+#include "server/models/quote.h"
+
 namespace loomlight::yarn {
 namespace {
 
 constexpr double kMaxCoordinate = 1e6;
 const double kCos60 = 0.5;
 
-std::string Number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using models::Number;
 
 bool Finite(Vec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 

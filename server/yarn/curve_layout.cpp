@@ -7,6 +7,8 @@
 
 #include <unsupported/Eigen/Splines>
 
+#include "server/models/quote.h"
+
 namespace loomlight::yarn {
 namespace {
 
@@ -15,11 +17,7 @@ constexpr double kMaxCoordinate = 1e6;  // PolylineYarnCurve::Make's bound
 constexpr double kCos60 = 0.5;          // PolylineYarnCurve::Make refuses turns whose cosine is at most this
 const double kCosRefine = std::cos(kBSplineRefineDegrees * kPi / 180);
 
-std::string Number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using models::Number;
 
 Vec3 Normalized(Vec3 v) { return (1 / Norm(v)) * v; }
 

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <utility>
 
+#include "server/models/quote.h"
 #include "server/yarn/embree_build_monitor.h"
 #include "server/yarn/embree_mxcsr.h"
 
@@ -38,11 +39,7 @@ constexpr int64_t kIndexBytes = 4;
 constexpr int64_t kFlagBytes = 1;
 constexpr int64_t kBufferPaddingBytes = 64;  // per buffer: Embree pads buffers for its vector loads
 
-std::string Number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using models::Number;
 
 RTCBuildQuality ToEmbree(BvhQuality q) {
   switch (q) {

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <numbers>
 
+#include "server/models/quote.h"
 #include "server/yarn/yarn.h"
 
 namespace loomlight::yarn {
@@ -27,11 +28,7 @@ constexpr double kTwoPi = 2 * std::numbers::pi;
 // Yarn radii per unit of Crane's curve (knit.h: the smallest scale free of contact at kMinPointsPerLoop).
 double Scale(KnitStitch stitch) { return stitch == KnitStitch::kRib1x1 ? 1.40 : 1.34; }
 
-std::string Number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using models::Number;
 
 // "" or "name: ..." for a spacing that is neither 0 (the default) nor in [1, kMaxSpacingStretch] x the default.
 std::string CheckSpacing(const char* name, double spacing, double default_spacing) {

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "server/models/quote.h"
 #include "server/models/rng.h"
 
 namespace loomlight::yarn {
@@ -11,11 +12,7 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-std::string Number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using models::Number;
 
 Vec3 Normalized(Vec3 v) { return (1 / Norm(v)) * v; }
 

@@ -30,11 +30,7 @@ constexpr int kMaxThreads = 64;
 // Rejection sampling accepts at least ~2% of draws within the validated ranges; this only guarantees an end.
 constexpr int kMaxRejectionDraws = 1 << 24;
 
-std::string Number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using models::Number;
 
 // "" or "name: is v, must be in [lo, hi]" (NaN fails every comparison, so it is caught here too).
 std::string InRange(const char* name, double v, double lo, double hi) {

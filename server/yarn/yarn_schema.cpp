@@ -62,11 +62,7 @@ const Entry* Find(std::string_view name) {
   return nullptr;
 }
 
-std::string Number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using models::Number;
 
 }  // namespace
 

@@ -154,15 +154,6 @@ std::string BuildCentre(const std::vector<Vec3>& points, CurveKind kind, Polylin
   return "";
 }
 
-// The fewest control points GenerateYarn returns for a yarn this long: every ply has a curve along the whole yarn
-// on its sampling grid (GenerateYarn's and GenerateLayout's own lower bound).
-double MinControlPoints(const YarnParams& p, const DetailOptions& options, double length) {
-  const LodChoice lod = ChooseLod(p.fiber_width, PlyWidth(p), options.footprint, 0, 0, options.points_per_twist);
-  double shortest = std::min(p.alpha, p.alpha_yarn);
-  if (p.s > 1) shortest = std::min(shortest, p.alpha / p.s);
-  return double(p.plies) * (std::max(1.0, std::ceil(length / (shortest / lod.points_per_twist))) + 1);
-}
-
 // The centre vertices of a yarn whose B-spline spans get `per_span` chords each (a polyline: its points).
 int64_t CentreVertices(const CurveYarn& y, int per_span) {
   const int64_t n = int64_t(y.points.size());
@@ -246,31 +237,12 @@ std::string GenerateCurveLayout(const std::vector<CurveYarn>& yarns, const Detai
     return "max_control_points: the layout needs at least " + Number(min_points) + " control points (" +
            std::to_string(yarns.size()) + " yarns), more than the limit " + std::to_string(limits.max_control_points);
 
-  // As GenerateLayout: one yarn after another, each within what the ones before left of the budgets.
-  LayoutGeometry result;
-  result.yarns.resize(yarns.size());
-  for (size_t k = 0; k < yarns.size(); ++k) {
-    const YarnParams& p = yarns[k].params;
-    const std::string at = "yarns[" + std::to_string(k) + "]";
-    // GenerateYarn refuses a yarn whose plies x fibers_per_ply exceed its max_fibers; the whole-layout check
-    // covers that, so it gets at least that much and the total is checked after it.
-    const int64_t fibers_per_yarn = int64_t(p.plies) * p.fibers_per_ply;
-    const YarnLimits left{std::max(limits.max_fibers - result.fibers, fibers_per_yarn),
-                          limits.max_control_points - result.control_points};
-    YarnGeometry& g = result.yarns[k];
-    e = GenerateYarn(p, built[k], options, left, &g);
-    if (e.rfind("max_fibers:", 0) == 0 || (e.empty() && result.fibers + int64_t(g.fibers.size()) > limits.max_fibers))
-      return "max_fibers: the layout needs more than " + std::to_string(limits.max_fibers) + " fiber curves (at " +
-             at + ")";
-    if (e.rfind("max_control_points:", 0) == 0)
-      return "max_control_points: the layout needs more than " + std::to_string(limits.max_control_points) +
-             " control points (at " + at + ")";
-    if (e == "cancelled") return e;
-    if (!e.empty()) return at + "." + e;
-    result.fibers += int64_t(g.fibers.size());
-    result.control_points += g.control_points;
-  }
-  *fibers = std::move(result);
+  const auto name = [](size_t k) { return "yarns[" + std::to_string(k) + "]"; };
+  size_t failed = 0;
+  e = GenerateYarnsInTurn(
+      yarns.size(), [&](size_t k) { return yarns[k].params; },
+      [&](size_t k) -> const YarnCurve& { return built[k]; }, name, options, limits, fibers, &failed);
+  if (!e.empty()) return e == "cancelled" || e.rfind("max_", 0) == 0 ? e : name(failed) + "." + e;
   *centres = std::move(built);
   return "";
 }

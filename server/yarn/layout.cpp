@@ -163,40 +163,59 @@ std::string GenerateLayout(const YarnParams& yarn, const WovenLayout& layout, co
     return "max_fibers: the layout has " + std::to_string(yarns) + " yarns x " + std::to_string(yarn.plies) + " x " +
            std::to_string(yarn.fibers_per_ply) + " = " + std::to_string(fibers) + " fibers, more than the limit " +
            std::to_string(limits.max_fibers);
-  const LodChoice lod = ChooseLod(yarn.fiber_width, PlyWidth(yarn), options.footprint, 0, 0, options.points_per_twist);
-  double shortest = std::min(yarn.alpha, yarn.alpha_yarn);
-  if (yarn.s > 1) shortest = std::min(shortest, yarn.alpha / yarn.s);
-  double min_points = 0;  // every ply of every yarn has a curve along the whole yarn
+  double min_points = 0;
   for (const LayoutYarn& y : layout.yarns) {
     const double length = y.curve.Length();
     if (!(length >= kMinLength && length <= kMaxLength)) continue;  // GenerateYarn reports it below
-    min_points += double(yarn.plies) * (std::max(1.0, std::ceil(length / (shortest / lod.points_per_twist))) + 1);
+    min_points += MinControlPoints(yarn, options, length);
   }
   if (min_points > double(limits.max_control_points))
     return "max_control_points: the layout needs at least " + Number(min_points) + " control points (" +
            std::to_string(yarns) + " yarns), more than the limit " + std::to_string(limits.max_control_points);
 
+  const auto name = [&](size_t k) {
+    const LayoutYarn& y = layout.yarns[k];
+    return std::string(y.warp ? "warp" : "weft") + " yarn " + std::to_string(y.index);
+  };
+  size_t failed = 0;
+  e = GenerateYarnsInTurn(
+      layout.yarns.size(),
+      [&](size_t k) {
+        YarnParams p = yarn;
+        p.seed = LayoutYarnSeed(yarn.seed, layout.yarns[k].seed_offset);
+        return p;
+      },
+      [&](size_t k) -> const YarnCurve& { return layout.yarns[k].curve; }, name, options, limits, out, &failed);
+  if (!e.empty() && e != "cancelled" && e.rfind("max_", 0) != 0) return e + " (" + name(failed) + ")";
+  return e;
+}
+
+std::string GenerateYarnsInTurn(size_t count, const std::function<YarnParams(size_t)>& params,
+                                const std::function<const YarnCurve&(size_t)>& curve,
+                                const std::function<std::string(size_t)>& name, const DetailOptions& options,
+                                const YarnLimits& limits, LayoutGeometry* out, size_t* failed) {
+  *out = LayoutGeometry();
   LayoutGeometry result;
-  result.yarns.resize(size_t(yarns));
-  for (int64_t k = 0; k < yarns; ++k) {
-    const LayoutYarn& y = layout.yarns[size_t(k)];
-    YarnParams p = yarn;
-    p.seed = LayoutYarnSeed(yarn.seed, y.seed_offset);
-    // What the yarns before this one left of the budgets. GenerateYarn also refuses a yarn whose plies x
-    // fibers_per_ply exceed its max_fibers, which the whole-layout check above already covers, so the curve
-    // budget it gets is at least that much and the total is checked after it.
+  result.yarns.resize(count);
+  for (size_t k = 0; k < count; ++k) {
+    const YarnParams p = params(k);
+    // GenerateYarn refuses a yarn whose plies x fibers_per_ply exceed its max_fibers; the caller's whole-layout
+    // check covers that, so it gets at least that much and the total is checked after it.
+    const int64_t fibers_per_yarn = int64_t(p.plies) * p.fibers_per_ply;
     const YarnLimits left{std::max(limits.max_fibers - result.fibers, fibers_per_yarn),
                           limits.max_control_points - result.control_points};
-    YarnGeometry& g = result.yarns[size_t(k)];
-    e = GenerateYarn(p, y.curve, options, left, &g);
+    YarnGeometry& g = result.yarns[k];
+    const std::string e = GenerateYarn(p, curve(k), options, left, &g);
     if (e.rfind("max_fibers:", 0) == 0 || (e.empty() && result.fibers + int64_t(g.fibers.size()) > limits.max_fibers))
       return "max_fibers: the layout needs more than " + std::to_string(limits.max_fibers) + " fiber curves (at " +
-             (y.warp ? "warp" : "weft") + " yarn " + std::to_string(y.index) + ")";
+             name(k) + ")";
     if (e.rfind("max_control_points:", 0) == 0)
       return "max_control_points: the layout needs more than " + std::to_string(limits.max_control_points) +
-             " control points (at " + (y.warp ? "warp" : "weft") + " yarn " + std::to_string(y.index) + ")";
-    if (e == "cancelled") return e;
-    if (!e.empty()) return e + " (" + (y.warp ? "warp" : "weft") + " yarn " + std::to_string(y.index) + ")";
+             " control points (at " + name(k) + ")";
+    if (!e.empty()) {
+      *failed = k;
+      return e;
+    }
     result.fibers += int64_t(g.fibers.size());
     result.control_points += g.control_points;
   }

@@ -42,7 +42,9 @@
 //   distinct seeds.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -131,6 +133,17 @@ struct LayoutGeometry {
   int64_t fibers = 0;               // fiber curves, all yarns together
   int64_t control_points = 0;       // likewise
 };
+
+// The generation loop every layout shares (woven, client curves, knits): yarn k of `count` along curve(k) with
+// params(k), one after another, each within what the yarns before it left of `limits` (its plies x fibers_per_ply at
+// least, which the caller has checked for the whole layout), so a refused request costs at most one yarn's work
+// past the budget. Returns "" and fills *out; "max_fibers: the layout needs more than N fiber curves (at NAME)" or
+// "max_control_points: ..." with NAME = name(k); "cancelled"; or yarn k's own GenerateYarn error with *failed = k,
+// for the caller to place. *out is left empty on error.
+std::string GenerateYarnsInTurn(size_t count, const std::function<YarnParams(size_t)>& params,
+                                const std::function<const YarnCurve&(size_t)>& curve,
+                                const std::function<std::string(size_t)>& name, const DetailOptions& options,
+                                const YarnLimits& limits, LayoutGeometry* out, size_t* failed);
 
 // Generates every yarn of the layout along its curve (GenerateYarn), yarn k with `yarn` but seed
 // LayoutYarnSeed(yarn.seed, layout.yarns[k].seed_offset). `limits` bound the whole layout as GenerateYarn's

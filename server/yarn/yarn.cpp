@@ -413,6 +413,17 @@ double LodLambda(double fiber_width, double ply_width, double footprint) {
 
 double PlyWidth(const YarnParams& p) { return 2 * p.rho_max * std::max(p.ellipse_n, p.ellipse_b); }
 
+double SamplingIntervals(const YarnParams& p, const DetailOptions& options, double length) {
+  const LodChoice lod = ChooseLod(p.fiber_width, PlyWidth(p), options.footprint, 0, 0, options.points_per_twist);
+  double shortest = std::min(p.alpha, p.alpha_yarn);
+  if (p.s > 1) shortest = std::min(shortest, p.alpha / p.s);
+  return std::max(1.0, std::ceil(length / (shortest / lod.points_per_twist)));
+}
+
+double MinControlPoints(const YarnParams& p, const DetailOptions& options, double length) {
+  return double(p.plies) * (SamplingIntervals(p, options, length) + 1);
+}
+
 LodChoice ChooseLod(double fiber_width, double ply_width, double footprint, int max_fibers, double core_radius_full,
                     int points_per_twist) {
   LodChoice c;
@@ -469,12 +480,8 @@ std::string GenerateYarn(const YarnParams& p, const YarnCurve& curve, const Deta
            std::to_string(fibers) + " fibers, more than the limit " + std::to_string(limits.max_fibers);
   const double ply_width = PlyWidth(p);
   const LodChoice lod = ChooseLod(p.fiber_width, ply_width, options.footprint, 0, 0, options.points_per_twist);
-  // The shortest period along the yarn: a fiber twist, a ply twist, or Eq. 2's migration period alpha / s.
-  double shortest = std::min(p.alpha, p.alpha_yarn);
-  if (p.s > 1) shortest = std::min(shortest, p.alpha / p.s);
-  const double intervals_needed = std::max(1.0, std::ceil(length / (shortest / lod.points_per_twist)));
-  // Every ply has at least one curve along the whole yarn (its core or its fibers' pieces).
-  const double min_points = double(p.plies) * (intervals_needed + 1);
+  const double intervals_needed = SamplingIntervals(p, options, length);
+  const double min_points = MinControlPoints(p, options, length);
   if (min_points > double(limits.max_control_points))
     return "max_control_points: the yarn needs at least " + Number(min_points) + " control points (" +
            std::to_string(p.plies) + " plies x " + Number(intervals_needed + 1) + " along it), more than the limit " +

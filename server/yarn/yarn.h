@@ -164,6 +164,13 @@ struct YarnLimits {
   bool operator==(const YarnLimits&) const = default;
 };
 
+// The sampling intervals GenerateYarn puts along a yarn `length` long: its shortest period (a fiber twist, a ply
+// twist, or Eq. 2's migration period alpha / s) split into the points per twist the level of detail leaves, at
+// least 1. Every ply has a curve along the whole yarn (its core or its fibers' pieces), so MinControlPoints,
+// plies x (intervals + 1), is the fewest control points it returns: the bound a layout checks before generating.
+double SamplingIntervals(const YarnParams& p, const DetailOptions& options, double length);
+double MinControlPoints(const YarnParams& p, const DetailOptions& options, double length);
+
 enum class FiberType : uint8_t {
   kCore,       // one per ply, along the ply centre, standing for its inner fibers
   kMigration,  // a regular fiber (Eq. 2), or a run of one between flyaways

@@ -97,7 +97,6 @@ std::string CurvesOf(const v1::CurveYarnLayout& c, YarnJob* job) {
     return "curves.yarns: " + std::to_string(values / 3) + " points in all exceed the limit of " +
            std::to_string(yarn::kMaxCurveLayoutPoints);
   job->curves.reserve(size_t(c.yarns_size()));
-  int64_t centre_vertices = 0;
   for (int k = 0; k < c.yarns_size(); ++k) {
     const v1::YarnCentreCurve& y = c.yarns(k);
     const std::string field = "curves.yarns[" + std::to_string(k) + "]";
@@ -121,11 +120,10 @@ std::string CurvesOf(const v1::CurveYarnLayout& c, YarnJob* job) {
     out.kind = y.bspline() ? yarn::CurveKind::kBSpline : yarn::CurveKind::kPolyline;
     out.points.reserve(size_t(y.points_size() / 3));
     for (int i = 0; i + 2 < y.points_size(); i += 3) out.points.push_back({y.points(i), y.points(i + 1), y.points(i + 2)});
-    // A B-spline's centre is sampled more finely than its control polygon: at most this many chords a span.
-    centre_vertices += y.bspline() ? int64_t(out.points.size()) * yarn::kMaxBSplineSegmentsPerSpan
-                                   : int64_t(out.points.size());
   }
-  job->layout_bytes = size_t(std::min(centre_vertices, yarn::kMaxCurveLayoutVertices)) * kLayoutBytesPerVertex;
+  // A B-spline's centre is sampled more finely than its control polygon: charged at its finest sampling.
+  job->layout_bytes =
+      size_t(std::min(yarn::CurveLayoutVerticesAtMost(job->curves), yarn::kMaxCurveLayoutVertices)) * kLayoutBytesPerVertex;
   job->kind = yarn::YarnLayoutKind::kCurves;
   return "";
 }

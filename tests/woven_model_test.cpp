@@ -756,6 +756,59 @@ TEST(WovenModel, YarnTypesResolveFromRequests) {
             "material.params: pattern.warp_yarns[2]: yarn type 2, but yarns.kd has 2 types");
 }
 
+// The OpenCL kernels on the three ways wv_btf reads a record (two records: selected; one geometry per direction:
+// geometry selected, kd and ks gathered; types of different geometry: every value gathered) against the double
+// reference, at random positions and near-specular pairs (where highlights cover their windows): fp64 to ~1e-15,
+// fp32 to float rounding except values whose sample lies within rounding of a highlight edge (flipped), which
+// must stay rare (kernel_accuracy_test bounds them likewise).
+TEST(WovenModel, KernelsMatchReferenceOnEveryRecordPath) {
+  ParamValues colour = Values(kYarnPattern, kWarp, kWeft);
+  colour["yarns.kd"] = {0.3, 0.05, 0.02, 0.02, 0.04, 0.25};
+  colour["pattern.warp_yarns"] = {0, 1, -1, 0};
+  colour["pattern.weft_yarns"] = {1, 1, 0, -1, 0};
+  const std::vector<ParamValues> materials = {Values(kYarnPattern, kWarp, kWeft), colour,
+                                              YarnValues(kYarnPattern, kYarns)};
+  const std::vector<std::array<double, 2>> paths = {{2, 1}, {6, 1}, {8, 0}};  // records, one geometry per direction
+  std::mt19937_64 rng(4747);
+  std::uniform_real_distribution<double> U(0, 1);
+  const size_t n = 40000;
+  std::vector<float> wi, wo, uv;
+  for (size_t i = 0; i < n; ++i) {
+    const double tilt = 0.4 * U(rng), az = 2 * kPi * U(rng);
+    const Vec h = {std::sin(tilt) * std::cos(az), std::sin(tilt) * std::sin(az), std::cos(tilt)};
+    const Vec a = WithHalf(h, 0.8 * U(rng), 2 * kPi * U(rng)), b = Reflect(a, h);
+    wi.insert(wi.end(), {float(a[0]), float(a[1]), float(a[2])});
+    wo.insert(wo.end(), {float(b[0]), float(b[1]), float(b[2])});
+    uv.insert(uv.end(), {float(6 * U(rng) - 3), float(6 * U(rng) - 3)});
+  }
+  for (size_t k = 0; k < materials.size(); ++k) {
+    SCOPED_TRACE("material " + std::to_string(k));
+    const PackedMaterial m = Woven().Pack(materials[k]);
+    ASSERT_EQ(m.data[7], paths[k][0]) << "records";
+    ASSERT_EQ(m.data[8] >= 0 && m.data[9] >= 0, paths[k][1] == 1) << "one geometry per direction";
+    std::vector<double> ref(3 * n);
+    Woven().ReferenceEval(m, wi.data(), wo.data(), uv.data(), n, ref.data());
+    const std::vector<double> f64 = loomlight::testing::RunKernel(Woven(), m, true, wi, wo, uv);
+    const std::vector<double> f32 = loomlight::testing::RunKernel(Woven(), m, false, wi, wo, uv);
+    size_t flips = 0, highlights = 0;
+    for (size_t i = 0; i < 3 * n; ++i) {
+      if (wi[3 * (i / 3) + 2] <= 0 || wo[3 * (i / 3) + 2] <= 0) continue;
+      ASSERT_NEAR(f64[i], ref[i], 1e-12 * ref[i]) << i;
+      if (std::fabs(f32[i] - ref[i]) > 1e-4 * ref[i])
+        ++flips;
+      else
+        ASSERT_NEAR(f32[i], ref[i], 2e-6 * ref[i]) << i;
+    }
+    ParamValues dull = materials[k];  // the same without highlights: kd alone
+    for (const char* ks : {"warp.ks", "weft.ks", "yarns.ks"}) std::fill(dull[ks].begin(), dull[ks].end(), 0.0);
+    std::vector<double> kd(3 * n);
+    Woven().ReferenceEval(Woven().Pack(dull), wi.data(), wo.data(), uv.data(), n, kd.data());
+    for (size_t i = 0; i < n; ++i) highlights += ref[3 * i] > kd[3 * i] * (1 + 1e-9);
+    EXPECT_LE(flips, 3 * n / 2000);
+    EXPECT_GT(highlights, n / 20) << "the highlights must show";
+  }
+}
+
 // Reciprocity (bit for bit) and finite, non-negative values with yarn types, BRDF and BTF, double and float, on
 // random pairs and the hard ones (h = n, grazing at and around the horizon threshold, below the surface), at cell
 // centres and corners, tiny negatives and random positions.
@@ -895,4 +948,3 @@ TEST(WovenModel, WifColoursBecomeYarnTypes) {
 }
 
 }  // namespace
-

@@ -27,7 +27,9 @@
 //   [0] eta (Fresnel index, default 1.5)     [1] L, the number of lobes
 //   [2] offset of the records                [3] offset of the thread table
 //   [4] offset of the cell table             [5] warps W      [6] picks P      [7] R, the number of records
-//   [WV_HEADER = 8 ...]  L lobes, then R records, then
+//   [8], [9] offset of a warp record and of a weft record whose geometry (+6..+13) every record of its direction
+//            shares, or -1 when the direction's records differ in geometry
+//   [WV_HEADER = 10 ...]  L lobes, then R records, then
 //   thread table: W + P values, the offset (in the material) of the record of warp w at [w], of pick p at [W + p]
 //   cell table: per cell c = pick * W + warp two values: the cell's offset (in cells) from its float's first
 //     cell, and the float's length, positive for a warp float, negative for weft.
@@ -49,9 +51,12 @@
 //   centre c = (s_x/2 (k_x h_x + 1), s_y/2 (k_y h_y + 1)), foci c +- alpha eta_e (cos phi_E, sin phi_E),
 //   I = 1 when |F1 - p| + |F2 - p| <= 2 alpha, else 0,
 //   G = min(1, 2 (n.h)(n.wo)/(wo.h), 2 (n.h)(n.wi)/(wo.h)).
-// Returns 0 when n.wi or n.wo <= LL_HORIZON_EPS. The kernel form (wv_btf) finds the cell, its float and its
-// thread's record by per-lane gathers and reads the record's 14 values by gathers too: no branch on lane
-// data, one ellipse test per query whatever the number of records.
+// Returns 0 when n.wi or n.wo <= LL_HORIZON_EPS. The kernel form (wv_btf) finds the cell and its float by
+// per-lane gathers, then its thread's record's values: selected per lane between the two records when there are
+// two (no yarn types: 2 gathers per query in all, as before them), the geometry selected per lane between [8] and
+// [9] and kd, ks gathered when each direction has one geometry (a colour draft: 9 gathers), every value gathered
+// otherwise (17). No branch on lane data (the choice is the material's), one ellipse test per query whatever the
+// number of records.
 //
 // BRDF (Sec. 5) = the mean of the BTF over one repeat = sum over floats F of (area of F / area of repeat) x
 // (mean of the BTF over F's window). The affine map of F onto [0, s_x] x [0, s_y] preserves means, and in
@@ -74,7 +79,7 @@
 // 2 (n.h)/((wi.h)(n.wo))) is a min over a set that the swap permutes. That form also keeps every
 // intermediate bounded near the horizon (each term <= 1e14 for n.w > 1e-7).
 
-#define WV_HEADER 8
+#define WV_HEADER 10
 #define WV_RECORD_SIZE 15
 #define WV_LOBE_SIZE 16
 
@@ -131,6 +136,20 @@ LL_INLINE wv_geometry wv_geometry_gather(LL_GLOBAL const scalar* mat, real recor
   g.s = ll_gather(mat + 11, record);
   g.kx = ll_gather(mat + 12, record);
   g.ky = ll_gather(mat + 13, record);
+  return g;
+}
+
+// Per lane the geometry of the warp record rw or the weft record rf.
+LL_INLINE wv_geometry wv_geometry_select(LL_GLOBAL const scalar* rw, LL_GLOBAL const scalar* rf, mask warp) {
+  wv_geometry g;
+  g.s_x = warp ? (real)(rw[6]) : (real)(rf[6]);
+  g.s_y = warp ? (real)(rw[7]) : (real)(rf[7]);
+  g.alpha = warp ? (real)(rw[8]) : (real)(rf[8]);
+  g.ecc = warp ? (real)(rw[9]) : (real)(rf[9]);
+  g.c = warp ? (real)(rw[10]) : (real)(rf[10]);
+  g.s = warp ? (real)(rw[11]) : (real)(rf[11]);
+  g.kx = warp ? (real)(rw[12]) : (real)(rf[12]);
+  g.ky = warp ? (real)(rw[13]) : (real)(rf[13]);
   return g;
 }
 
@@ -211,8 +230,8 @@ LL_INLINE void wv_btf_local(LL_GLOBAL const scalar* mat, int record, real local_
 }
 
 // BTF at texture position (u, v) (pattern repeats; any real, the pattern tiles), RGB into f[0..2]: the
-// kernel form. Per lane: the cell, then its float (offset, signed length) and its thread's record offset from
-// the cell and thread tables, then the record's values, all gathers; the rest is the segment-local BTF of
+// kernel form. Per lane: the cell, then its float (offset, signed length) from the cell table, then its thread's
+// record's values (selected or gathered, as the header comment says); the rest is the segment-local BTF of
 // wv_btf_local.
 LL_INLINE void wv_btf(LL_GLOBAL const scalar* mat, real wix, real wiy, real wiz, real wox, real woy, real woz,
                       real u, real v, real* f) {
@@ -233,11 +252,16 @@ LL_INLINE void wv_btf(LL_GLOBAL const scalar* mat, real wix, real wiy, real wiz,
   // Fraction along the float and across it (weft: local x = 1 - fv, the +90 degree turn of the layout).
   const real along = (offset + (warp ? fv : fu)) / fabs(run);
   const real across = warp ? fu : R(1.0) - fv;
-  const real record = ll_gather(mat + (int)mat[3], warp ? w : warps + p);
-  const wv_geometry g = wv_geometry_gather(mat, record);
+  // Selects are cheaper than gathers: the record is gathered only where the material needs it.
+  const int two_records = mat[7] == 2, one_geometry = mat[8] >= 0 && mat[9] >= 0;
+  LL_GLOBAL const scalar* rw = mat + (one_geometry ? (int)mat[8] : 0);
+  LL_GLOBAL const scalar* rf = mat + (one_geometry ? (int)mat[9] : 0);
+  const real record = two_records ? R(0.0) : ll_gather(mat + (int)mat[3], warp ? w : warps + p);
+  const wv_geometry g = one_geometry ? wv_geometry_select(rw, rf, warp) : wv_geometry_gather(mat, record);
   const real ind = wv_in_highlight(g, warp ? hx : -hy, warp ? hy : hx, g.s_x * across, g.s_y * along);
   for (int c = 0; c < 3; ++c) {
-    const real kd = ll_gather(mat + c, record), ks = ll_gather(mat + 3 + c, record);
+    const real kd = two_records ? (warp ? (real)(rw[c]) : (real)(rf[c])) : ll_gather(mat + c, record);
+    const real ks = two_records ? (warp ? (real)(rw[3 + c]) : (real)(rf[3 + c])) : ll_gather(mat + 3 + c, record);
     const real val = kd + ks * (ind * spec);
     f[c] = lit ? val : R(0.0);
   }

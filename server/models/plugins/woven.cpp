@@ -2,6 +2,7 @@
 // paper's twill preset and our plain, sateen and gingham, patterns as cell matrices or WIF drafts (with their
 // thread colours), yarn types per thread, validation and packing (kernels/models/woven.h: records, lobes and
 // tables). Served as the BTF (queries with uv) and as the BRDF (the mean of the BTF over one pattern repeat).
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <sstream>
@@ -352,8 +353,22 @@ std::vector<double> PackMaterial(const ParamValues& v, const weave::WeavePattern
   const size_t record_offset = WV_HEADER + WV_LOBE_SIZE * lobes.size();
   const size_t thread_offset = record_offset + WV_RECORD_SIZE * records.size();
   const size_t cell_offset = thread_offset + pattern.warps + pattern.picks;
+  // Per direction, a record whose geometry all of that direction's share (the kernel then selects it per lane
+  // instead of gathering), or -1.
+  double one_geometry[2] = {-1, -1};
+  for (int d = 0; d < 2; ++d) {
+    int first = -1;
+    bool same = true;
+    for (size_t r = 0; r < records.size(); ++r) {
+      if (records[r][14] != d) continue;
+      if (first < 0) first = static_cast<int>(r);
+      same = same && std::equal(records[r].begin() + 6, records[r].begin() + 14, records[first].begin() + 6);
+    }
+    if (same) one_geometry[d] = double(record_offset + WV_RECORD_SIZE * first);
+  }
   std::vector<double> m = {v.at("eta")[0],     double(lobes.size()),  double(record_offset), double(thread_offset),
-                           double(cell_offset), double(pattern.warps), double(pattern.picks), double(records.size())};
+                           double(cell_offset), double(pattern.warps), double(pattern.picks), double(records.size()),
+                           one_geometry[0],     one_geometry[1]};
   const double cells = double(pattern.cells.size());
   for (const Lobe& lobe : lobes) {
     std::vector<double> values = records[lobe.records[0]];

@@ -81,6 +81,24 @@ std::string DraftSummary(const std::string& wif) {
          std::to_string(colors.table.size()) + " colours";
 }
 
+// What a photograph of the draft's cloth shows (its source comment) and how the pictures compare: written by looking
+// at docs/images/design-tartan-*.png, which docs/designs.md makes with this section's settings.
+constexpr const char* kTartanLooks =
+    "**Photograph and render.** The draft's source comment describes a photograph of Royal Stewart cloth: a bright "
+    "scarlet ground in large squares; across it, both ways, a navy stripe beside a wide black band carrying a thin "
+    "yellow and a thin white line, then a wide green band, and a fine white line in the small red square; where "
+    "bands cross the red they mix into darker blocks, and the 2/2 twill shows as fine diagonal steps along every "
+    "colour edge. The swatch render shows that sett, two repeats each way: the large red squares, the green bands "
+    "edged in navy and black, the yellow and white lines, and where two green bands cross a solid green block. "
+    "Where a stripe crosses the red ground (or another stripe) the warp and weft colours alternate along the twill's "
+    "diagonal, red and green steps, navy and green, at 2.5 pixels a thread: the mixed block a photograph from a "
+    "metre away shows as one darker colour is resolved into its two threads here, as in a macro photograph. The "
+    "twill line runs through every block, a fine diagonal hatching even on the plain red. The thin lines of one or "
+    "two threads show as dashes, each thread over two picks and under two, not as the continuous lines seen from "
+    "further away. The red reads lighter and pinker than scarlet cloth under a lamp: the swatch scene's sky adds "
+    "the preset's specular sheen (its ks, white) over the dyed diffuse colour; the texture slice, one light and no "
+    "sky, is a deeper red, with the same sett, dashes and twill steps.\n\n";
+
 // The tartan on the swatch and as a slice; "" when the draft is not there (the paragraph says so).
 std::string TartanPart(v1::Loomlight::Stub& stub, const FabricSizes& n) {
   const std::filesystem::path path = std::filesystem::path(LOOMLIGHT_SOURCE_DIR) / kTartanFile;
@@ -152,7 +170,8 @@ std::string TartanPart(v1::Loomlight::Stub& stub, const FabricSizes& n) {
          TableBlock("client ms is the call as the client sees it, server ms the server's own total, kernel ms its "
                     "time in kernel launches; rel. MSE = sum (x - ref)^2 / sum ref^2, PSNR against the reference's "
                     "peak; mean vs ref. = the image's sum over the reference's, less 1.",
-                    table);
+                    table) +
+         kTartanLooks;
 }
 
 // ---- The knit in process ----
@@ -369,6 +388,30 @@ std::string GeometryChoice(const v1::RenderUpdate& update) {
   return "";
 }
 
+// What the knit pictures show beside Wu and Yuksel's figures (their captions in ../shared/papers/): written by
+// looking at docs/images/design-knit-*.png (docs/designs.md, this section's requests) and the Cycles close-up
+// (LOOMLIGHT_FABRICS_IMAGES).
+constexpr const char* kKnitLooks =
+    "**The pictures beside the paper's figures.** The close-up (design-knit-closeup.png) fills the frame with about "
+    "five wales of V-shaped jersey loops, each leg a three-ply yarn whose plies twist visibly, the regular fibers "
+    "drawn as separate tubes with loop and hair flyaways standing off the surface, specular glints along single "
+    "fibers, and dark gaps where the loops of neighbouring courses interlock: the fiber-level look of the paper's "
+    "close-up (Fig. 16) and of its yarn model with regular fibers over the core (Fig. 9, whose cores alone look too "
+    "regular: here they are hidden under the 75-fiber plies). Shadows between loops and within the plies are traced "
+    "through the fibers, the combination Fig. 12 builds up from a shadow map, self-shadows and ambient occlusion. "
+    "The whole 14 x 14 patch (design-knit-full.png) shows its wales of V's through a haze of hairs, the open loops "
+    "of the edge course along the bottom: at half a pixel per fiber it reads as fuzzy cotton, as the sweaters of "
+    "Fig. 1 read as fuzzy wool; its level of detail (design-knit-lod.png) keeps a fifth of the fibers and of their "
+    "flyaways, and the V's read sharper and brighter than at full detail: not Fig. 11's 'minimal' difference, "
+    "because Eq. 4 thins the hairs with the fibers, and the table's error says by how much; auto detail catches "
+    "it and renders full detail. The "
+    "40 x 40 patch at LoD (design-knit-40.png) is a regular fine grid of V's with the open loops of the edge "
+    "course along its bottom, the scale of Fig. 1's sweater front, with one core and a few fibers per ply. Fig. 10's "
+    "other yarn types are not rendered here. Cycles' close-up of the same fibers (not committed; kept with "
+    "LOOMLIGHT_FABRICS_IMAGES) shows the same loops fiber for fiber, lit harder: its hair BSDF leaves the loops' "
+    "sunlit tops bright and their sides dark and grainy, where Loomlight's fiber model and ambient term light them "
+    "more evenly with sparkling highlights.\n\n";
+
 // Whether a full-detail knit of this many stitches a side is within the Render RPC's fiber limits (generated in
 // process at those limits, as the server would).
 bool Renderable(int stitches) {
@@ -571,7 +614,8 @@ std::string CloseUpPart(v1::Loomlight::Stub& stub, const FabricSizes& n, int sti
                         "full-detail image's, less 1; rel. MSE = sum (x - full)^2 / sum full^2; geometry = the "
                         "server's choice.",
                     table) +
-         "The server's geometry choices in full:\n\n" + choices + "\n" + CyclesCloseUp(n, stitches, close, close_up);
+         "The server's geometry choices in full:\n\n" + choices + "\n" + kKnitLooks +
+         CyclesCloseUp(n, stitches, close, close_up);
 }
 
 }  // namespace
@@ -596,9 +640,9 @@ std::string FabricsSection(const Sizes& sizes) {
   const std::string method =
       "Issue 47's figures: a coloured weaving draft and a knit at fiber level. An in-process `LoomlightServer` "
       "(batching on) and one gRPC client for the renders and the slice; the knit's generation and BVH in process. "
-      "No Blender Cycles baseline: the woven model's BTF has no Cycles counterpart (a Cycles swatch would show a "
-      "texture of our making, not the same material), and a Cycles render of the knit's millions of fiber "
-      "segments as hair curves was not built for this section.";
+      "Blender Cycles renders the knit's close-up from the same fibers when `blender` is on PATH; the tartan has "
+      "no Cycles baseline: the woven model's BTF has no Cycles counterpart (a Cycles swatch would show a texture "
+      "of our making, not the same material).";
   return Section("13. Fabrics as they are designed", method, tartan + knit + close_up);
 }
 

@@ -99,7 +99,7 @@ constexpr const char* kTartanLooks =
     "the preset's specular sheen (its ks, white) over the dyed diffuse colour; the texture slice, one light and no "
     "sky, is a deeper red, with the same sett, dashes and twill steps.\n\n";
 
-// The tartan on the swatch and as a slice; "" when the draft is not there (the paragraph says so).
+// The tartan on the swatch and as a slice, or a paragraph saying why not.
 std::string TartanPart(v1::Loomlight::Stub& stub, const FabricSizes& n) {
   const std::filesystem::path path = std::filesystem::path(LOOMLIGHT_SOURCE_DIR) / kTartanFile;
   if (!std::filesystem::exists(path)) return std::string("Not run: ") + kTartanFile + " is not in the source tree.\n\n";
@@ -400,13 +400,15 @@ constexpr const char* kKnitLooks =
     "regular: here they are hidden under the 75-fiber plies). Shadows between loops and within the plies are traced "
     "through the fibers, the combination Fig. 12 builds up from a shadow map, self-shadows and ambient occlusion. "
     "The whole 14 x 14 patch (design-knit-full.png) shows its wales of V's through a haze of hairs, the open loops "
-    "of the edge course along the bottom: at half a pixel per fiber it reads as fuzzy cotton, as the sweaters of "
-    "Fig. 1 read as fuzzy wool; its level of detail (design-knit-lod.png) keeps a fifth of the fibers and of their "
+    "of the edge course along the bottom: at half a pixel per fiber the hairs still change the patch's look, as "
+    "Fig. 1's caption says fiber geometry changes a sweater's; its level of detail (design-knit-lod.png) keeps a "
+    "fifth of the fibers and of their "
     "flyaways, and the V's read sharper and brighter than at full detail: not Fig. 11's 'minimal' difference, "
     "because Eq. 4 thins the hairs with the fibers, and the table's error says by how much; auto detail catches "
     "it and renders full detail. The "
     "40 x 40 patch at LoD (design-knit-40.png) is a regular fine grid of V's with the open loops of the edge "
-    "course along its bottom, the scale of Fig. 1's sweater front, with one core and a few fibers per ply. Fig. 10's "
+    "course along its bottom, one core and a fiber per ply; its yarn centre vertices and full-detail fibers (the "
+    "table above) against the 356K yarn control points and 20M fiber curves of Fig. 1's sweater. Fig. 10's "
     "other yarn types are not rendered here. Cycles' close-up of the same fibers (not committed; kept with "
     "LOOMLIGHT_FABRICS_IMAGES) shows the same loops fiber for fiber, lit harder: its hair BSDF leaves the loops' "
     "sunlit tops bright and their sides dark and grainy, where Loomlight's fiber model and ambient term light them "

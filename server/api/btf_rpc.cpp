@@ -142,11 +142,6 @@ constexpr uint32_t kDefaultFiberSamples = 4;
 constexpr uint32_t kMaxFiberSamples = 64;
 // The patch traced: this many weave repeats per side, the tile the central one (Scene::tiling needs 3).
 constexpr int kFiberTileRepeats = 3;
-// A knit's patch: at least 5 stitch repeats each way (a rib's repeat is 2 wales), the tile the central one. A
-// loop reaches into the courses beside its own, so the 3 x 3 repeats around the tile need one more all round
-// to be whole.
-constexpr int kKnitPatchWales = 10;
-constexpr int kKnitPatchCourses = 5;
 // The request's fiber source: its yarn on its weave (cotton_twill by default) laid out 3 x 3 repeats, or in its
 // knit laid out kKnitPatchWales x kKnitPatchCourses, at full detail within Render's fiber limits. "" or
 // "fibers.field: reason".

@@ -18,6 +18,11 @@ namespace loomlight::api {
 // Documented limits (docs/btf-assets.md "Limits").
 constexpr uint32_t kDefaultBtfTexels = 64;
 constexpr uint32_t kMaxBtfTexels = 128;  // per side: 81 x 81 images of 128 x 128 are 1.3 GB in float
+// A knit fiber source's patch: at least 5 stitch repeats each way (a rib's repeat is 2 wales), the tile the central
+// one. A loop reaches into the courses beside its own, so the 3 x 3 repeats around the tile need one more all round
+// to be whole.
+constexpr int kKnitPatchWales = 10;
+constexpr int kKnitPatchCourses = 5;
 constexpr uint32_t kDefaultBtfComponents = 16;
 
 // A request's asset: its name, grid, tile and compression.

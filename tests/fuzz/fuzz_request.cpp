@@ -229,8 +229,16 @@ void FuzzCreateBtf(const v1::CreateBtfRequest& request) {
   FUZZ_CHECK(bool(fibers) == request.has_fibers(), "fiber source " + std::to_string(bool(fibers)));
   if (!fibers) return;
   FUZZ_CHECK(fibers->samples >= 1 && fibers->samples <= 64, std::to_string(fibers->samples) + " rays per texel");
-  FUZZ_CHECK(fibers->yarn.kind == loomlight::yarn::YarnLayoutKind::kWoven && fibers->yarn.layout.repeats_u == 3 && fibers->yarn.layout.repeats_v == 3,
-             "the fiber patch is not 3 x 3 repeats");
+  // The patch holds the 3 x 3 repeats around the tile: a weave's, or a knit's stitches with a course to spare.
+  const yarn::YarnJob& patch = fibers->yarn;
+  if (request.fibers().has_knit())
+    FUZZ_CHECK(patch.kind == yarn::YarnLayoutKind::kKnit && patch.knit.wales == api::kKnitPatchWales &&
+                   patch.knit.courses == api::kKnitPatchCourses,
+               "the knit patch is not " + std::to_string(api::kKnitPatchWales) + " x " +
+                   std::to_string(api::kKnitPatchCourses) + " stitches");
+  else
+    FUZZ_CHECK(patch.kind == yarn::YarnLayoutKind::kWoven && patch.layout.repeats_u == 3 && patch.layout.repeats_v == 3,
+               "the fiber patch is not 3 x 3 repeats");
   for (size_t v = 0; v < n; ++v) {
     double w[3];
     job.grid.Direction(v, w);

@@ -275,6 +275,19 @@ void WriteRenderSeeds(const models::Registry& registry) {
   yarn.mutable_woven()->set_repeats_u(1);
   yarn.mutable_woven()->set_repeats_v(1);
   Write("render_woven_patch", kRender, yarn);
+  yarn.clear_woven();
+  yarn.set_scene_name("knit_patch");
+  yarn.mutable_knit()->set_stitch(v1::KNIT_RIB_1X1);
+  yarn.mutable_knit()->set_wales(2);
+  yarn.mutable_knit()->set_courses(2);
+  Write("render_knit_patch", kRender, yarn);
+  yarn.clear_knit();
+  yarn.set_scene_name("yarn_curves");
+  v1::YarnCentreCurve* curve = yarn.mutable_curves()->add_yarns();
+  for (double v : {0.0, 0.0, 0.0, 0.2, 0.0, 0.1, 0.4, 0.1, 0.0, 0.6, 0.0, 0.0}) curve->add_points(v);
+  curve->set_bspline(true);
+  curve->set_radius(0.02);
+  Write("render_yarn_curves", kRender, yarn);
 }
 
 // CreateBtf: a woven material on rings, one from fibers on a preset grid, and a name that must be refused.
@@ -301,6 +314,9 @@ void WriteCreateBtfSeeds() {
   fibers.mutable_fibers()->mutable_woven()->set_crimp(0.5);
   fibers.mutable_fibers()->set_samples_per_texel(2);
   Write("create_btf_fibers", kCreateBtf, fibers);
+  fibers.mutable_fibers()->clear_woven();
+  fibers.mutable_fibers()->mutable_knit()->set_stitch(v1::KNIT_RIB_1X1);
+  Write("create_btf_fibers_knit", kCreateBtf, fibers);
   r.set_name("../escape");
   Write("create_btf_refused_name", kCreateBtf, r);
 }

@@ -638,6 +638,18 @@ TEST(YarnCurveTest, KnitJobLaysEachCourseOutAsAYarnOfItsOwnSeed) {
   other = job;
   other.params.seed = 6;
   EXPECT_FALSE(SameFibers(job, other));
+
+  // A footprint under a fiber's width (Eq. 4's lambda 1) generates exactly the full-detail fibers, so it is the
+  // same job (the cache serves a close-up LOD render the FULL one's scene); a footprint that thins them is not.
+  other = job;
+  other.detail.footprint = 0.5 * job.params.fiber_width;
+  std::vector<YarnGeometry> close_up;
+  std::vector<LaidYarn> close_up_laid;
+  ASSERT_EQ(GenerateYarnJob(&other, &close_up, &close_up_laid), "");
+  EXPECT_EQ(close_up, yarns);
+  EXPECT_TRUE(SameFibers(job, other));
+  other.detail.footprint = 4 * job.params.fiber_width;
+  EXPECT_FALSE(SameFibers(job, other));
 }
 
 }  // namespace

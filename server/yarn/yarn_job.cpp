@@ -1,5 +1,6 @@
 #include "server/yarn/yarn_job.h"
 
+#include <algorithm>
 #include <utility>
 
 namespace loomlight::yarn {
@@ -58,8 +59,29 @@ std::string GenerateYarnJob(YarnJob* job, std::vector<YarnGeometry>* yarns, std:
   return error;
 }
 
+namespace {
+
+// The job's detail as its fibers see it: a footprint at which Eq. 4 keeps every fiber of every yarn (lambda 1, at
+// or under a fiber's width) generates exactly the full-detail fibers, so it is footprint 0; a render that asks
+// for LOD or AUTO close up then finds the FULL render's scene in the cache instead of generating it again.
+DetailOptions EffectiveDetail(const YarnJob& job) {
+  DetailOptions d = job.detail;
+  const auto keeps_all = [&](const YarnParams& p) {
+    return LodLambda(p.fiber_width, PlyWidth(p), d.footprint) >= 1;
+  };
+  const bool all = job.kind == YarnLayoutKind::kCurves
+                       ? std::all_of(job.curves.begin(), job.curves.end(),
+                                     [&](const CurveYarn& c) { return keeps_all(c.params); })
+                       : keeps_all(job.params);
+  if (all) d.footprint = 0;
+  return d;
+}
+
+}  // namespace
+
 bool SameFibers(const YarnJob& a, const YarnJob& b) {
-  return a.params == b.params && a.detail.SameOutput(b.detail) && a.limits == b.limits && a.kind == b.kind &&
+  return a.params == b.params && EffectiveDetail(a).SameOutput(EffectiveDetail(b)) && a.limits == b.limits &&
+         a.kind == b.kind &&
          a.pattern == b.pattern && a.layout == b.layout && a.straight_length == b.straight_length &&
          a.curves == b.curves && a.knit == b.knit;
 }

@@ -38,6 +38,7 @@
 #include "server/api/yarn_rpc.h"
 #include "server/models/material_cache.h"
 #include "server/models/material_plan.h"
+#include "server/render/scene_registry.h"
 #include "tests/fuzz/fuzz_check.h"
 
 extern "C" size_t LLVMFuzzerMutate(uint8_t* data, size_t size, size_t max_size);
@@ -200,9 +201,12 @@ void FuzzRender(const v1::RenderRequest& request, bool has_fp64) {
   const std::unique_ptr<api::YarnJob>& fiber_job = fiber_jobs.chosen;
   FUZZ_CHECK(!fiber_jobs.full || (fiber_job && fiber_jobs.full->detail.footprint == 0),
              "a full-detail job to check against without a chosen one, or not at full detail");
-  const bool fiber_scene = request.scene() == v1::SCENE_YARN || request.scene() == v1::SCENE_WOVEN_PATCH;
+  // A fiber scene (one the request names by its scene_name or its scene value) and only one has fibers to generate.
+  render::ResolvedScene scene;
+  FUZZ_CHECK(render::ResolveScene(request, render::SceneRegistry::Global(), &scene).empty(), "an accepted scene");
+  const bool fiber_scene = scene.spec->needs.fibers;
   FUZZ_CHECK(bool(fiber_job) == fiber_scene, "fiber job " + std::to_string(bool(fiber_job)) + " for scene " +
-                                                 std::to_string(request.scene()));
+                                                 scene.spec->name);
   FUZZ_CHECK(!fiber_scene || !detail.chosen.empty(), "a fiber scene without a level of detail");
   const uint64_t pixels = uint64_t{request.width()} * request.height();
   FUZZ_CHECK(pixels >= 1 && request.width() <= api::kMaxRenderSide && request.height() <= api::kMaxRenderSide,

@@ -276,6 +276,7 @@ void WriteRenderSeeds(const models::Registry& registry) {
   yarn.mutable_woven()->set_repeats_v(1);
   Write("render_woven_patch", kRender, yarn);
   yarn.clear_woven();
+  yarn.clear_scene();  // named by scene_name alone, as scenes without a ScenePreset value are
   yarn.set_scene_name("knit_patch");
   yarn.mutable_knit()->set_stitch(v1::KNIT_RIB_1X1);
   yarn.mutable_knit()->set_wales(2);

@@ -206,4 +206,72 @@ grpc::Status HandleDeleteMesh(const ServiceDeps& deps, const grpc::ServerContext
   return grpc::Status::OK;
 }
 
+std::string ValidateMeshSource(const v1::MeshSource& mesh, const std::string& field) {
+  if (mesh.has_data()) {
+    if (!v1::MeshFormat_IsValid(mesh.data().format()))
+      return field + ".data.format: unknown value " + std::to_string(mesh.data().format());
+    if (mesh.data().data().empty()) return field + ".data.data: empty";
+    if (mesh.data().data().size() > assets::MeshLimits{}.max_bytes)
+      return field + ".data.data: " + std::to_string(mesh.data().data().size()) + " bytes exceed the limit of " +
+             std::to_string(assets::MeshLimits{}.max_bytes);
+  } else if (mesh.source_case() == v1::MeshSource::kName) {
+    if (std::string e = assets::ValidateAssetName(mesh.name()); !e.empty()) return field + ".name: " + e;
+  } else {
+    return field + ": give a stored mesh's name or the file's data";
+  }
+  return "";
+}
+
+std::string ValidateMaterialBindings(const google::protobuf::RepeatedPtrField<v1::MaterialBinding>& bindings,
+                                     const std::string& field) {
+  const auto indexed = [&field](int i) { return field + "[" + std::to_string(i) + "]"; };
+  if (bindings.size() > int(assets::MeshLimits{}.max_materials))
+    return field + ": " + std::to_string(bindings.size()) + " bindings exceed the limit of " +
+           std::to_string(assets::MeshLimits{}.max_materials) + " materials per mesh";
+  for (int i = 0; i < bindings.size(); ++i) {
+    const v1::MaterialBinding& b = bindings[i];
+    if (b.mesh_material().size() > kMaxMeshMaterialName)
+      return indexed(i) + ".mesh_material: longer than " + std::to_string(kMaxMeshMaterialName) + " bytes";
+    if (!b.has_material()) return indexed(i) + ".material: unset";
+    for (int j = 0; j < i; ++j)
+      if (bindings[j].mesh_material() == b.mesh_material())
+        return indexed(i) + ".mesh_material: " + models::Quote(b.mesh_material()) + " is bound twice";
+  }
+  return "";
+}
+
+grpc::Status LoadMeshSource(const ServiceDeps& deps, const v1::MeshSource& source, const std::function<bool()>& stop,
+                            Admission* admission, std::shared_ptr<const assets::TriangleMesh>* out) {
+  if (source.has_data()) {
+    const uint64_t parse_bytes = ParseBytes(source.data().data().size());
+    if (!admission->bytes.Grow(size_t(parse_bytes)))
+      return {grpc::StatusCode::RESOURCE_EXHAUSTED, "mesh.data: parsing it needs " + std::to_string(parse_bytes) +
+                                                        " bytes, over this client's share of the memory budget"};
+    auto parsed = std::make_shared<assets::TriangleMesh>();
+    if (std::string e = assets::ParseMesh(source.data().data(), source.data().format(), assets::MeshLimits{},
+                                          parsed.get(), nullptr, stop);
+        !e.empty())
+      return Invalid("mesh.data: " + e);
+    *out = std::move(parsed);
+    return grpc::Status::OK;
+  }
+  if (!deps.mesh_store)
+    return {grpc::StatusCode::FAILED_PRECONDITION, "mesh.name: this server keeps no meshes (no data directory)"};
+  v1::MeshInfo info;
+  std::string error;
+  std::shared_ptr<const assets::TriangleMesh> mesh;
+  switch (deps.mesh_store->Load(source.name(), stop, &mesh, &info, &error)) {
+    case assets::MeshStore::Found::kOk: break;
+    case assets::MeshStore::Found::kNotFound:
+      return {grpc::StatusCode::NOT_FOUND, "mesh.name: no mesh " + models::Quote(source.name()) + " (ListMeshes)"};
+    case assets::MeshStore::Found::kFailed:
+      return {grpc::StatusCode::INTERNAL, "mesh.name: cannot load " + models::Quote(source.name()) + ": " + error};
+  }
+  if (!admission->bytes.Grow(size_t(mesh->memory_bytes())))
+    return {grpc::StatusCode::RESOURCE_EXHAUSTED, "mesh.name: the mesh's " + std::to_string(mesh->memory_bytes()) +
+                                                      " bytes are over this client's share of the memory budget"};
+  *out = std::move(mesh);
+  return grpc::Status::OK;
+}
+
 }  // namespace loomlight::api

@@ -8,6 +8,7 @@
 
 #include "server/api/admission.h"
 #include "server/api/job_status.h"
+#include "server/api/mesh_rpc.h"
 #include "server/api/stream_call.h"
 #include "server/imaging/image_encode.h"
 #include "server/models/material.h"
@@ -462,36 +463,9 @@ class RenderCall final : public WorkerStreamCall<v1::RenderUpdate> {
       grpc::Status s = StopStatus(context_, deadline_);
       return s.ok() ? status : s;
     };
-    const v1::MeshSource& source = request_.mesh();
     std::shared_ptr<const assets::TriangleMesh> mesh;
-    if (source.has_data()) {
-      const uint64_t parse_bytes = std::min<uint64_t>(kMeshParseBytesPerFileByte * source.data().data().size(),
-                                                      kMaxMeshParseBytes);
-      if (!admission_.bytes.Grow(size_t(parse_bytes)))
-        return {grpc::StatusCode::RESOURCE_EXHAUSTED, "mesh.data: parsing it needs " + std::to_string(parse_bytes) +
-                                                          " bytes, over this client's share of the memory budget"};
-      auto parsed = std::make_shared<assets::TriangleMesh>();
-      if (std::string e = assets::ParseMesh(source.data().data(), source.data().format(), assets::MeshLimits{},
-                                            parsed.get(), nullptr, stop);
-          !e.empty())
-        return stopped_or(Invalid("mesh.data: " + e));
-      mesh = std::move(parsed);
-    } else {
-      if (!deps_.mesh_store)
-        return {grpc::StatusCode::FAILED_PRECONDITION, "mesh.name: this server keeps no meshes (no data directory)"};
-      v1::MeshInfo info;
-      std::string error;
-      switch (deps_.mesh_store->Load(source.name(), stop, &mesh, &info, &error)) {
-        case assets::MeshStore::Found::kOk: break;
-        case assets::MeshStore::Found::kNotFound:
-          return {grpc::StatusCode::NOT_FOUND, "mesh.name: no mesh " + models::Quote(source.name()) + " (ListMeshes)"};
-        case assets::MeshStore::Found::kFailed:
-          return stopped_or({grpc::StatusCode::INTERNAL, "mesh.name: cannot load " + models::Quote(source.name()) + ": " + error});
-      }
-      if (!admission_.bytes.Grow(size_t(mesh->memory_bytes())))
-        return {grpc::StatusCode::RESOURCE_EXHAUSTED, "mesh.name: the mesh's " + std::to_string(mesh->memory_bytes()) +
-                                                          " bytes are over this client's share of the memory budget"};
-    }
+    if (grpc::Status s = LoadMeshSource(deps_, request_.mesh(), stop, &admission_, &mesh); !s.ok())
+      return stopped_or(s);
     const uint64_t bvh_bytes = kMeshBvhBytesPerTriangle * mesh->triangles.size() + (uint64_t{1} << 20);
     if (!admission_.bytes.Grow(size_t(bvh_bytes)))
       return {grpc::StatusCode::RESOURCE_EXHAUSTED,
@@ -823,36 +797,12 @@ size_t RenderBytes(const v1::RenderRequest& r) {
 std::string ValidateMeshRequest(const v1::RenderRequest& r) {
   if (!r.scene_name().empty() || r.scene() != v1::SCENE_SPHERE || r.scene_params_size() > 0)
     return "mesh: the mesh is the scene; leave scene, scene_name and scene_params unset";
-  const v1::MeshSource& mesh = r.mesh();
-  if (mesh.has_data()) {
-    if (!v1::MeshFormat_IsValid(mesh.data().format()))
-      return "mesh.data.format: unknown value " + std::to_string(mesh.data().format());
-    if (mesh.data().data().empty()) return "mesh.data.data: empty";
-    if (mesh.data().data().size() > assets::MeshLimits{}.max_bytes)
-      return "mesh.data.data: " + std::to_string(mesh.data().data().size()) + " bytes exceed the limit of " +
-             std::to_string(assets::MeshLimits{}.max_bytes);
-  } else if (mesh.source_case() == v1::MeshSource::kName) {
-    if (std::string e = assets::ValidateAssetName(mesh.name()); !e.empty()) return "mesh.name: " + e;
-  } else {
-    return "mesh: give a stored mesh's name or the file's data";
-  }
-  return "";
+  return ValidateMeshSource(r.mesh(), "mesh");
 }
 
 // RenderRequest.materials: each binding names a mesh material once and gives a material. "" or "field: reason".
 std::string ValidateBindings(const v1::RenderRequest& r) {
-  if (r.materials_size() > int(assets::MeshLimits{}.max_materials))
-    return "materials: " + std::to_string(r.materials_size()) + " bindings exceed the limit of " +
-           std::to_string(assets::MeshLimits{}.max_materials) + " materials per mesh";
-  for (int i = 0; i < r.materials_size(); ++i) {
-    const v1::MaterialBinding& b = r.materials(i);
-    if (b.mesh_material().size() > kMaxMeshMaterialName)
-      return Indexed("materials", i) + ".mesh_material: longer than " + std::to_string(kMaxMeshMaterialName) + " bytes";
-    if (!b.has_material()) return Indexed("materials", i) + ".material: unset";
-    for (int j = 0; j < i; ++j)
-      if (r.materials(j).mesh_material() == b.mesh_material())
-        return Indexed("materials", i) + ".mesh_material: " + models::Quote(b.mesh_material()) + " is bound twice";
-  }
+  if (std::string e = ValidateMaterialBindings(r.materials(), "materials"); !e.empty()) return e;
   if (r.has_mesh() && !r.has_material() && r.materials_size() == 0)
     return "material: unset (a mesh needs `material` or `materials`)";
   return "";

@@ -39,5 +39,6 @@ const Command& sample_command();
 const Command& batch_command();
 const Command& btf_command();
 const Command& mesh_command();
+const Command& fit_command();
 
 }  // namespace loomlight::client

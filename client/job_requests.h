@@ -13,4 +13,9 @@ namespace loomlight::client {
 loomlight::v1::RenderRequest render_request(const ParsedOptions& options, const std::string& out);
 loomlight::v1::TabulateRequest tabulate_request(const ParsedOptions& options, const std::string& out);
 
+// --mesh FILE or --mesh-name NAME into *mesh (untouched without them) and each --material MESH_MATERIAL=PRESET
+// into *bindings (render, fit).
+void mesh_from_options(const ParsedOptions& options, loomlight::v1::MeshSource* mesh,
+                       google::protobuf::RepeatedPtrField<loomlight::v1::MaterialBinding>* bindings);
+
 }  // namespace loomlight::client

@@ -25,10 +25,10 @@ constexpr int kExitUsage = 2;
 constexpr std::size_t kHelpColumnWidth = 30;
 constexpr std::size_t kCommandColumnWidth = 10;  // "  health  ..."
 
-std::array<const Command*, 13> commands() {
+std::array<const Command*, 14> commands() {
   return {&models_command(), &scenes_command(), &eval_command(), &sample_command(), &plot_command(), &slice_command(),
           &tab_command(), &render_command(), &batch_command(), &yarn_command(), &btf_command(), &mesh_command(),
-          &health_command()};
+          &fit_command(), &health_command()};
 }
 
 // A family member's word: "create" of "btf create".

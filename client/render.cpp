@@ -98,21 +98,20 @@ void parse_size(const std::string& text, v1::RenderRequest& request) {
 
 }  // namespace
 
-// --mesh FILE (sent with the request) or --mesh-name NAME (stored: `loomlight mesh upload`), and each
-// --material MESH_MATERIAL=PRESET binding.
-void set_mesh(const ParsedOptions& options, v1::RenderRequest& request) {
-  if (auto file = options.last("mesh")) {
-    v1::MeshData* data = request.mutable_mesh()->mutable_data();
-    data->set_data(read_local_file(*file, "--mesh"));
-  } else if (auto name = options.last("mesh-name")) {
-    request.mutable_mesh()->set_name(*name);
-  }
+// --mesh FILE (sent with the request) or --mesh-name NAME (stored: `loomlight mesh upload`) into *mesh (left
+// unset without them), and each --material MESH_MATERIAL=PRESET binding into *bindings (render and fit).
+void mesh_from_options(const ParsedOptions& options, v1::MeshSource* mesh,
+                       google::protobuf::RepeatedPtrField<v1::MaterialBinding>* bindings) {
+  bool has_mesh = true;
+  if (auto file = options.last("mesh")) mesh->mutable_data()->set_data(read_local_file(*file, "--mesh"));
+  else if (auto name = options.last("mesh-name")) mesh->set_name(*name);
+  else has_mesh = false;
   for (const auto& entry : options.matching({"material"})) {
     const auto eq = entry.value.find('=');
     if (eq == std::string::npos || eq == 0 || eq + 1 == entry.value.size())
       throw UsageError("--material: expected MESH_MATERIAL=PRESET, got '" + entry.value + "'");
-    if (!request.has_mesh()) throw UsageError("--material binds a mesh's material: give --mesh or --mesh-name");
-    v1::MaterialBinding* binding = request.add_materials();
+    if (!has_mesh) throw UsageError("--material binds a mesh's material: give --mesh or --mesh-name");
+    v1::MaterialBinding* binding = bindings->Add();
     binding->set_mesh_material(entry.value.substr(0, eq));
     binding->mutable_material()->set_preset(entry.value.substr(eq + 1));
   }
@@ -120,7 +119,9 @@ void set_mesh(const ParsedOptions& options, v1::RenderRequest& request) {
 
 v1::RenderRequest render_request(const ParsedOptions& options, const std::string& out) {
   v1::RenderRequest request;
-  set_mesh(options, request);
+  v1::MeshSource mesh;
+  mesh_from_options(options, &mesh, request.mutable_materials());
+  if (mesh.source_case() != v1::MeshSource::SOURCE_NOT_SET) *request.mutable_mesh() = std::move(mesh);
   // A mesh whose materials are all bound by --material needs no MATERIAL.
   const bool bound_only = request.materials_size() > 0 && !options.has("preset") && !options.has("model") &&
                           !options.has("btf");

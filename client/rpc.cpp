@@ -375,6 +375,16 @@ void Client::delete_mesh(const std::string& name) {
   check(stub_->DeleteMesh(&context, request, &response));
 }
 
+v1::FitMaterialResponse Client::fit_material(const v1::FitMaterialRequest& request) {
+  grpc::ClientContext context;
+  prepare(context);
+  v1::FitMaterialResponse response;
+  check(stub_->FitMaterial(&context, request, &response));
+  if (request.format() != v1::EXPORT_FORMAT_NONE && response.file().empty())
+    throw std::runtime_error("server returned no file for the export asked for");
+  return response;
+}
+
 v1::ListBtfsResponse Client::list_btfs() {
   grpc::ClientContext context;
   prepare(context);

@@ -69,6 +69,8 @@ class Client {
   v1::MeshInfo upload_mesh(const v1::UploadMeshHeader& header, const std::function<bool(std::string&)>& next_chunk);
   v1::ListMeshesResponse list_meshes();
   void delete_mesh(const std::string& name);
+  // Checks that a file came back when a format was asked for.
+  v1::FitMaterialResponse fit_material(const v1::FitMaterialRequest& request);
 
  private:
   void prepare(grpc::ClientContext& context) const;

@@ -95,7 +95,8 @@ std::vector<double> ReferenceOnFitDirections(const Model& model, const PackedMat
 FitResult FitLobe(const Model& target, const std::vector<double>& source_f,
                   const std::function<bool()>& stop = {});
 
-// The stated error of `target` at `params` against `source_f`, with its regions.
+// The stated error of `target` at `params` (completed with the target's defaults) against `source_f`, with its
+// regions; std::invalid_argument unless `source_f` has 3 values a pair.
 FitResult MeasureFit(const Model& target, const ParamValues& params, const std::vector<double>& source_f);
 
 }  // namespace loomlight::models::fit

@@ -10,14 +10,18 @@ packages=(
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   prometheus-cpp-dev
   libembree-dev
-  libtinygltf-dev libtinyobjloader-dev
+  libtinygltf-dev libtinyobjloader-dev libpugixml-dev
   libeigen3-dev
   libcli11-dev
   libgtest-dev libgmock-dev
   fonts-dejavu-core
   haproxy
   python3
+  nodejs
 )
+# npm installs the Khronos glTF validator the tests run (tests/gltf). A NodeSource nodejs brings its own npm, which
+# Debian's npm package conflicts with: Debian's only when no npm command exists.
+command -v npm >/dev/null 2>&1 || packages+=(npm)
 case "${1:-}" in
   --fuzz) packages+=(clang libclang-rt-14-dev llvm-14) ;;
   '') ;;

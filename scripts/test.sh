@@ -3,6 +3,12 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 "$root/scripts/install-deps.sh"
+# The Khronos glTF validator material_export_test runs (npm gltf-validator, pinned by tests/gltf/package-lock.json),
+# installed when missing or older than the lock file.
+gltf="$root/tests/gltf"
+if [ ! -f "$gltf/node_modules/.package-lock.json" ] || [ "$gltf/package-lock.json" -nt "$gltf/node_modules/.package-lock.json" ]; then
+  (cd "$gltf" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+fi
 cmake -S "$root" -B "$root/build" -DCMAKE_BUILD_TYPE=Release
 cmake --build "$root/build" -j"$(nproc)"
 # A private PoCL kernel cache per build tree: warm after the first run, never shared with a stale one.

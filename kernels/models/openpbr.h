@@ -57,6 +57,16 @@ LL_INLINE real op_specular_albedo(LL_GLOBAL const scalar* mat, real mu) {
   return (R(1.0) - u) * ll_gather(mat, at) + u * ll_gather(mat, at + R(1.0));
 }
 
+// Zeltner et al.'s rational fits (MaterialX's mx_zeltner_sheen_ltc_aInv, _bInv) of the inverse LTC matrix's
+// entries at view cosine x and roughness y.
+LL_INLINE real op_ltc_a_inv(scalar y, real x) {
+  return (R(2.58126) * x + R(0.813703) * y) * y / (R(1.0) + R(0.310327) * x * x + R(2.60994) * x * y);
+}
+LL_INLINE real op_ltc_b_inv(scalar y, real x) {
+  return sqrt(LL_FMAX(R(1.0) - x, R(0.0))) * (y - R(1.0)) * y * y * y /
+         (R(0.0000254053) + R(1.71228) * x - R(1.71506) * x * y + R(1.34174) * y * y);
+}
+
 // D_ltc(L) / N.L for the fuzz at roughness y: with w = L in the frame (X, n x X, n), X = V's projection on the
 // surface, normalised (any X at normal view, where the fits make the lobe round: bInv = 0),
 // D_ltc = max(w'.z, 0) / pi (aInv / |w'|^2)^2, w' = (aInv w.x + bInv w.z, aInv w.y, w.z); w'.z = N.L cancels.
@@ -66,10 +76,7 @@ LL_INLINE real op_fuzz_lobe(scalar y, real wix, real wiy, real wiz, real wox, re
   const real inv_len = R(1.0) / sqrt(tilted ? len2 : R(1.0));
   const real xx = tilted ? wox * inv_len : R(1.0), xy = tilted ? woy * inv_len : R(0.0);
   const real wx = wix * xx + wiy * xy, wy = wiy * xx - wix * xy;
-  const real a_inv = (R(2.58126) * mu_o + R(0.813703) * y) * y /
-                     (R(1.0) + R(0.310327) * mu_o * mu_o + R(2.60994) * mu_o * y);
-  const real b_inv = sqrt(LL_FMAX(R(1.0) - mu_o, R(0.0))) * (y - R(1.0)) * y * y * y /
-                     (R(0.0000254053) + R(1.71228) * mu_o - R(1.71506) * mu_o * y + R(1.34174) * y * y);
+  const real a_inv = op_ltc_a_inv(y, mu_o), b_inv = op_ltc_b_inv(y, mu_o);
   const real px = a_inv * wx + b_inv * wiz, py = a_inv * wy;
   const real w2 = px * px + py * py + wiz * wiz;
   const real q = a_inv / w2;

@@ -1,6 +1,6 @@
 // Registry entry of OpenPBR Surface's dielectric base under fuzz (kernels/models/openpbr.h, docs/models.md
 // "Standard lobes for export"): the lobe a fitted cloth is exported as to MaterialX. Packing takes the specular
-// lobe's albedo E_spec(mu) at the material's roughness and ior from a table over (mu, specular_roughness, F0)
+// lobe's albedo E_spec(mu) at the material's roughness and ior from a table over (mu, specular_roughness, ior)
 // built once per process.
 #include <algorithm>
 #include <cmath>
@@ -18,13 +18,14 @@ typedef double real;
 }  // namespace op_layout
 using op_layout::real;  // what the layout's macros (R, LL_HORIZON_EPS) name
 
-constexpr int kRoughnessNodes = 17;  // specular_roughness uniform on [0, 1]
-constexpr int kReflectanceNodes = 9;  // F0 = ((eta - 1) / (eta + 1))^2 uniform on [0, 0.25] (eta 1 to 3)
-constexpr double kMaxReflectance = 0.25;
-constexpr int kQuadratureNodes = 64;
+constexpr int kRoughnessNodes = 33;  // specular_roughness uniform on [0, 1]
+// specular_ior at x = sqrt((eta - 1) / 2) uniform on [0, 1] (eta 1 to 3): near eta = 1 the albedo grows like
+// sqrt(eta - 1) (Fresnel's grazing rise narrows to cosines below sqrt(eta^2 - 1)), linear in x.
+constexpr int kIorNodes = 17;
+constexpr int kQuadratureNodes = 48;
 
 double SpecularAlpha(double roughness) { return std::max(roughness * roughness, LL_GGX_ALPHA_MIN); }
-double NormalReflectance(double eta) { return std::pow((eta - 1) / (eta + 1), 2); }
+double IorCoordinate(double eta) { return std::sqrt((eta - 1) / 2); }
 
 // The directional albedo of f_spec at cosine mu: the kernel's own Fresnel and G2 / (4 N.L N.V) (double build).
 // GGX's D(h) cos(theta_h) has tan^2(theta_h) = alpha^2 u / (1 - u) for u uniform.
@@ -39,33 +40,31 @@ double SpecularAlbedo(double alpha, double eta, double mu) {
 }
 
 struct AlbedoTable {
-  std::vector<double> roughness, reflectance;  // the rows' specular_roughness and F0
-  std::vector<double> mu;                      // the kernel's nodes (OP_ALBEDO_NODES)
-  std::vector<double> values;                  // [(f0 * kRoughnessNodes + row) * OP_ALBEDO_NODES + k]
+  std::vector<double> roughness, ior;  // the rows' specular_roughness and specular_ior
+  std::vector<double> mu;              // the kernel's nodes (OP_ALBEDO_NODES)
+  std::vector<double> values;          // [(ior_row * kRoughnessNodes + row) * OP_ALBEDO_NODES + k]
 };
 
 const AlbedoTable& SpecularAlbedoTable() {
   static const AlbedoTable table = [] {
     AlbedoTable t;
     for (int i = 0; i < kRoughnessNodes; ++i) t.roughness.push_back(double(i) / (kRoughnessNodes - 1));
-    for (int j = 0; j < kReflectanceNodes; ++j) t.reflectance.push_back(kMaxReflectance * j / (kReflectanceNodes - 1));
+    for (int j = 0; j < kIorNodes; ++j) t.ior.push_back(1 + 2 * std::pow(double(j) / (kIorNodes - 1), 2));
     t.mu = standard::SqrtSpacedCosines(OP_ALBEDO_NODES, LL_HORIZON_EPS);
-    t.values = standard::ParallelTable(kReflectanceNodes * kRoughnessNodes, OP_ALBEDO_NODES, [&](int row, int k) {
-      const double root = std::sqrt(t.reflectance[row / kRoughnessNodes]);
-      return SpecularAlbedo(SpecularAlpha(t.roughness[row % kRoughnessNodes]), (1 + root) / (1 - root), t.mu[k]);
+    t.values = standard::ParallelTable(kIorNodes * kRoughnessNodes, OP_ALBEDO_NODES, [&](int row, int k) {
+      return SpecularAlbedo(SpecularAlpha(t.roughness[row % kRoughnessNodes]), t.ior[row / kRoughnessNodes], t.mu[k]);
     });
     return t;
   }();
   return table;
 }
 
-// E_spec at the kernel's nodes for (roughness, eta): bilinear in (roughness, F0).
+// E_spec at the kernel's nodes for (roughness, eta): bilinear in (roughness, sqrt((eta - 1) / 2)).
 std::vector<double> SpecularAlbedoSlice(double roughness, double eta) {
   const AlbedoTable& t = SpecularAlbedoTable();
   const size_t slab = size_t(kRoughnessNodes) * OP_ALBEDO_NODES;
-  const double x = std::clamp(NormalReflectance(eta) / kMaxReflectance * (kReflectanceNodes - 1), 0.0,
-                              double(kReflectanceNodes - 1));
-  const int j = std::min(int(x), kReflectanceNodes - 2);
+  const double x = std::clamp(IorCoordinate(eta) * (kIorNodes - 1), 0.0, double(kIorNodes - 1));
+  const int j = std::min(int(x), kIorNodes - 2);
   std::vector<double> rows[2];
   for (int side = 0; side < 2; ++side) {
     const std::vector<double> one(t.values.begin() + (j + side) * slab, t.values.begin() + (j + side + 1) * slab);

@@ -8,6 +8,7 @@
 
 #include "server/api/admission.h"
 #include "server/api/btf_rpc.h"
+#include "server/api/fit_rpc.h"
 #include "server/api/job_status.h"
 #include "server/api/mesh_rpc.h"
 #include "server/api/render_rpc.h"
@@ -408,6 +409,14 @@ grpc::ServerUnaryReactor* LoomlightService::Sample(grpc::CallbackServerContext* 
                                                    const v1::SampleRequest* request, v1::SampleResponse* response) {
   if (grpc::Status s = Serving(); !s.ok()) return AnswerNow(deps_.metrics, context, "Sample", batching::Clock::now(), s);
   return HandleSample(deps_, context, request, response);
+}
+
+grpc::ServerUnaryReactor* LoomlightService::FitMaterial(grpc::CallbackServerContext* context,
+                                                        const v1::FitMaterialRequest* request,
+                                                        v1::FitMaterialResponse* response) {
+  if (grpc::Status s = Serving(); !s.ok())
+    return AnswerNow(deps_.metrics, context, "FitMaterial", batching::Clock::now(), s);
+  return HandleFitMaterial(deps_, context, request, response);
 }
 
 grpc::ServerWriteReactor<v1::CreateBtfProgress>* LoomlightService::CreateBtf(grpc::CallbackServerContext* context,

@@ -70,7 +70,7 @@ struct ServiceDeps {
   yarn::FiberSceneCache* fiber_scenes = nullptr;  // built fiber scenes, kept across calls
   HostWorker* worker = nullptr;  // host work (directions, accumulation, encoding) off the batcher's thread
   HostWorker* loader = nullptr;  // reading and decoding assets (environment maps), off the host worker
-  HostWorker* geometry = nullptr;  // generating yarn geometry, off the host worker
+  HostWorker* geometry = nullptr;  // generating yarn geometry and fitting lobes (FitMaterial), off the host worker
   // Evaluate's and Sample's material packing, checks, planning and last steps of large calls (server/api/unary_call.h)
   HostWorker* preparer = nullptr;
   batching::Budget* memory = nullptr;      // bytes every call reserves (server/api/admission.h)
@@ -165,6 +165,9 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
                                      v1::ListBtfsResponse* response) override;
   grpc::ServerUnaryReactor* DeleteBtf(grpc::CallbackServerContext* context, const v1::DeleteBtfRequest* request,
                                       v1::DeleteBtfResponse* response) override;
+  // Delegates to HandleFitMaterial (server/api/fit_rpc.h).
+  grpc::ServerUnaryReactor* FitMaterial(grpc::CallbackServerContext* context, const v1::FitMaterialRequest* request,
+                                        v1::FitMaterialResponse* response) override;
   // Delegate to server/api/mesh_rpc.h.
   grpc::ServerReadReactor<v1::UploadMeshMessage>* UploadMesh(grpc::CallbackServerContext* context,
                                                             v1::MeshInfo* response) override;
@@ -190,7 +193,7 @@ class LoomlightService final : public v1::Loomlight::CallbackService {
   HostWorker worker_;
   HostWorker loader_;
   HostWorker preparer_;  // Evaluate's material packing and large requests' validation and planning; Sample's work
-  HostWorker geometry_;  // yarn generation
+  HostWorker geometry_;  // yarn generation, lobe fits (FitMaterial)
 };
 
 // Checks packed direction triples: a multiple of 3, finite, unit within kUnitTolerance. Returns "" or

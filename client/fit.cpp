@@ -1,6 +1,7 @@
 // `loomlight fit`: a material fitted with a standard lobe other tools render (FitMaterial RPC; docs/materials-out.md)
 // — glTF 2.0 + KHR_materials_sheen or OpenPBR Surface with fuzz — printing the fit's error and where it misses,
 // and writing the .glb/.gltf (on a mesh, with colourways) or the MaterialX .mtlx.
+#include <algorithm>
 #include <cstdio>
 #include <map>
 #include <string>
@@ -69,9 +70,15 @@ void print_fit(const v1::MaterialFit& fit) {
     for (int i = 0; i < p.values_size(); ++i) std::printf("%s%.4g", i ? ", " : " ", p.values(i));
     std::printf("\n");
   }
-  std::printf("  worst regions:");
-  for (int r = 0; r < fit.regions_size() && r < 3; ++r)
-    std::printf("%s %s %.1f%%", r ? ";" : "", fit.regions(r).region().c_str(), 100 * fit.regions(r).error());
+  // The regions holding most of the error (the response lists them by relative error, which a region with
+  // little light can top).
+  std::vector<const v1::FitRegionError*> regions;
+  for (const v1::FitRegionError& r : fit.regions()) regions.push_back(&r);
+  std::stable_sort(regions.begin(), regions.end(), [](auto* a, auto* b) { return a->share() > b->share(); });
+  std::printf("  most of the error:");
+  for (size_t r = 0; r < regions.size() && r < 3; ++r)
+    std::printf("%s %s: %.0f%% of it (error there %.1f%%)", r ? ";" : "", regions[r]->region().c_str(),
+                100 * regions[r]->share(), 100 * regions[r]->error());
   std::printf("\n");
   if (!fit.poor_fit().empty()) std::printf("  poor fit: %s\n", fit.poor_fit().c_str());
 }

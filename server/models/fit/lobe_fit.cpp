@@ -111,7 +111,10 @@ std::vector<FreeValue> FreeValues(const Model& target) {
     if (p.type != ParamType::kReal && p.type != ParamType::kRgb) continue;
     if (std::find(kHeldAtDefault.begin(), kHeldAtDefault.end(), p.name) != kHeldAtDefault.end()) continue;
     const size_t components = p.type == ParamType::kRgb ? 3 : 1;
-    for (size_t c = 0; c < components; ++c) free.push_back({p.name, c, p.min, p.max, p.type == ParamType::kRgb});
+    const bool specular = std::find(kSpecularRoughness.begin(), kSpecularRoughness.end(), p.name) !=
+                          kSpecularRoughness.end();
+    const double lo = specular ? std::max(p.min, kLeastSpecularRoughness) : p.min;
+    for (size_t c = 0; c < components; ++c) free.push_back({p.name, c, lo, p.max, p.type == ParamType::kRgb});
   }
   return free;
 }

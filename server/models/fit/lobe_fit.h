@@ -76,6 +76,11 @@ constexpr uint64_t kFitSeed = 48;
 // Kept at its default rather than fitted: OpenPBR's specular_ior stays 1.5, about a textile fibre's (cotton, silk,
 // polyester lie near 1.5 to 1.6) and glTF's fixed dielectric; so both targets keep a specular of F0 = 0.04.
 inline const std::vector<std::string> kHeldAtDefault = {"specular_ior"};
+// The specular lobes' roughness is fitted no lower than this: the pairs resolve a GGX lobe only down to
+// alpha = 0.09 (about 4096 alpha^2 / pi = 10 pairs fall in it); below, a near-mirror specular (4% of light a
+// viewer's environment shows as a gloss) costs the sampled error almost nothing, and fits of dark velvets took it.
+constexpr double kLeastSpecularRoughness = 0.3;
+inline const std::vector<std::string> kSpecularRoughness = {"roughness", "specular_roughness"};
 // The fit's schedule (see above): bounded work, ~ starts x rounds x LM iterations x (free values + 1) evaluations.
 constexpr double kStartFractions[] = {0.3, 0.7};
 constexpr size_t kStartPairs = 512;

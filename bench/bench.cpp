@@ -62,7 +62,7 @@ struct Args {
 // Section names for --only, in report order.
 const char* const kSectionNames[] = {"kernel", "sweep", "service", "service-cpu", "slice", "tabulate",
                                      "render", "noise", "fair-share", "btf", "tabulated", "product",
-                                     "fabrics"};
+                                     "fabrics", "materials-out"};
 // Sections merged into another, still accepted by their old names: "kernel" measures every model.
 const std::pair<const char*, const char*> kSectionAliases[] = {{"woven", "kernel"}, {"transmission", "kernel"}};
 
@@ -82,7 +82,8 @@ void Usage(const char* argv0, const Args& defaults) {
                "  --only SECTIONS  comma-separated, of: kernel (every model; aliases woven, transmission), sweep\n"
                "              (accuracy knobs), service, service-cpu, slice, tabulate, render, noise, fair-share, btf,\n"
                "              tabulated (tabulated BRDFs against the analytic model), product (a garment against\n"
-               "              Blender Cycles), fabrics (a tartan draft's colours, a knit at fiber level)\n"
+               "              Blender Cycles), fabrics (a tartan draft's colours, a knit at fiber level), materials-out\n"
+               "              (every preset fitted to glTF sheen and OpenPBR fuzz, fitted glTF in Cycles)\n"
                "              (a partial report: give it its own --out)\n",
                argv0, defaults.out.c_str());
 }
@@ -169,6 +170,7 @@ int main(int argc, char** argv) {
   sections += btf + tabulated;
   if (want("product")) sections += ProductSection(sizes);
   if (want("fabrics")) sections += FabricsSection(sizes);
+  if (want("materials-out")) sections += MaterialsOutSection(sizes);
   const std::string quietness = Quietness(OtherProcesses(start, CpuSnapshot::Now()));
   Progress("done: %s\n", quietness.c_str());
   std::string only;

@@ -74,5 +74,8 @@ std::string ProductSection(const Sizes& sizes);
 // texture slice, the 40 x 40 stitch jersey at fiber level (generation, BVH bytes and build time at full detail and
 // Eq. 4's LoD) and a knit close-up at full detail and LoD with the LoD's error.
 std::string FabricsSection(const Sizes& sizes);
+// Section 14: materials out (issue 48): every surface preset fitted to the glTF sheen and OpenPBR fuzz lobes (error,
+// time, worst region, the baseline), and three presets on the sphere in Loomlight and, as the fitted glTF, in Cycles.
+std::string MaterialsOutSection(const Sizes& sizes);
 
 }  // namespace loomlight::bench

@@ -105,6 +105,9 @@ struct FreeValue {
   }
 };
 
+// Where a fitted value is as good as the end of its range (1e-6 of it: far below a colour's 8-bit step).
+constexpr double kSnapToEnd = 1e-6;
+
 std::vector<FreeValue> FreeValues(const Model& target) {
   std::vector<FreeValue> free;
   for (const ParamSpec& p : target.params()) {
@@ -428,9 +431,17 @@ FitResult FitLobe(const Model& target, const std::vector<double>& source_f, cons
     }
   }
   ParamValues values = problem.Values(best);
-  if (black)  // every colour at its least exactly (the logistic map only approaches it)
-    for (const FreeValue& v : free)
-      if (v.colour) values[v.param][v.component] = v.lo;
+  // The logistic map only approaches its ends: a value within kSnapToEnd of one (a black source's colours, an
+  // unused lobe's, 1e-306 after the optimiser drove it out) is written as the end itself, and the error measured
+  // at what is written.
+  for (const FreeValue& v : free) {
+    double& x = values[v.param][v.component];
+    if (black && v.colour) x = v.lo;
+    if (std::isfinite(v.lo) && std::isfinite(v.hi)) {
+      if (x - v.lo < kSnapToEnd * (v.hi - v.lo)) x = v.lo;
+      if (v.hi - x < kSnapToEnd * (v.hi - v.lo)) x = v.hi;
+    }
+  }
   FitResult result = MeasureFit(target, values, source_f);
   result.iterations = solver.iterations();
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();

@@ -78,6 +78,7 @@ struct FreeValue {
   size_t component;
   double lo, hi;
   bool colour;
+  double start = std::nan("");  // a real's only start (kStartedAtDefault), else NaN: started on the grid
 
   double ToValue(double u) const {
     if (std::isfinite(lo) && std::isfinite(hi)) return lo + (hi - lo) / (1 + std::exp(-u));  // logistic
@@ -112,12 +113,14 @@ std::vector<FreeValue> FreeValues(const Model& target) {
   std::vector<FreeValue> free;
   for (const ParamSpec& p : target.params()) {
     if (p.type != ParamType::kReal && p.type != ParamType::kRgb) continue;
-    if (std::find(kHeldAtDefault.begin(), kHeldAtDefault.end(), p.name) != kHeldAtDefault.end()) continue;
     const size_t components = p.type == ParamType::kRgb ? 3 : 1;
     const bool specular = std::find(kSpecularRoughness.begin(), kSpecularRoughness.end(), p.name) !=
                           kSpecularRoughness.end();
+    const bool ior = std::find(kStartedAtDefault.begin(), kStartedAtDefault.end(), p.name) != kStartedAtDefault.end();
     const double lo = specular ? std::max(p.min, kLeastSpecularRoughness) : p.min;
-    for (size_t c = 0; c < components; ++c) free.push_back({p.name, c, lo, p.max, p.type == ParamType::kRgb});
+    const double hi = ior ? std::min(p.max, kMostSpecularIor) : p.max;
+    for (size_t c = 0; c < components; ++c)
+      free.push_back({p.name, c, lo, hi, p.type == ParamType::kRgb, ior ? p.defaults[c] : std::nan("")});
   }
   return free;
 }
@@ -392,7 +395,7 @@ FitResult FitLobe(const Model& target, const std::vector<double>& source_f, cons
   // Starts: the real parameters on the grid of kStartFractions, the colours at the albedo (black: at their least).
   std::vector<size_t> reals;
   for (size_t j = 0; j < free.size(); ++j)
-    if (!free[j].colour) reals.push_back(j);
+    if (!free[j].colour && std::isnan(free[j].start)) reals.push_back(j);
   const size_t grid = std::size(kStartFractions);
   size_t start_count = 1;
   for (size_t i = 0; i < reals.size(); ++i) start_count *= grid;
@@ -402,6 +405,8 @@ FitResult FitLobe(const Model& target, const std::vector<double>& source_f, cons
     for (size_t j = 0, digits = s; j < free.size(); ++j) {
       if (free[j].colour) {
         u[j] = free[j].ToFree(black ? free[j].lo : albedo[free[j].component]);
+      } else if (!std::isnan(free[j].start)) {
+        u[j] = free[j].ToFree(free[j].start);
       } else {
         u[j] = free[j].ToFree(free[j].AtFraction(kStartFractions[digits % grid]));
         digits /= grid;

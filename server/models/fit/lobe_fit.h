@@ -19,7 +19,7 @@
 // A black source (sum_k sum_c |f_c(k)| = 0) has error 0 against a black fit and 1 against any other (the sum is
 // then over |f_fit|): nothing divides by zero. Non-finite values of either f count as 0.
 //
-// The fit: every component of the target's kReal and kRgb parameters is free, except kHeldAtDefault, each kept
+// The fit: every component of the target's kReal and kRgb parameters is free, each kept
 // within its schema's [min, max] by a logistic map of an unbounded variable. Starts: the target's real
 // (roughness-like) parameters on a grid of kStartFractions of their ranges, every colour at the source's albedo
 // (pi times its mean f over the pairs, a Lambertian's albedo exactly). Each start runs kStartRounds of the
@@ -73,9 +73,13 @@ constexpr double kPoorFitError = 0.2;
 
 constexpr size_t kFitPairs = 4096;
 constexpr uint64_t kFitSeed = 48;
-// Kept at its default rather than fitted: OpenPBR's specular_ior stays 1.5, about a textile fibre's (cotton, silk,
-// polyester lie near 1.5 to 1.6) and glTF's fixed dielectric; so both targets keep a specular of F0 = 0.04.
-inline const std::vector<std::string> kHeldAtDefault = {"specular_ior"};
+// OpenPBR's specular_ior is fitted within [1, kMostSpecularIor], started at its default 1.5 (a textile fibre's:
+// cotton, silk and polyester lie near 1.5 to 1.6): OpenPBR dims a dielectric's specular by specular_weight, which
+// scales F0 = ((ior - 1) / (ior + 1))^2 and so is the same lobe as a lower ior, and cloth that shows less specular
+// than a smooth fibre (a dark velvet, albedo 0.05 against F0's 0.04) needs it. glTF's base has no such freedom (its
+// F0 is 0.04 without KHR_materials_specular).
+constexpr double kMostSpecularIor = 1.5;
+inline const std::vector<std::string> kStartedAtDefault = {"specular_ior"};
 // The specular lobes' roughness is fitted no lower than this: the pairs resolve a GGX lobe only down to
 // alpha = 0.09 (about 4096 alpha^2 / pi = 10 pairs fall in it); below, a near-mirror specular (4% of light a
 // viewer's environment shows as a gloss) costs the sampled error almost nothing, and fits of dark velvets took it.

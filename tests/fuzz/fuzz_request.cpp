@@ -1,7 +1,7 @@
 // Fuzz target: request validation and planning, the server's code between a request's bytes and a plan or a
 // gRPC error, without an OpenCL device. Input: byte 0 picks the RPC (bits 0-1: Evaluate, Sample, Tabulate,
-// Render; bit 3 set: CreateBtf instead) and the device (bit 2 set: a device without fp64); the rest is that RPC's
-// request, protobuf-encoded.
+// Render; bit 3 set: CreateBtf instead; bit 4 set: FitMaterial instead) and the device (bit 2 set: a device without
+// fp64); the rest is that RPC's request, protobuf-encoded.
 //
 // Each RPC runs its handler's checks in the handler's order: the material (MaterialCache::Peek, which resolves it
 // as Get does, without packing), then the request's Check* functions (server/api/). A rejection must be
@@ -31,6 +31,7 @@
 
 #include "loomlight/v1/loomlight.pb.h"
 #include "server/api/btf_rpc.h"
+#include "server/api/fit_rpc.h"
 #include "server/api/render_rpc.h"
 #include "server/api/sample_rpc.h"
 #include "server/api/service.h"
@@ -50,12 +51,16 @@ using google::protobuf::FieldDescriptor;
 using google::protobuf::Message;
 using google::protobuf::Reflection;
 
-enum class Rpc { kEvaluate, kSample, kTabulate, kRender, kCreateBtf };
+enum class Rpc { kEvaluate, kSample, kTabulate, kRender, kCreateBtf, kFitMaterial };
 constexpr uint8_t kRpcMask = 3;
 constexpr uint8_t kNoFp64Bit = 4;
 constexpr uint8_t kCreateBtfBit = 8;
+constexpr uint8_t kFitMaterialBit = 16;
 
-Rpc RpcOf(uint8_t first) { return first & kCreateBtfBit ? Rpc::kCreateBtf : static_cast<Rpc>(first & kRpcMask); }
+Rpc RpcOf(uint8_t first) {
+  if (first & kFitMaterialBit) return Rpc::kFitMaterial;
+  return first & kCreateBtfBit ? Rpc::kCreateBtf : static_cast<Rpc>(first & kRpcMask);
+}
 // Queries evaluated on the host per accepted Evaluate: enough to reach every part of a plan, few enough to keep
 // the fuzzer fast.
 constexpr size_t kMaxEvaluatedQueries = 64;
@@ -67,6 +72,7 @@ std::unique_ptr<Message> NewRequest(Rpc rpc) {
     case Rpc::kTabulate: return std::make_unique<v1::TabulateRequest>();
     case Rpc::kRender: return std::make_unique<v1::RenderRequest>();
     case Rpc::kCreateBtf: return std::make_unique<v1::CreateBtfRequest>();
+    case Rpc::kFitMaterial: return std::make_unique<v1::FitMaterialRequest>();
   }
   return nullptr;
 }
@@ -406,6 +412,40 @@ class Mutator {
   std::mt19937_64 rng_;
 };
 
+// FitMaterial's checks (api::CheckFitMaterialRequest, which resolves every material as Peek does). Accepted: a
+// target and a format that go together, at most kMaxColourways named once each and within their bytes, a mesh
+// only with a glTF, and every fabric's material resolving to a surface model.
+void FuzzFitMaterial(const v1::FitMaterialRequest& request) {
+  if (grpc::Status s = api::CheckFitMaterialRequest(&Cache(), Registry(), request); !s.ok())
+    return CheckRejection(s, true);
+  const bool gltf = request.format() == v1::EXPORT_FORMAT_GLB || request.format() == v1::EXPORT_FORMAT_GLTF;
+  FUZZ_CHECK(request.target() == v1::FIT_TARGET_GLTF_SHEEN || request.target() == v1::FIT_TARGET_OPENPBR,
+             "target " + std::to_string(request.target()));
+  FUZZ_CHECK(!gltf || request.target() == v1::FIT_TARGET_GLTF_SHEEN, "a glTF of an OpenPBR fit");
+  FUZZ_CHECK(request.format() != v1::EXPORT_FORMAT_MTLX || request.target() == v1::FIT_TARGET_OPENPBR,
+             "MaterialX of a glTF fit");
+  FUZZ_CHECK(!request.has_mesh() || gltf, "a mesh without a glTF");
+  FUZZ_CHECK(request.colourways_size() <= api::kMaxColourways, std::to_string(request.colourways_size()));
+  FUZZ_CHECK(request.name().size() <= api::kMaxFitNameBytes, std::to_string(request.name().size()) + " bytes");
+  std::vector<const v1::Material*> fabrics;
+  const auto wear = [&](const v1::Material& m, bool has, const auto& bindings) {
+    if (has) fabrics.push_back(&m);
+    for (const v1::MaterialBinding& b : bindings) fabrics.push_back(&b.material());
+  };
+  wear(request.material(), request.has_material(), request.bindings());
+  for (const v1::Colourway& way : request.colourways()) {
+    FUZZ_CHECK(!way.name().empty() && way.name().size() <= api::kMaxFitNameBytes, "colourway name");
+    wear(way.material(), way.has_material(), way.bindings());
+  }
+  FUZZ_CHECK(!fabrics.empty(), "accepted without a fabric");
+  for (const v1::Material* m : fabrics) {
+    const models::Model* model = nullptr;
+    std::shared_ptr<const models::PreparedMaterial> cached;
+    FUZZ_CHECK(Cache().Peek(*m, Registry(), &model, &cached).empty(), "an accepted fabric does not resolve");
+    FUZZ_CHECK(model && model->fiber_axis_param().empty(), "a fiber model accepted");
+  }
+}
+
 }  // namespace
 }  // namespace loomlight::fuzz
 
@@ -425,6 +465,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     case Rpc::kTabulate: FuzzTabulate(static_cast<v1::TabulateRequest&>(*request), has_fp64); break;
     case Rpc::kRender: FuzzRender(static_cast<v1::RenderRequest&>(*request), has_fp64); break;
     case Rpc::kCreateBtf: FuzzCreateBtf(static_cast<v1::CreateBtfRequest&>(*request)); break;
+    case Rpc::kFitMaterial: FuzzFitMaterial(static_cast<v1::FitMaterialRequest&>(*request)); break;
   }
   return 0;
 }

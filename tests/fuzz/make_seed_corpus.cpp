@@ -21,7 +21,8 @@
 namespace loomlight {
 namespace {
 
-enum RpcByte : char { kEvaluate = 0, kSample = 1, kTabulate = 2, kRender = 3, kNoFp64 = 4, kCreateBtf = 8 };
+enum RpcByte : char { kEvaluate = 0, kSample = 1, kTabulate = 2, kRender = 3, kNoFp64 = 4, kCreateBtf = 8,
+                      kFitMaterial = 16 };
 
 std::filesystem::path out_dir;
 int written = 0;
@@ -322,6 +323,35 @@ void WriteCreateBtfSeeds() {
   Write("create_btf_refused_name", kCreateBtf, r);
 }
 
+// FitMaterial: a preset to a GLB, to MaterialX, colourways with a panel binding on a stored mesh, a fiber model.
+void WriteFitMaterialSeeds() {
+  v1::FitMaterialRequest r;
+  *r.mutable_material() = Preset("silk_shot");
+  r.set_target(v1::FIT_TARGET_GLTF_SHEEN);
+  r.set_format(v1::EXPORT_FORMAT_GLB);
+  r.set_name("silk");
+  Write("fit_gltf_glb", kFitMaterial, r);
+  r.set_target(v1::FIT_TARGET_OPENPBR);
+  r.set_format(v1::EXPORT_FORMAT_MTLX);
+  Write("fit_openpbr_mtlx", kFitMaterial, r);
+  v1::FitMaterialRequest ways;
+  ways.set_target(v1::FIT_TARGET_GLTF_SHEEN);
+  ways.set_format(v1::EXPORT_FORMAT_GLTF);
+  ways.mutable_mesh()->set_name("garment");
+  for (const char* preset : {"cotton_twill", "velvet"}) {
+    v1::Colourway* way = ways.add_colourways();
+    way->set_name(preset);
+    *way->mutable_material() = Preset(preset);
+  }
+  v1::MaterialBinding* binding = ways.mutable_colourways(1)->add_bindings();
+  binding->set_mesh_material("collar");
+  *binding->mutable_material() = Preset("silk_shot");
+  Write("fit_colourways_mesh", kFitMaterial, ways);
+  r.mutable_material()->Clear();
+  r.mutable_material()->set_model("fiber");
+  Write("fit_refused_fiber", kFitMaterial, r);
+}
+
 }  // namespace
 }  // namespace loomlight
 
@@ -338,6 +368,7 @@ int main(int argc, char** argv) {
   loomlight::WriteTabulateSeeds(registry);
   loomlight::WriteRenderSeeds(registry);
   loomlight::WriteCreateBtfSeeds();
+  loomlight::WriteFitMaterialSeeds();
   if (argc == 3) loomlight::WriteWifSeeds(argv[2]);
   std::printf("%d seeds written to %s\n", loomlight::written, argv[1]);
   return 0;

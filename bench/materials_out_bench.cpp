@@ -225,19 +225,35 @@ struct Picture {
   std::string glb_error;
 };
 
-// Pixels whose four corners' rays all hit the sphere: wholly the material, no sky blended in.
-std::vector<size_t> SpherePixels(const render::CameraSpec& spec, double radius, uint32_t side) {
+// The pixels wholly on the sphere (all four corners' rays hit it: no sky blended in), and of those the ones facing
+// the camera (the normal at the pixel centre within 60 degrees of the view) and the rim (the rest): a sheen lobe's
+// shape shows as how it divides its light between them.
+struct SphereRegions {
+  std::vector<size_t> all, facing, rim;
+};
+constexpr double kFacingCos = 0.5;
+
+SphereRegions SpherePixels(const render::CameraSpec& spec, double radius, uint32_t side) {
   const render::PinholeCamera camera(spec, int(side), int(side));
-  const auto hits = [&](double px, double py) {
-    const render::Vec3 d = camera.Direction(px, py), o = camera.position();
-    const double b = render::Dot(o, d), c = render::Dot(o, o) - radius * radius;
-    return b * b - c > 0 && b < 0;
+  const render::Vec3 o = camera.position();
+  // The cosine between the normal and the view where the ray through (px, py) meets the sphere, or -1 on a miss.
+  const auto view_cos = [&](double px, double py) {
+    const render::Vec3 d = camera.Direction(px, py);
+    const double b = render::Dot(o, d), c = render::Dot(o, o) - radius * radius, disc = b * b - c;
+    if (disc <= 0 || b >= 0) return -1.0;
+    const render::Vec3 hit = o + (-b - std::sqrt(disc)) * d;
+    return -render::Dot(hit, d) / radius;
   };
-  std::vector<size_t> pixels;
+  SphereRegions regions;
   for (uint32_t y = 0; y < side; ++y)
-    for (uint32_t x = 0; x < side; ++x)
-      if (hits(x, y) && hits(x + 1, y) && hits(x, y + 1) && hits(x + 1, y + 1)) pixels.push_back(size_t(y) * side + x);
-  return pixels;
+    for (uint32_t x = 0; x < side; ++x) {
+      if (view_cos(x, y) < 0 || view_cos(x + 1, y) < 0 || view_cos(x, y + 1) < 0 || view_cos(x + 1, y + 1) < 0)
+        continue;
+      const size_t pixel = size_t(y) * side + x;
+      regions.all.push_back(pixel);
+      (view_cos(x + 0.5, y + 0.5) >= kFacingCos ? regions.facing : regions.rim).push_back(pixel);
+    }
+  return regions;
 }
 
 std::vector<float> Masked(const std::vector<float>& image, const std::vector<size_t>& pixels) {
@@ -509,30 +525,52 @@ std::string WorstText(const std::vector<SourceFits>& all) {
   return out.empty() ? "" : "The preset each target fits worst:\n\n" + out + "\n";
 }
 
-std::string PictureTable(const std::vector<Picture>& pictures, const render::CameraSpec& camera, double radius,
-                         uint32_t side) {
-  const std::vector<size_t> pixels = SpherePixels(camera, radius, side);
-  Table table({"preset", "images", "PSNR dB", "mean rel. difference", "brightness", "median pixel ratio"}, 2);
+// Image a against image b over the sphere's pixels.
+struct Comparison {
+  bool valid = false;  // both images there
+  ImageError error;
+  double mean_difference = 0, brightness = 0, facing = 0, rim = 0, median_ratio = 0;
+};
+
+Comparison Compared(const std::vector<float>& a, const std::vector<float>& b, const SphereRegions& regions) {
+  Comparison c;
+  if (a.empty() || b.empty()) return c;
+  const std::vector<float> image = Masked(a, regions.all), reference = Masked(b, regions.all);
+  c.valid = true;
+  c.error = Compare(image, reference);
+  c.mean_difference = MeanAbsoluteDifference(image, reference);
+  c.brightness = MeanDifference(image, reference);
+  c.facing = MeanDifference(Masked(a, regions.facing), Masked(b, regions.facing));
+  c.rim = MeanDifference(Masked(a, regions.rim), Masked(b, regions.rim));
+  c.median_ratio = MedianRatio(image, reference);
+  return c;
+}
+
+std::string Signed(double x) { return (x >= 0 ? "+" : "") + Percent(x); }
+
+std::string PictureTable(const std::vector<Picture>& pictures, const SphereRegions& regions) {
+  Table table({"preset", "images", "PSNR dB", "mean rel. difference", "brightness", "facing", "rim",
+               "median pixel ratio"},
+              2);
   for (const Picture& p : pictures) {
-    const std::vector<float> source = Masked(p.source, pixels), fitted = Masked(p.fitted, pixels),
-                             cycles = Masked(p.cycles, pixels);
-    const auto add = [&](const std::string& what, const std::vector<float>& image, const std::vector<float>& ref) {
-      if (image.empty() || ref.empty()) return;
-      const ImageError e = Compare(image, ref);
-      table.Add({p.preset, what, Fixed(e.psnr_db, 1), Fixed(MeanAbsoluteDifference(image, ref), 3),
-                 (MeanDifference(image, ref) >= 0 ? "+" : "") + Percent(MeanDifference(image, ref)),
-                 Fixed(MedianRatio(image, ref), 3)});
+    const auto add = [&](const std::string& what, const std::vector<float>& a, const std::vector<float>& b) {
+      const Comparison c = Compared(a, b, regions);
+      if (!c.valid) return;
+      table.Add({p.preset, what, Fixed(c.error.psnr_db, 1), Fixed(c.mean_difference, 3), Signed(c.brightness),
+                 Signed(c.facing), Signed(c.rim), Fixed(c.median_ratio, 3)});
     };
-    add("Loomlight fit against Loomlight preset (the fit's error)", fitted, source);
-    add("Cycles glTF against Loomlight fit (the viewer's)", cycles, fitted);
-    add("Cycles glTF against Loomlight preset (both)", cycles, source);
+    add("Loomlight fit against Loomlight preset (the fit's error)", p.fitted, p.source);
+    add("Cycles glTF against Loomlight fit (the viewer's)", p.cycles, p.fitted);
+    add("Cycles glTF against Loomlight preset (both)", p.cycles, p.source);
   }
-  return TableBlock("over the " + Count(pixels.size()) +
+  return TableBlock("a against b over the " + Count(regions.all.size()) +
                         " pixels wholly on the sphere (all four corners' rays hit it; the sky behind is the same map "
-                        "in both renderers and left out): PSNR = 10 log10(peak^2 / MSE), peak the second image's "
-                        "largest value there; mean rel. difference = sum |a - b| / sum b over pixels and channels; "
-                        "brightness = sum a / sum b - 1; median pixel ratio = the median over pixels of a pixel's "
-                        "sum over channels of a / b (a typical pixel, which a few fireflies do not move).",
+                        "in both renderers and left out): PSNR = 10 log10(peak^2 / MSE), peak b's largest value "
+                        "there; mean rel. difference = sum |a - b| / sum b over pixels and channels; brightness = "
+                        "sum a / sum b - 1, and the same over the " + Count(regions.facing.size()) +
+                        " pixels facing the camera (normal within 60 degrees of the view) and the " +
+                        Count(regions.rim.size()) + " of the rim (the rest); median pixel ratio = the median over "
+                        "pixels of a pixel's sum over channels of a / b (a typical pixel).",
                     table);
 }
 
@@ -547,8 +585,7 @@ std::string PresetLook(const std::string& preset) {
            "(the pattern's mean), uniform";
   if (preset == "velvet")
     return "the preset is dark where the sphere faces the camera and brightens toward the rim, most along the "
-           "lower and right edges, where the view grazes the cloth and sees its near-vertical pile from the side; "
-           "the fit's sheen brightens toward the rim too, less";
+           "lower and right edges, where the view grazes the cloth and sees its near-vertical pile from the side";
   return "";
 }
 
@@ -557,72 +594,32 @@ double MaxOf(const models::ParamValues& params, const char* name) {
   return p == params.end() || p->second.empty() ? 0 : *std::max_element(p->second.begin(), p->second.end());
 }
 
-// The share of an image's sum (over pixels and channels) that its brightest `fraction` of pixels hold.
-double TopShare(const std::vector<float>& image, double fraction) {
-  std::vector<double> pixels;
-  double total = 0;
-  for (size_t i = 0; i + 2 < image.size(); i += 3) {
-    pixels.push_back(double(image[i]) + image[i + 1] + image[i + 2]);
-    total += pixels.back();
-  }
-  const size_t top = std::min(pixels.size(), size_t(std::ceil(fraction * double(pixels.size()))));
-  std::partial_sort(pixels.begin(), pixels.begin() + top, pixels.end(), std::greater<>());
-  double sum = 0;
-  for (size_t i = 0; i < top; ++i) sum += pixels[i];
-  return total > 0 ? sum / total : 0;
-}
-
-// Fit pairs whose half vector lies within tan(theta_h) < 3 alpha of the normal: where a GGX lobe of that alpha is
-// above 1% of its peak (D / D(0) = 1 / (1 + tan^2 / alpha^2)^2).
-size_t NearMirrorPairs(double alpha) {
-  const fit::FitDirectionSet& d = fit::FitDirections();
-  size_t count = 0;
-  for (size_t k = 0; k < d.size(); ++k) {
-    const double hx = double(d.wi[3 * k]) + d.wo[3 * k], hy = double(d.wi[3 * k + 1]) + d.wo[3 * k + 1],
-                 hz = double(d.wi[3 * k + 2]) + d.wo[3 * k + 2];
-    if (hz > 0 && std::hypot(hx, hy) < 3 * alpha * hz) ++count;
-  }
-  return count;
-}
-
-std::string Signed(double x) { return (x >= 0 ? "+" : "") + Percent(x); }
-
 // How the three images of each picture compare and why: the fit's error (Loomlight's fit against the preset)
 // and the viewer's (Cycles' glTF against Loomlight's fit), with this run's numbers.
-std::string PictureNotes(const std::vector<Picture>& pictures, const std::vector<size_t>& pixels) {
+std::string PictureNotes(const std::vector<Picture>& pictures, const SphereRegions& regions) {
   std::string out;
   for (const Picture& p : pictures) {
     const models::ParamValues& params = p.sheen->params;
-    const double sheen = MaxOf(params, "sheen_color"), base = MaxOf(params, "base_color"),
-                 roughness = MaxOf(params, "roughness");
-    const std::vector<float> source = Masked(p.source, pixels), fitted = Masked(p.fitted, pixels),
-                             cycles = Masked(p.cycles, pixels);
+    const double sheen = MaxOf(params, "sheen_color"), base = MaxOf(params, "base_color");
+    const Comparison fit_error = Compared(p.fitted, p.source, regions), viewer = Compared(p.cycles, p.fitted, regions);
     std::string note = "- `" + p.preset + "`: " + PresetLook(p.preset) + (PresetLook(p.preset).empty() ? "" : "; ") +
-                       "Loomlight's render of the fit against the preset: brightness " +
-                       Signed(MeanDifference(fitted, source)) + ", median pixel ratio " +
-                       Fixed(MedianRatio(fitted, source), 3) + ".";
-    if (base < 0.01 && roughness < 0.05)
-      note += " The fit made the base black and its roughness " + Fixed(roughness, 3) +
-              ": the dielectric specular that a glTF base always has (F0 0.04, ior 1.5) became a near-mirror (GGX "
-              "alpha " + Sci(roughness * roughness) + ", above 1% of its peak at " +
-              std::to_string(NearMirrorPairs(roughness * roughness)) + " of the fit's " +
-              Count(fit::FitDirections().size()) + " pairs), so the stated error barely counts it, while a render sees its mirror direction at every pixel. Cycles "
-              "reflects the sky and the horizon in it (the third panel's mirror band); Loomlight finds that "
-              "reflection through its material's tabulated sampler (`server/models/direction_sampler.h`, 24 x 24 "
-              "view nodes) and the sky map, neither of which resolves a lobe that narrow, so its render shows the "
-              "sun's glint and fireflies instead, far from converged (its brightest 0.1% of the sphere's pixels hold " +
-              Percent(TopShare(fitted, 0.001)) + " of its sum): that, not the sheen, is what its brightness and PSNR "
-              "against the preset measure.";
-    if (!cycles.empty()) {
-      const double brighter = MeanDifference(cycles, fitted), median = MedianRatio(cycles, fitted);
+                       "Loomlight's render of the fit against the preset: brightness " + Signed(fit_error.brightness) +
+                       " (facing the camera " + Signed(fit_error.facing) + ", at the rim " + Signed(fit_error.rim) +
+                       ").";
+    if (viewer.valid) {
+      const std::string against = Signed(viewer.brightness) + " against Loomlight's render of the same fit (facing " +
+                                  Signed(viewer.facing) + ", rim " + Signed(viewer.rim) + ")";
       if (sheen < 0.01)
         note += " The fit leaves the sheen off (sheen_color at most " + Fixed(sheen, 3) +
-                "), so Cycles renders the Principled BSDF alone, and it is " + Signed(brighter) +
-                " against Loomlight's render of the same fit (median pixel ratio " + Fixed(median, 3) +
-                "): Blender 3.4's Principled BSDF adds its GGX specular (Specular 0.5, F0 0.04, as glTF's ior 1.5) "
+                "), so Cycles renders the Principled BSDF alone, and it is " + against +
+                ": Blender 3.4's Principled BSDF adds its GGX specular (Specular 0.5, F0 0.04, as glTF's ior 1.5) "
                 "to a diffuse it does not dim by the specular's Fresnel, where glTF's dielectric BRDF, as the "
                 "gltf_sheen model implements it, leaves the diffuse only 1 - F of the light "
-                "(`kernels/models/gltf_sheen.h`). The fifth panel is that even excess, and both images' noise.";
+                "(`kernels/models/gltf_sheen.h`)" +
+                (viewer.rim > viewer.facing ? "; the excess is larger at the rim, where F is larger (and where the "
+                                              "Principled BSDF's Disney diffuse adds its retro-reflection)"
+                                            : "") +
+                ". The fifth panel is that excess, and both images' noise.";
       else
         note += " Cycles renders the sheen as Blender's Velvet BSDF (Sigma = sheen_roughness " +
                 Fixed(MaxOf(params, "sheen_roughness"), 3) +
@@ -630,8 +627,12 @@ std::string PictureNotes(const std::vector<Picture>& pictures, const std::vector
                 "visibility term, and without the extension's albedo scaling of the base (1 - max(sheen_color) E); " +
                 (base < 0.01 ? "the base is black here, so the scaling does not matter, only the lobe's shape"
                              : "the base is not dimmed, so Cycles is brighter where the sheen is strong") +
-                ". Cycles against Loomlight's fit: brightness " + Signed(brighter) + ", median pixel ratio " +
-                Fixed(median, 3) + ".";
+                ". Cycles is " + against + ": " +
+                (viewer.rim > viewer.facing ? "the Velvet lobe puts more of its light toward grazing views than "
+                                              "the Charlie sheen of the same roughness, less facing the camera"
+                                            : "the Velvet lobe puts less of its light toward grazing views than "
+                                              "the Charlie sheen of the same roughness, more facing the camera") +
+                " (the fifth panel's ring).";
     }
     out += note + "\n";
   }
@@ -707,6 +708,7 @@ std::string MaterialsOutSection(const Sizes& sizes) {
                     " s (fit), Cycles " + Fixed(p.cycles_seconds, 2) + " s.\n";
   }
 
+  const SphereRegions regions = SpherePixels(camera, radius, n.side);
   std::string skipped_text;
   for (const std::string& s : skipped) skipped_text += (skipped_text.empty() ? "" : "; ") + s;
   const std::string method =
@@ -742,10 +744,10 @@ std::string MaterialsOutSection(const Sizes& sizes) {
                  FitTable(all) + "\n" + WorstText(all) + BaselineTable(all) + "\n" +
                      (pictures.empty() ? ""
                                        : "The side-by-side (the gltf_sheen fit):\n\n" + picture_text + "\n" +
-                                             PictureTable(pictures, camera, radius, n.side) + "\n" +
+                                             PictureTable(pictures, regions) + "\n" +
                                              "How they compare, and why (from looking at this run's pictures; the "
                                              "numbers over the sphere's pixels as in the table):\n\n" +
-                                             PictureNotes(pictures, SpherePixels(camera, radius, n.side))));
+                                             PictureNotes(pictures, regions)));
 }
 
 }  // namespace loomlight::bench

@@ -108,26 +108,16 @@ LL_INLINE real gs_charlie_visibility(LL_GLOBAL const scalar* fit, real mu_i, rea
   return R(1.0) / ((R(1.0) + gs_lambda(fit, mu_o) + gs_lambda(fit, mu_i)) * (R(4.0) * mu_o * mu_i));
 }
 
-// E(mu) from the packed slice, linear between nodes uniform in sqrt(mu).
+// E(mu) from the packed slice.
 LL_INLINE real gs_albedo(LL_GLOBAL const scalar* mat, real mu) {
-  const real last = R(1.0) * (GS_ALBEDO_NODES - 1);
-  const real t = sqrt(mu) * last;
-  const real k = LL_FMIN(floor(t), last - R(1.0));
-  const real u = t - k;
-  const real at = R(1.0) * GS_ALBEDO_AT + k;
-  return (R(1.0) - u) * ll_gather(mat, at) + u * ll_gather(mat, at + R(1.0));
+  return ll_sqrt_mu_lookup(mat, GS_ALBEDO_AT, GS_ALBEDO_NODES, mu);
 }
 
 // f(wi, wo) for one query (RGB into f[0..2]); the launch-uniform value is unused.
 LL_INLINE void gs_eval(LL_GLOBAL const scalar* mat, int uniform, real wix, real wiy, real wiz, real wox, real woy,
                        real woz, real* f) {
-  ll_normalize(&wix, &wiy, &wiz);
-  ll_normalize(&wox, &woy, &woz);
-  const mask live = wiz > LL_HORIZON_EPS && woz > LL_HORIZON_EPS;
-  const real mu_i = live ? wiz : R(1.0), mu_o = live ? woz : R(1.0);  // dead lanes keep every division finite
-  const real hx = wix + wox, hy = wiy + woy, hz = mu_i + mu_o;
-  const real h2 = hx * hx + hy * hy + hz * hz;  // = 2 + 2 wi.wo, >= hz^2 > 0
-  const real sin2h = (hx * hx + hy * hy) / h2, cos2h = hz * hz / h2;
+  real mu_i, mu_o, h2, sin2h, cos2h;
+  const mask live = ll_microfacet_pair(&wix, &wiy, &wiz, &wox, &woy, &woz, &mu_i, &mu_o, &h2, &sin2h, &cos2h);
   const real v_dot_h = R(0.5) * sqrt(h2);
   const real q = R(1.0) - v_dot_h, q2 = q * q;
   const real fresnel = R(0.04) + R(0.96) * (q2 * q2 * q);

@@ -47,14 +47,9 @@ LL_INLINE real op_fuzz_albedo(LL_GLOBAL const scalar* mat, real mu_o) {
   return LL_FMIN(LL_FMAX(r, R(0.0)), R(1.0));
 }
 
-// E_spec(mu) from the packed slice, linear between nodes uniform in sqrt(mu).
+// E_spec(mu) from the packed slice.
 LL_INLINE real op_specular_albedo(LL_GLOBAL const scalar* mat, real mu) {
-  const real last = R(1.0) * (OP_ALBEDO_NODES - 1);
-  const real t = sqrt(mu) * last;
-  const real k = LL_FMIN(floor(t), last - R(1.0));
-  const real u = t - k;
-  const real at = R(1.0) * OP_ALBEDO_AT + k;
-  return (R(1.0) - u) * ll_gather(mat, at) + u * ll_gather(mat, at + R(1.0));
+  return ll_sqrt_mu_lookup(mat, OP_ALBEDO_AT, OP_ALBEDO_NODES, mu);
 }
 
 // Zeltner et al.'s rational fits (MaterialX's mx_zeltner_sheen_ltc_aInv, _bInv) of the inverse LTC matrix's
@@ -86,13 +81,8 @@ LL_INLINE real op_fuzz_lobe(scalar y, real wix, real wiy, real wiz, real wox, re
 // f(wi, wo) for one query (RGB into f[0..2]); the launch-uniform value is unused.
 LL_INLINE void op_eval(LL_GLOBAL const scalar* mat, int uniform, real wix, real wiy, real wiz, real wox, real woy,
                        real woz, real* f) {
-  ll_normalize(&wix, &wiy, &wiz);
-  ll_normalize(&wox, &woy, &woz);
-  const mask live = wiz > LL_HORIZON_EPS && woz > LL_HORIZON_EPS;
-  const real mu_i = live ? wiz : R(1.0), mu_o = live ? woz : R(1.0);  // dead lanes keep every division finite
-  const real hx = wix + wox, hy = wiy + woy, hz = mu_i + mu_o;
-  const real h2 = hx * hx + hy * hy + hz * hz;  // = 2 + 2 wi.wo, >= hz^2 > 0
-  const real sin2h = (hx * hx + hy * hy) / h2, cos2h = hz * hz / h2;
+  real mu_i, mu_o, h2, sin2h, cos2h;
+  const mask live = ll_microfacet_pair(&wix, &wiy, &wiz, &wox, &woy, &woz, &mu_i, &mu_o, &h2, &sin2h, &cos2h);
   const real fresnel = ll_fresnel_dielectric(mat[4], LL_FMIN(R(0.5) * sqrt(h2), R(1.0)));  // V.H = |wi + wo| / 2
   const real specular = fresnel * ll_ggx_d(mat[3], cos2h, sin2h) * ll_ggx_visibility(mat[3], mu_i, mu_o);
   const real diffuse_share = R(1.0) - op_specular_albedo(mat, mu_o);

@@ -494,7 +494,7 @@ std::string BaselineTable(const std::vector<SourceFits>& all) {
 }
 
 std::string WorstText(const std::vector<SourceFits>& all) {
-  std::string out;
+  std::string out, explained_model, explained_for;  // a model's explanation is given once
   for (const char* target : kTargets) {
     const SourceFits* worst = nullptr;
     const FitRow* worst_row = nullptr;
@@ -519,8 +519,15 @@ std::string WorstText(const std::vector<SourceFits>& all) {
     out += "- **" + std::string(target) + "** fits `" + worst->source.preset + "` (" + worst->source.model->name() +
            ") worst: error " + Fixed(r.error, 3) + ". Where: " + regions + ". Its anisotropy is " +
            Fixed(worst->anisotropy, 3) + " (" + Percent(worst->anisotropy / std::max(r.error, 1e-12)) +
-           " of the fit's error). Why: " + ModelExplanation(worst->source.model->name()) + "." +
-           TangentCurves(worst->source.values) + "\n";
+           " of the fit's error). Why: " +
+           (worst->source.model->name() == explained_model
+                ? "as for " + explained_for + "."
+                : ModelExplanation(worst->source.model->name()) + "." + TangentCurves(worst->source.values)) +
+           "\n";
+    if (explained_model.empty()) {
+      explained_model = worst->source.model->name();
+      explained_for = target;
+    }
   }
   return out.empty() ? "" : "The preset each target fits worst:\n\n" + out + "\n";
 }

@@ -396,6 +396,7 @@ BlenderRun RenderCycles(const MaterialsOutSizes& n, const render::CameraSpec& ca
 // |fit - preset| and |Cycles - fit|, the differences times kDifferenceGain.
 constexpr float kDifferenceGain = 4;
 
+// Writes them to `path` ("": only the exposure) and sets *exposure.
 std::string WritePanels(const Picture& p, uint32_t side, const std::string& path, double* exposure) {
   const std::vector<float> empty(size_t{3} * side * side, 0.0f);
   const std::vector<float>& cycles = p.cycles.empty() ? empty : p.cycles;
@@ -413,6 +414,7 @@ std::string WritePanels(const Picture& p, uint32_t side, const std::string& path
       std::copy_n(panels[k]->begin() + 3 * size_t(y) * side, 3 * side,
                   image.rgb.begin() + 3 * (size_t(y) * image.width + k * side));
   *exposure = imaging::AutomaticExposure({int(side), int(side), p.source});
+  if (path.empty()) return "";
   std::string png;
   double used = 0;
   if (std::string e = render::EncodeRendered(image, nullptr, imaging::Background::kScene, imaging::ImageFormat::kPng,
@@ -694,8 +696,9 @@ std::string MaterialsOutSection(const Sizes& sizes) {
   for (const Picture& p : pictures) {
     const std::string file = "docs/images/materials-out-" + p.preset + ".png";
     double exposure = 0;
-    if (std::string e = WritePanels(p, n.side, std::string(LOOMLIGHT_SOURCE_DIR) + "/" + file, &exposure);
-        !e.empty()) {
+    // A --quick run's small pictures would replace the committed ones: it writes none.
+    const std::string path = sizes.quick ? "" : std::string(LOOMLIGHT_SOURCE_DIR) + "/" + file;
+    if (std::string e = WritePanels(p, n.side, path, &exposure); !e.empty()) {
       picture_text += "- `" + p.preset + "`: no picture (" + e + ").\n";
       continue;
     }
@@ -707,7 +710,8 @@ std::string MaterialsOutSection(const Sizes& sizes) {
         fitted += Fixed(values[i], 3);
       }
     }
-    picture_text += "- `" + p.preset + "` ([" + file.substr(5) + "](" + file.substr(5) + "), exposure " +
+    picture_text += "- `" + p.preset + "` (" +
+                    (path.empty() ? "--quick: no picture written" : "[" + file + "](../" + file + ")") + ", exposure " +
                     Fixed(exposure, 2) + "): the fit " + fitted + " (error " + Fixed(p.sheen->error, 3) + ")" +
                     (p.glb_error.empty() ? "" : "; its glTF could not be written: " + p.glb_error) +
                     (p.cycles_nodes.empty() ? "" : "; Cycles rendered " + p.cycles_nodes) +

@@ -139,6 +139,12 @@ mm_args=(--variant=apt --mode=root --format=directory)
 for f in "${apt_conf[@]}"; do mm_args+=("--aptopt=$f"); done
 # A machine whose mirror is https has ca-certificates; so must the root, or apt there cannot verify it.
 grep -qs 'https://' "${sources[@]}" && mm_args+=(--include=ca-certificates)
+# This machine's own certificate authorities (an egress proxy's, in /usr/local/share/ca-certificates) go into the
+# root's trust store, as its apt configuration does: the tests fetch the glTF validator from npm's registry over
+# https, through whatever this machine's traffic passes.
+local_cas=()
+for f in /usr/local/share/ca-certificates/*.crt; do [ -f "$f" ] && local_cas+=("$f"); done
+((${#local_cas[@]})) && mm_args+=(--include=ca-certificates)
 log "apt sources: ${sources[*]}"
 log "apt configuration: ${apt_conf[*]:-none}"
 
@@ -154,6 +160,12 @@ mkdir -p "$root$inner"
 [ ! -e "$root$inner/build" ] || die "a build/ directory was copied into the root"
 log "copied $(find "$root$inner" -type f | wc -l) files of $repo to $inner"
 
+if ((${#local_cas[@]})); then
+  cp "${local_cas[@]}" "$root/usr/local/share/ca-certificates/"
+  chroot "$root" update-ca-certificates >/dev/null
+  log "trusts this machine's certificate authorities: ${local_cas[*]}"
+fi
+
 # ---- 3. Kernel file systems ----
 mount -t proc proc "$root/proc"
 mount --bind /sys "$root/sys"
@@ -166,6 +178,8 @@ in_root_env=(env -i HOME=/root LANG=C.UTF-8 TERM="${TERM:-dumb}" PATH=/usr/local
 for v in http_proxy https_proxy no_proxy HTTP_PROXY HTTPS_PROXY NO_PROXY; do
   [ -n "${!v:-}" ] && in_root_env+=("$v=${!v}")
 done
+# Node (npm) reads its own CA bundle; the root's store, with this machine's authorities, is added to it.
+((${#local_cas[@]})) && in_root_env+=(NODE_EXTRA_CA_CERTS=/etc/ssl/certs/ca-certificates.crt)
 in_root() { chroot "$root" "${in_root_env[@]}" /bin/bash -c "$1"; }
 
 # ---- 4. The README's test command (installs the dependencies first, then builds and runs CTest) ----

@@ -5,6 +5,12 @@
 // the peak 1 / (pi alpha^2) = 3.2e7 keeps f finite in float at every pair, grazing included.
 #define LL_GGX_ALPHA_MIN 1e-4
 
+// A material's GGX alpha from its roughness, alpha = roughness^2 floored at LL_GGX_ALPHA_MIN: what both standard
+// lobes pack. Host side (packing).
+#ifndef __OPENCL_C_VERSION__
+LL_INLINE scalar ll_ggx_alpha(scalar roughness) { return LL_FMAX(roughness * roughness, LL_GGX_ALPHA_MIN); }
+#endif
+
 // D(h) = alpha^2 / (pi (cos^2 theta_h (alpha^2 - 1) + 1)^2), the bracket written sin^2 + alpha^2 cos^2 so that
 // the peak survives alpha^2 below float's epsilon (1 + (alpha^2 - 1) rounds to 0 there).
 LL_INLINE real ll_ggx_d(scalar alpha2, real cos2h, real sin2h) {

@@ -101,7 +101,7 @@ class GltfSheenModel : public Model {
     m.data.assign(GS_PACKED_SIZE, 0.0);
     const std::vector<double>& base = v.at("base_color");
     const std::vector<double>& sheen = v.at("sheen_color");
-    const double alpha_b = std::max(v.at("roughness")[0] * v.at("roughness")[0], LL_GGX_ALPHA_MIN);
+    const double alpha_b = gs_layout::ll_ggx_alpha(v.at("roughness")[0]);
     const double sheen_roughness = v.at("sheen_roughness")[0];
     for (int c = 0; c < 3; ++c) m.data[c] = base[c] / M_PI;
     m.data[3] = alpha_b * alpha_b;

@@ -24,7 +24,6 @@ constexpr int kRoughnessNodes = 33;  // specular_roughness uniform on [0, 1]
 constexpr int kIorNodes = 17;
 constexpr int kQuadratureNodes = 48;
 
-double SpecularAlpha(double roughness) { return std::max(roughness * roughness, LL_GGX_ALPHA_MIN); }
 double IorCoordinate(double eta) { return std::sqrt((eta - 1) / 2); }
 
 // The directional albedo of f_spec at cosine mu: the kernel's own Fresnel and G2 / (4 N.L N.V) (double build).
@@ -52,7 +51,8 @@ const AlbedoTable& SpecularAlbedoTable() {
     for (int j = 0; j < kIorNodes; ++j) t.ior.push_back(1 + 2 * std::pow(double(j) / (kIorNodes - 1), 2));
     t.mu = standard::SqrtSpacedCosines(OP_ALBEDO_NODES, LL_HORIZON_EPS);
     t.values = standard::ParallelTable(kIorNodes * kRoughnessNodes, OP_ALBEDO_NODES, [&](int row, int k) {
-      return SpecularAlbedo(SpecularAlpha(t.roughness[row % kRoughnessNodes]), t.ior[row / kRoughnessNodes], t.mu[k]);
+      const double alpha = op_layout::ll_ggx_alpha(t.roughness[row % kRoughnessNodes]);
+      return SpecularAlbedo(alpha, t.ior[row / kRoughnessNodes], t.mu[k]);
     });
     return t;
   }();
@@ -124,7 +124,7 @@ class OpenPbrModel : public Model {
     const double roughness = v.at("specular_roughness")[0], eta = v.at("specular_ior")[0];
     const double fuzz_weight = v.at("fuzz_weight")[0];
     for (int c = 0; c < 3; ++c) m.data[c] = base[c] / M_PI;
-    m.data[3] = std::pow(SpecularAlpha(roughness), 2);
+    m.data[3] = std::pow(op_layout::ll_ggx_alpha(roughness), 2);
     m.data[4] = eta;
     for (int c = 0; c < 3; ++c) m.data[5 + c] = fuzz_weight * fuzz[c];
     m.data[8] = fuzz_weight;

@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <future>
 #include <thread>
 
 #include "server/models/slab/adding_doubling.h"
+#include "server/runtime/parallel_for.h"
 
 namespace loomlight::models::standard {
 
@@ -38,14 +38,9 @@ std::vector<double> SqrtSpacedCosines(int count, double first) {
 
 std::vector<double> ParallelTable(int outer, int inner, const std::function<double(int, int)>& value) {
   std::vector<double> table(size_t(outer) * inner);
-  const int workers = std::max(1, std::min<int>(outer, std::thread::hardware_concurrency()));
-  std::vector<std::future<void>> done;
-  for (int t = 0; t < workers; ++t)
-    done.push_back(std::async(std::launch::async, [&, t] {
-      for (int i = t; i < outer; i += workers)
-        for (int k = 0; k < inner; ++k) table[size_t(i) * inner + k] = value(i, k);
-    }));
-  for (auto& d : done) d.get();
+  runtime::ParallelFor(size_t(outer), int(std::thread::hardware_concurrency()), {}, [&](size_t i) {
+    for (int k = 0; k < inner; ++k) table[i * inner + k] = value(int(i), k);
+  });
   return table;
 }
 

@@ -95,19 +95,18 @@ class FitCall : public std::enable_shared_from_this<FitCall> {
   // The mesh (if any) and who wears which fabric, distinct fabrics fitted once.
   grpc::Status Assign() {
     if (!target_) return {grpc::StatusCode::INTERNAL, "the server has no model " + std::string(TargetModel(request_.target()))};
-    std::vector<std::string> slots{""};  // the preview sphere's, or the MaterialX document's one
+    slots_ = {""};  // the preview sphere's, or the MaterialX document's one
     if (request_.has_mesh()) {
       const auto stop = ReportingProgress([this] { return !Stopped().ok(); });
       if (grpc::Status s = LoadMeshSource(deps_, request_.mesh(), stop, &admission_, &mesh_); !s.ok()) {
         grpc::Status stopped = Stopped();
         return stopped.ok() ? s : stopped;
       }
-      slots = mesh_->material_names;
+      slots_ = mesh_->material_names;
       if (!admission_.bytes.Grow(kExportBaseBytes + kExportBytesPerTriangle * mesh_->triangles.size()))
         return {grpc::StatusCode::RESOURCE_EXHAUSTED,
                 "mesh: its export needs more than this client's share of the server's memory budget now"};
     }
-    slots_ = slots;
     std::map<std::string, int> fabric_of_bytes;
     // A slot wears its binding's fabric, else the fallback (`material`, or the colourway's).
     const auto assign = [&](int colourway, const v1::Material* fallback,

@@ -17,6 +17,8 @@ packages=(
   fonts-dejavu-core
   haproxy
   python3
+  python3-grpcio python3-protobuf python3-numpy python3-openimageio  # the Python package (python/) and its tests
+  python3-pytest python3-venv python3-pip python3-setuptools python3-wheel
   nodejs
 )
 # npm installs the Khronos glTF validator the tests run (tests/gltf). A NodeSource nodejs brings its own npm, which

@@ -236,7 +236,12 @@ class Fit:
 
 def _message_dicts(messages):
     from google.protobuf.json_format import MessageToDict
-    return [MessageToDict(m, preserving_proto_field_name=True, including_default_value_fields=True) for m in messages]
+    try:  # protobuf 5.26 renamed the option that keeps zero-valued fields (an error of 0 stays in the report)
+        return [MessageToDict(m, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
+                for m in messages]
+    except TypeError:  # protobuf before 5.26 (Debian bookworm's 3.21)
+        return [MessageToDict(m, preserving_proto_field_name=True, including_default_value_fields=True)
+                for m in messages]
 
 
 class Client:

@@ -2,7 +2,7 @@
 //   node gateway/main.mjs [--listen HOST:PORT] [--upstream HOST:PORT] [--upstream-tls-ca FILE]
 //                         [--upstream-server-name NAME] [--static DIR]
 // Prints "loomlight-gateway: the page is at http://HOST:PORT/" once it listens (port 0: a free one).
-import { readFileSync } from "node:fs";
+import { existsSync, readFileSync } from "node:fs";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
 import { parseArgs } from "node:util";
@@ -52,6 +52,9 @@ if (values["upstream-tls-ca"]) {
   } catch (error) {
     fail(`--upstream-tls-ca: ${error.message}`);
   }
+}
+if (!existsSync(join(values.static, "index.html"))) {
+  fail(`--static: no index.html in ${values.static.slice(0, 200)} (build the page: cd web && npm ci && npm run build)`);
 }
 const server = createGatewayServer({
   upstream: `${ca ? "https" : "http"}://${values.upstream}`,

@@ -9,7 +9,10 @@ Conventions (docs/contributing.md, "Docs"):
 - Commands are written as run from the repository root: `build/...` (e.g. `build/loomlight`,
   `build/loomlight-server`, `build/bench/loomlight_bench`) becomes the build directory under test; each doc file's commands run in order, in a temporary directory of that file's own,
   which links the repository's read-only folders (deploy, docs, proto, tests) so paths like
-  deploy/environments/sunset.exr resolve, and outputs land in the temporary directory.
+  deploy/environments/sunset.exr resolve, and outputs land in the temporary directory. python/ is copied there
+  instead (without build outputs), so that `pip install ./python` builds in the copy, not in the source tree.
+- `python3` in a command is the interpreter of the Python package: $LOOMLIGHT_PYTHON, else Debian's
+  /usr/bin/python3 where it exists (another python3 first on PATH, e.g. pyenv's, may lack grpc), else this one.
 - One server serves every file (README.md first, then docs/ in name order), started on a free port with its
   own temporary data directory and the shipped environment maps; LOOMLIGHT_SERVER names it to the client.
 - An image a doc shows, `![... (WxH)](path.png)`, must be a committed PNG that decodes to W x H pixels, and a
@@ -48,6 +51,7 @@ HEADING = re.compile(r"^#+ (.+)$", re.M)
 SOURCE_PATH = re.compile(r"(?<![\w./$-])((?:bench|client|cmake|deploy|docs|kernels|proto|scripts|server|tests)/"
                          r"[\w./*{},-]*[\w*}/])")
 LINKED_FOLDERS = ("deploy", "docs", "proto", "tests")
+COPIED_FOLDERS = ("python",)
 COMMAND_TIMEOUT_S = 600
 
 
@@ -257,7 +261,12 @@ def main():
     started = time.monotonic()
     process, target = start_server(server, client, root, work)
     print(f"server at {target} ({time.monotonic() - started:.1f} s to SERVING)", flush=True)
-    environment = dict(os.environ, LOOMLIGHT_SERVER=target)
+    python = os.environ.get("LOOMLIGHT_PYTHON") or ("/usr/bin/python3" if os.path.exists("/usr/bin/python3")
+                                                    else sys.executable)
+    os.makedirs(os.path.join(work, "bin"))
+    os.symlink(python, os.path.join(work, "bin", "python3"))
+    environment = dict(os.environ, LOOMLIGHT_SERVER=target,
+                       PATH=os.path.join(work, "bin") + os.pathsep + os.environ.get("PATH", ""))
     environment.pop("LOOMLIGHT_TOKEN", None)
     failures, ran, skipped = [], 0, []
     try:
@@ -267,6 +276,9 @@ def main():
                 os.makedirs(directory)
                 for folder in LINKED_FOLDERS:
                     os.symlink(os.path.join(root, folder), os.path.join(directory, folder))
+                for folder in COPIED_FOLDERS:
+                    shutil.copytree(os.path.join(root, folder), os.path.join(directory, folder), symlinks=True,
+                                    ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__", "v1"))
             for line, command in block.commands:
                 where = f"{block.path}:{line}"
                 if block.skip_reason is not None:

@@ -193,13 +193,16 @@ class Rendering:
     samples_per_pixel: tuple    # (fewest, most)
     seconds: Dict[str, float]   # setup, kernel, total
     response: Any = field(repr=False)
+    background: str = "environment"  # the request's: "environment", "white" or "transparent"
 
     def _repr_png_(self):
-        if isinstance(self.image, np.ndarray):
-            return _images.encode_png(self.image)
-        if self.format == "png":
-            return self.image
-        return _images.encode_png(_images.decode(self.image, _images._suffix(self.image)))
+        if not isinstance(self.image, np.ndarray):
+            return _images.png_from_encoded(self.image)
+        # Exposed as the server exposes its 8-bit renders; a white background (pixels of exactly 1) does not count.
+        weights = None
+        if self.image.shape[2] == 3 and self.background == "white":
+            weights = (~np.all(self.image == 1.0, axis=2)).astype(np.float32)
+        return _images.encode_png(self.image, weights=weights)
 
 
 @dataclass
@@ -534,7 +537,7 @@ class Client:
                          _message_dicts(last.rungs), tuple(last.mean), last.fill,
                          (last.min_samples_per_pixel, last.max_samples_per_pixel),
                          {"setup": last.setup_seconds, "kernel": last.kernel_seconds, "total": last.total_seconds},
-                         last)
+                         last, pb.Background.Name(request.background).split("_", 1)[1].lower())
 
     # ---- yarn ----
 

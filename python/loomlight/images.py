@@ -34,7 +34,9 @@ def decode(data, suffix=".exr"):
     oiio = _oiio()
 
     def read(path):
-        image = oiio.ImageInput.open(path)
+        config = oiio.ImageSpec()
+        config.attribute("oiio:UnassociatedAlpha", 1)  # the pixels as stored: PNG's alpha is not multiplied in
+        image = oiio.ImageInput.open(path, config)
         if image is None:
             raise ValueError(f"not an image the server writes: {oiio.geterror()}")
         try:
@@ -60,32 +62,69 @@ def linear_to_srgb(linear):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
 
 
-def encode_png(linear, exposure=None):
-    """A linear float image as PNG bytes: scaled by exposure (default: 1 over the 99th percentile of the
-    brightest channel, as the server's automatic exposure), then sRGB-encoded to 8 bits."""
+def automatic_exposure(rgb, weights=None):
+    """0.18 / the geometric mean luminance of the pixels that are not black (each counted by its weight: coverage,
+    or 0 for background), as the server exposes Render's 8-bit images (server/render/tone_map.h); 1 if none."""
+    luminance = rgb[..., 0] * 0.2126 + rgb[..., 1] * 0.7152 + rgb[..., 2] * 0.0722
+    weight = np.ones_like(luminance) if weights is None else np.clip(weights, 0.0, 1.0)
+    use = (luminance > 1e-8) & np.isfinite(luminance) & (weight > 0)
+    if not np.any(use):
+        return 1.0
+    exposure = 0.18 / np.exp(np.sum(weight[use] * np.log(luminance[use])) / np.sum(weight[use]))
+    return float(exposure) if np.isfinite(exposure) and exposure > 0 else 1.0
+
+
+def aces_filmic(x):
+    """The ACES filmic fit the server's Render uses (Narkowicz 2015), into [0, 1]."""
+    x = np.maximum(np.nan_to_num(np.asarray(x, dtype=np.float64), nan=0.0, posinf=1e30), 0.0)
+    return np.clip(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0)
+
+
+def _write_png(encoded):
     oiio = _oiio()
-    pixels = np.asarray(linear, dtype=np.float32)
-    if pixels.ndim == 2:
-        pixels = pixels[:, :, None]
-    colour = pixels[:, :, :3]
-    if exposure is None:
-        peak = float(np.percentile(colour.max(axis=2), 99)) if colour.size else 0.0
-        exposure = 1.0 / peak if peak > 0 else 1.0
-    encoded = linear_to_srgb(colour * exposure)
-    if pixels.shape[2] == 4:  # keep the alpha (coverage) as it is
-        encoded = np.concatenate([encoded, np.clip(pixels[:, :, 3:4], 0, 1)], axis=2)
-    encoded = np.ascontiguousarray(np.round(encoded * 255.0).astype(np.uint8))
     height, width, channels = encoded.shape
 
     def write(path):
         output = oiio.ImageOutput.create(path)
-        output.open(path, oiio.ImageSpec(width, height, channels, oiio.UINT8))
-        output.write_image(encoded)
+        spec = oiio.ImageSpec(width, height, channels, oiio.UINT8)
+        spec.attribute("oiio:UnassociatedAlpha", 1)  # the colour is the product's own, not multiplied by alpha
+        output.open(path, spec)
+        output.write_image(np.ascontiguousarray(encoded))
         output.close()
         with open(path, "rb") as f:
             return f.read()
 
     return _with_file(b"", ".png", write)
+
+
+def encode_png(linear, exposure=None, weights=None):
+    """A linear float image as PNG bytes, tone-mapped as the server maps Render's 8-bit images: exposure (default:
+    automatic_exposure over the pixels, each counted by `weights`, or by the alpha channel when there is one), the
+    ACES filmic curve, the sRGB curve. An alpha channel is kept as it is."""
+    pixels = np.asarray(linear, dtype=np.float32)
+    if pixels.ndim == 2:
+        pixels = pixels[:, :, None]
+    if pixels.shape[2] == 1:
+        pixels = np.repeat(pixels, 3, axis=2)
+    colour = pixels[:, :, :3]
+    alpha = pixels[:, :, 3] if pixels.shape[2] == 4 else None
+    if exposure is None:
+        exposure = automatic_exposure(colour, weights if weights is not None else alpha)
+    encoded = linear_to_srgb(aces_filmic(colour * exposure))
+    if alpha is not None:
+        encoded = np.concatenate([encoded, np.clip(alpha[:, :, None], 0, 1)], axis=2)
+    return _write_png(np.round(encoded * 255.0).astype(np.uint8))
+
+
+def png_from_encoded(data):
+    """An 8-bit image the server encoded (PNG, JPEG, WebP) as PNG bytes, its pixels as they are (already
+    tone-mapped and sRGB-encoded); an EXR (linear) is tone-mapped by encode_png."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        return bytes(data)
+    suffix = _suffix(data)
+    if suffix == ".exr":
+        return encode_png(decode(data, suffix))
+    return _write_png(np.round(np.clip(decode(data, suffix), 0.0, 1.0) * 255.0).astype(np.uint8))
 
 
 class DisplayImage:
@@ -105,9 +144,7 @@ def display(image, exposure=None):
     if callable(png) and not isinstance(image, np.ndarray):
         shown = DisplayImage(png())
     elif isinstance(image, (bytes, bytearray)):
-        if image[:8] != b"\x89PNG\r\n\x1a\n":
-            image = encode_png(decode(bytes(image), _suffix(bytes(image))), exposure)
-        shown = DisplayImage(bytes(image))
+        shown = DisplayImage(png_from_encoded(bytes(image)))
     else:
         shown = DisplayImage(encode_png(image, exposure))
     try:

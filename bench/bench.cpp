@@ -56,6 +56,7 @@ struct Args {
   std::string out = std::string(LOOMLIGHT_SOURCE_DIR) + "/bench/report.md";
   bool quick = false;
   bool help = false;
+  bool calibration = false;  // print the CPU calibration loop's time alone (reports written by other tools)
   std::set<std::string> only;  // section names; empty: all
 };
 
@@ -77,14 +78,16 @@ std::string SectionName(const std::string& name) {
 
 void Usage(const char* argv0, const Args& defaults) {
   std::fprintf(stderr,
-               "usage: %s [--out FILE] [--quick] [--only SECTIONS]\n  --out FILE  report path (default %s)\n"
+               "usage: %s [--out FILE] [--quick] [--only SECTIONS] | --calibration\n  --out FILE  report path (default %s)\n"
                "  --quick     small sizes, a smoke run of a few seconds\n"
                "  --only SECTIONS  comma-separated, of: kernel (every model; aliases woven, transmission), sweep\n"
                "              (accuracy knobs), service, service-cpu, slice, tabulate, render, noise, fair-share, btf,\n"
                "              tabulated (tabulated BRDFs against the analytic model), product (a garment against\n"
                "              Blender Cycles), fabrics (a tartan draft's colours, a knit at fiber level), materials-out\n"
                "              (every preset fitted to glTF sheen and OpenPBR fuzz, fitted glTF in Cycles)\n"
-               "              (a partial report: give it its own --out)\n",
+               "              (a partial report: give it its own --out)\n"
+               "  --calibration  print the milliseconds of the fixed CPU calibration loop every report starts with\n"
+               "              (for reports other tools write, e.g. web/bench/studio-latency.mjs)\n",
                argv0, defaults.out.c_str());
 }
 
@@ -104,6 +107,8 @@ bool ParseArgs(int argc, char** argv, Args* args) {
         }
         args->only.insert(section);
       }
+    } else if (!std::strcmp(argv[i], "--calibration")) {
+      args->calibration = true;
     } else if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
       args->help = true;
     } else {
@@ -145,6 +150,10 @@ int main(int argc, char** argv) {
   if (!parsed || args.help) {
     Usage(argv[0], Args());
     return parsed ? 0 : 2;
+  }
+  if (args.calibration) {
+    std::printf("%.0f\n", CalibrationMilliseconds());
+    return 0;
   }
   const Sizes sizes = args.quick ? Sizes::Quick() : Sizes::Full();
   const CpuSnapshot start = CpuSnapshot::Now();

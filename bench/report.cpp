@@ -157,6 +157,8 @@ std::string UtcNow() {
   return buf;
 }
 
+}  // namespace
+
 // A fixed single-thread loop (2^26 dependent steps of an xorshift and a multiply-add), best of 3, in
 // milliseconds: the same work on every run, so times in reports of different days can be put on one scale.
 double CalibrationMilliseconds() {
@@ -177,8 +179,6 @@ double CalibrationMilliseconds() {
   }
   return best;
 }
-
-}  // namespace
 
 std::string MachineDescription(const std::string& cl_platform, const std::string& cl_device, bool quick) {
   utsname u{};

@@ -33,6 +33,9 @@ std::string Millis(double seconds);         // latency in ms, 3 significant digi
 std::string Count(size_t n);                // 1,048,576
 
 // Machine, OpenCL device, compiler, source revision and date, as a markdown bullet list.
+// The fixed CPU calibration loop every report starts with, in milliseconds (best of 3).
+double CalibrationMilliseconds();
+
 std::string MachineDescription(const std::string& cl_platform, const std::string& cl_device, bool quick);
 
 }  // namespace loomlight::bench

@@ -36,10 +36,9 @@ rendering  # a cell's last value: Jupyter calls rendering._repr_png_() and draws
 
 # %%
 # The same as a float32 linear array (format "array", read from the server's EXR; needs OpenImageIO's Python
-# module), for pixel arithmetic. A transparent background gives a fourth channel, the coverage: the product's
-# pixels alone set loomlight.display's exposure (1 / the 99th percentile), where a white background (1.0 in
-# linear) would set it and leave the product dark. display draws it linearly scaled, then sRGB-encoded, without
-# the server's filmic curve: a plainer picture than the PNG above.
+# module), for pixel arithmetic. A transparent background gives a fourth channel, the coverage, which weighs each
+# pixel in loomlight.display's exposure, so the empty frame does not; display tone-maps as the server does its
+# 8-bit renders (that exposure, the ACES curve, sRGB), so it looks like the PNG above.
 linear = client.render(args.preset, args.scene, width=args.size, height=args.size, format="array",
                        background="transparent", lighting="studio")
 product = linear.image[..., 3] > 0.5

@@ -10,7 +10,7 @@ import { wireDownloads } from "./downloads.js";
 import { MaterialState } from "./material.js";
 import { initTimings, timed } from "./timings.js";
 import { drawHalfDiff } from "./views/halfdiff.js";
-import { drawLobe } from "./views/lobe.js";
+import { drawLobe, setLogRadius } from "./views/lobe.js";
 import { drawSlice } from "./views/slice.js";
 import { drawSphere } from "./views/sphere.js";
 import { drawThumbnail, showFidelity } from "./views/thumbnail.js";
@@ -148,6 +148,9 @@ function pickBtf(asset: string): void {
 
 async function start(): Promise<void> {
   initTimings($("timings") as HTMLTableElement);
+  const lobeLog = $<HTMLInputElement>("lobe-log");
+  lobeLog.addEventListener("change", () => setLogRadius(lobeLog.checked));
+  const scenes = loadScenes(); // in parallel with ListModels: the thumbnail needs it, the controls do not
   try {
     const reply = await timed("ListModels", "page", () => client.listModels({}));
     models = reply.models;
@@ -168,6 +171,20 @@ async function start(): Promise<void> {
     changed();
   });
 
+  // Default (before anything else is awaited, so a choice made as soon as the list shows is not overridden):
+  // the first model, at its velvet preset where it has one (the most telling lobe), else its first.
+  const first = models[0];
+  if (!first) return showStatus("the server has no models");
+  select(first, first.presets.find((p) => p.name === "velvet")?.name ?? first.presets[0]?.name ?? "");
+  changed();
+
+  void listBtfs($("btfs"), pickBtf);
+  $("btfs-refresh").addEventListener("click", () => void listBtfs($("btfs"), pickBtf));
+  wireDownloads(() => state.build().material, showStatus);
+  await scenes;
+}
+
+async function loadScenes(): Promise<void> {
   try {
     const scenes = await timed("ListScenes", "page", () => client.listScenes({}));
     sceneSelect.replaceChildren(
@@ -185,16 +202,6 @@ async function start(): Promise<void> {
   sceneSelect.addEventListener("change", () => {
     if (material) void slots.thumbnail.run(material, state.model, window.studio.change, draws.thumbnail, report);
   });
-
-  void listBtfs($("btfs"), pickBtf);
-  $("btfs-refresh").addEventListener("click", () => void listBtfs($("btfs"), pickBtf));
-  wireDownloads(() => state.build().material, showStatus);
-
-  // Default: the first model, at its velvet preset where it has one (the most telling lobe), else its first.
-  const first = models[0];
-  if (!first) return showStatus("the server has no models");
-  select(first, first.presets.find((p) => p.name === "velvet")?.name ?? first.presets[0]?.name ?? "");
-  changed();
 }
 
 void start();

@@ -10,6 +10,7 @@ const INCIDENCES = [30, 60];
 const PLANES = [0, 90];
 const COLOURS: Record<number, string> = { 30: "#e8a13c", 60: "#4fa3e0" };
 const RAD = Math.PI / 180;
+const DECADES = 3; // log radius: the peak at the rim, a thousandth of it at the centre
 type Vec = [number, number, number];
 
 const add = (a: Vec, b: Vec, s: number): Vec => [a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2]];
@@ -70,8 +71,23 @@ export async function drawLobe(
       return { ti, phi, r };
     }),
   );
-  plot(canvas, curves, thetas, full, fiber);
+  last = { canvas, curves, thetas, full, fiber };
+  replot();
   ctx.shown();
+}
+
+type Curve = { ti: number; phi: number; r: number[] };
+let last: { canvas: HTMLCanvasElement; curves: Curve[]; thetas: number[]; full: boolean; fiber: boolean } | null = null;
+let logRadius = true;
+
+/** Switches the radius between log (small lobes beside a strong one stay visible) and linear; no new call. */
+export function setLogRadius(on: boolean): void {
+  logRadius = on;
+  replot();
+}
+
+function replot(): void {
+  if (last) plot(last.canvas, last.curves, last.thetas, last.full, last.fiber);
 }
 
 function niceMax(x: number): number {
@@ -83,7 +99,7 @@ function niceMax(x: number): number {
 
 function plot(
   canvas: HTMLCanvasElement,
-  curves: { ti: number; phi: number; r: number[] }[],
+  curves: Curve[],
   thetas: number[],
   full: boolean,
   fiber: boolean,
@@ -95,7 +111,13 @@ function plot(
   const cy = full ? H / 2 + 10 : H - 40;
   const R = full ? 150 : 200;
   const peak = Math.max(1e-30, ...curves.flatMap((c) => c.r));
-  const top = niceMax(peak);
+  const top = logRadius ? Math.pow(10, Math.ceil(Math.log10(peak))) : niceMax(peak);
+  // Radius of a value: linear up to `top`, or DECADES decades below it on the log scale.
+  const radius = (v: number) =>
+    logRadius ? R * Math.max(0, 1 + Math.log10(Math.max(v, 1e-30) / top) / DECADES) : (R * v) / top;
+  const rings = logRadius
+    ? Array.from({ length: DECADES }, (_, d) => top * Math.pow(10, -d))
+    : [1, 2, 3, 4].map((q) => (top * q) / 4);
   const style = getComputedStyle(document.documentElement);
   const ink = style.getPropertyValue("--ink").trim() || "#ddd";
   const faint = style.getPropertyValue("--grid").trim() || "#444";
@@ -103,15 +125,16 @@ function plot(
   g.font = "11px system-ui, sans-serif";
   g.lineWidth = 1;
 
-  // Rings at quarters of the scale, labelled in 1/sr.
+  // Rings labelled in 1/sr: quarters of the scale (linear) or decades (log).
   g.strokeStyle = faint;
   g.fillStyle = ink;
-  for (let q = 1; q <= 4; q++) {
+  for (const v of rings) {
+    const rr = radius(v);
     g.beginPath();
-    g.arc(cx, cy, (R * q) / 4, full ? 0 : Math.PI, 2 * Math.PI);
+    g.arc(cx, cy, rr, full ? 0 : Math.PI, 2 * Math.PI);
     g.stroke();
     g.textAlign = "right"; // inside its ring, clear of the 90 degree label
-    g.fillText(String(Number(((top * q) / 4).toPrecision(3))), cx + (R * q) / 4 - 2, cy - 3);
+    g.fillText(String(Number(v.toPrecision(3))), cx + rr - 2, cy - 3);
   }
   // Spokes every 30 degrees from the normal, labelled with theta_o.
   for (let a = full ? -150 : -90; a <= (full ? 180 : 90); a += 30) {
@@ -138,7 +161,7 @@ function plot(
     g.setLineDash(c.phi === 0 ? [] : [5, 4]);
     g.beginPath();
     c.r.forEach((v, k) => {
-      const rr = (R * v) / top;
+      const rr = radius(v);
       const px = cx + rr * Math.sin(thetas[k] * RAD);
       const py = cy - rr * Math.cos(thetas[k] * RAD);
       if (k === 0) g.moveTo(px, py);
@@ -162,7 +185,7 @@ function plot(
   g.fillStyle = ink;
   g.fillText(fiber ? "f·cos θo about the fiber axis, luminance (1/sr)" : "f·cos θo, luminance (1/sr)", 8, 14);
   g.fillText(`peak ${peak.toPrecision(3)}`, 8, 28);
-  g.fillText("radius: linear, rings at quarters", 8, 42);
+  g.fillText(logRadius ? `radius: log, ${DECADES} decades` : "radius: linear", 8, 42);
   const legend: [string, string, number[]][] = [
     ["θi 30°", COLOURS[30], []],
     ["θi 60°", COLOURS[60], []],

@@ -7,8 +7,8 @@
 #   ./scripts/test.sh                 the README's test command, exactly;
 #   ./scripts/serve.sh                the README's serve command, in the background (in a private network
 #                                     namespace, so a server already on this machine's port 50051 cannot
-#                                     answer for it) until `loomlight health` reports SERVING; then SIGTERM,
-#                                     and the server must exit 0;
+#                                     answer for it) until `loomlight health` reports SERVING and the page and
+#                                     its API answer through the gateway; then SIGTERM, and it must exit 0;
 #   ./scripts/fuzz.sh SECONDS         when LOOMLIGHT_CLEAN_ROOT_FUZZ_SECONDS is set (CI sets 60): coverage-guided
 #                                     fuzzing of each libFuzzer target, with ASan and UBSan (a clang build of
 #                                     its own, about 12 minutes on 2 cores); a crash fails the check.
@@ -195,8 +195,8 @@ log "root size after the build: $(du -sh --one-file-system "$root" | cut -f1)"
 begin_phase "serve until SERVING (./scripts/serve.sh)"
 serve_log="$root/root/serve.log"
 # A private network namespace with only loopback: the server's fixed ports (50051, 9464) cannot clash with
-# anything on this machine. unshare, bash and chroot exec into each other, and serve.sh execs the server, so
-# $server_pid ends up being the server itself.
+# anything on this machine. unshare, bash and chroot exec into each other, so $server_pid ends up
+# being serve.sh itself, which stops the server and the gateway on SIGTERM and exits with the server's status.
 unshare --net -- bash -c 'ip link set lo up && exec "$@"' _ chroot "$root" "${in_root_env[@]}" /bin/bash -c \
   "cd $inner && exec ./scripts/serve.sh" </dev/null >"$serve_log" 2>&1 &
 server_pid=$!
@@ -226,8 +226,24 @@ until answer="$(health)"; do
   sleep 2
 done
 [ "$answer" = SERVING ] || die "health exited 0 but printed '$answer'"
-tail -n 3 "$serve_log"
 log "health: $answer"
+# The page serve.sh starts beside the server (Loomlight Studio's gateway on 127.0.0.1:8080), and its API through
+# the gateway: the page's HTML, then ListModels as the browser calls it (the Connect protocol, JSON).
+page_check='
+  const get = (path, body) => fetch("http://127.0.0.1:8080/" + path, body && {
+    method: "POST", headers: { "content-type": "application/json" }, body: "{}" }).then((r) => r.text());
+  Promise.all([get(""), get("loomlight.v1.Loomlight/ListModels", true)]).then(([html, models]) => {
+    if (!html.includes("Loomlight Studio") || !models.includes("microcylinder")) process.exit(1);
+  }, () => process.exit(1));'
+for attempt in $(seq 30); do
+  if nsenter --net="/proc/$server_pid/ns/net" -- chroot "$root" "${in_root_env[@]}" node -e "$page_check"; then
+    break
+  fi
+  ((attempt < 30)) || { tail -n 20 "$serve_log"; die "the page is not served on 127.0.0.1:8080"; }
+  sleep 1
+done
+tail -n 4 "$serve_log"
+log "page: served"
 end_phase
 
 # ---- 6. SIGTERM stops the server, which exits 0 ----

@@ -20,8 +20,9 @@ packages=(
   python3-grpcio python3-protobuf python3-numpy python3-openimageio  # the Python package (python/) and its tests
   python3-pytest python3-venv python3-pip python3-setuptools python3-wheel
   nodejs
+  chromium  # Loomlight Studio's tests drive it headless (playwright-core, web/tests)
 )
-# npm installs the Khronos glTF validator the tests run (tests/gltf). A NodeSource nodejs brings its own npm, which
+# npm installs the Khronos glTF validator the tests run (tests/gltf) and Loomlight Studio's packages (web/). A NodeSource nodejs brings its own npm, which
 # Debian's npm package conflicts with: Debian's only when no npm command exists.
 command -v npm >/dev/null 2>&1 || packages+=(npm)
 case "${1:-}" in

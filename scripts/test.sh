@@ -9,6 +9,8 @@ gltf="$root/tests/gltf"
 if [ ! -f "$gltf/node_modules/.package-lock.json" ] || [ "$gltf/package-lock.json" -nt "$gltf/node_modules/.package-lock.json" ]; then
   (cd "$gltf" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
 fi
+# Loomlight Studio (web/): its npm packages, the API code generated from the .proto, the page bundled by Vite.
+"$root/scripts/build-web.sh"
 cmake -S "$root" -B "$root/build" -DCMAKE_BUILD_TYPE=Release
 cmake --build "$root/build" -j"$(nproc)"
 # A private PoCL kernel cache per build tree: warm after the first run, never shared with a stale one.

@@ -8,7 +8,7 @@ Conventions (docs/contributing.md, "Docs"):
   ```csv, ...) are not run. A ```sh block without a command fails the test.
 - Commands are written as run from the repository root: `build/...` (e.g. `build/loomlight`,
   `build/loomlight-server`, `build/bench/loomlight_bench`) becomes the build directory under test; each doc file's commands run in order, in a temporary directory of that file's own,
-  which links the repository's read-only folders (deploy, docs, proto, tests) so paths like
+  which links the repository's read-only folders (deploy, docs, proto, tests, web) so paths like
   deploy/environments/sunset.exr resolve, and outputs land in the temporary directory. python/ is copied there
   instead (without build outputs), so that `pip install ./python` builds in the copy, not in the source tree.
 - `python3` in a command is the interpreter of the Python package: $LOOMLIGHT_PYTHON, else Debian's
@@ -50,7 +50,7 @@ INLINE_CODE = re.compile(r"`+[^`]*`+")
 HEADING = re.compile(r"^#+ (.+)$", re.M)
 SOURCE_PATH = re.compile(r"(?<![\w./$-])((?:bench|client|cmake|deploy|docs|kernels|proto|scripts|server|tests)/"
                          r"[\w./*{},-]*[\w*}/])")
-LINKED_FOLDERS = ("deploy", "docs", "proto", "tests")
+LINKED_FOLDERS = ("deploy", "docs", "proto", "tests", "web")
 COPIED_FOLDERS = ("python",)
 COMMAND_TIMEOUT_S = 600
 

@@ -107,3 +107,21 @@ export function cliModels(server) {
 }
 
 export const readText = (path) => readFileSync(path, "utf8");
+
+/**
+ * Waits until every view named reflects the page's current change (data-change) and is done drawing, and with
+ * `final` the thumbnail's last refinement too (docs: the page's contract in web/src/main.ts).
+ */
+export async function viewsSettled(page, selectors = ["#lobe", "#halfdiff", "#sphere"], final = true) {
+  await page.waitForFunction(({ selectors, final }) => {
+    const change = String(window.studio?.change ?? "");
+    const ready = selectors.every((s) => {
+      const element = document.querySelector(s);
+      return element && element.dataset.change === change &&
+             (element.dataset.state === "done" || element.dataset.state === "hidden");
+    });
+    const thumbnail = document.querySelector("#thumbnail");
+    return change !== "" && ready &&
+           (!final || (thumbnail.dataset.change === change && thumbnail.dataset.final === "true"));
+  }, { selectors, final }, { timeout: 240_000, polling: 100 });
+}

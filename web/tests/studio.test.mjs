@@ -1,0 +1,222 @@
+// Loomlight Studio in a real browser (Debian's chromium, headless, through playwright-core) against a real server
+// and gateway: the controls are ListModels' schema for every model, a slider moves the lobe and the thumbnail, a
+// refused value shows the server's message at its control, the next change cancels a render in flight on the
+// server, no stack trace ever shows. Screenshots at 1280 x 800 go to $LOOMLIGHT_STUDIO_SCREENSHOTS (CTest:
+// build/studio-screenshots) for a person to look at.
+import assert from "node:assert/strict";
+import { mkdirSync, readdirSync, readFileSync } from "node:fs";
+import { join } from "node:path";
+import { after, before, describe, test } from "node:test";
+import {
+  callCount, connectCall, launchBrowser, repo, startGateway, startServer, viewsSettled, web,
+} from "./harness.mjs";
+
+const screenshots = process.env.LOOMLIGHT_STUDIO_SCREENSHOTS ?? join(repo, "build", "studio-screenshots");
+const STACK = /\bat \S+ \(?\S+:\d+:\d+\)?|\.(ts|mjs|js):\d+:\d+/;
+
+let server;
+let gateway;
+let browser;
+let models;
+
+before(async () => {
+  mkdirSync(screenshots, { recursive: true });
+  server = await startServer();
+  gateway = await startGateway(server);
+  browser = await launchBrowser();
+  models = (await connectCall(gateway.url, "ListModels", {})).body.models;
+});
+
+after(async () => {
+  await browser?.close();
+  await gateway?.stop();
+  await server?.stop();
+});
+
+async function openStudio(url = gateway.url) {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
+  const problems = [];
+  page.on("pageerror", (error) => problems.push(error.message));
+  await page.goto(url);
+  return { page, problems };
+}
+
+const settled = viewsSettled;
+
+// RGBA pixels of a canvas, or of an image drawn into one.
+async function pixels(page, selector) {
+  return page.evaluate((selector) => {
+    const element = document.querySelector(selector);
+    const canvas = document.createElement("canvas");
+    canvas.width = element.naturalWidth ?? element.width;
+    canvas.height = element.naturalHeight ?? element.height;
+    const context = canvas.getContext("2d");
+    context.drawImage(element, 0, 0);
+    return Array.from(context.getImageData(0, 0, canvas.width, canvas.height).data);
+  }, selector);
+}
+
+function meanDifference(a, b) {
+  assert.equal(a.length, b.length);
+  let sum = 0;
+  for (let i = 0; i < a.length; ++i) sum += Math.abs(a[i] - b[i]);
+  return sum / a.length;
+}
+
+// Sets a control's value as a person does (input, then change events).
+async function setControl(page, param, role, value) {
+  await page.evaluate(({ param, role, value }) => {
+    const input = document.querySelector(`.param[data-param="${param}"] [data-role="${role}"]`);
+    input.value = value;
+    input.dispatchEvent(new Event("input", { bubbles: true }));
+    input.dispatchEvent(new Event("change", { bubbles: true }));
+  }, { param, role, value });
+}
+
+const TYPES = { TYPE_REAL: "real", TYPE_INT: "int", TYPE_RGB: "rgb", TYPE_REAL_LIST: "list", TYPE_TEXT: "text" };
+
+describe("Loomlight Studio", () => {
+  test("the controls are ListModels' schema, for every model; the page's code names no parameter", async () => {
+    const { page, problems } = await openStudio();
+    await settled(page, ["#lobe"], false);
+    const options = await page.$$eval("#model option", (list) => list.map((o) => o.value));
+    assert.deepEqual(options, models.map((m) => m.name));
+    for (const model of models) {
+      await page.selectOption("#model", model.name);
+      await page.waitForFunction((count) => document.querySelectorAll("#params .param").length === count &&
+                                            true, model.params.length);
+      const controls = await page.$$eval("#params .param", (list) => list.map((p) => {
+        const value = p.querySelector('[data-role="value"]');
+        return { name: p.dataset.param, type: p.dataset.type, tag: value?.tagName, inputType: value?.type,
+                 min: value?.min, max: value?.max, title: p.title || p.querySelector("label")?.title || "" };
+      }));
+      assert.deepEqual(controls.map((c) => c.name), model.params.map((p) => p.name), model.name);
+      model.params.forEach((schema, i) => {
+        const control = controls[i];
+        const type = TYPES[schema.type];
+        assert.equal(control.type, type, `${model.name}.${schema.name}`);
+        if (type === "real" || type === "int") {
+          assert.equal(control.inputType, "range", `${model.name}.${schema.name}`);
+          assert.equal(Number(control.min), schema.min ?? 0, `${model.name}.${schema.name} min`);
+          assert.equal(Number(control.max), schema.max ?? 0, `${model.name}.${schema.name} max`);
+        }
+        if (type === "rgb") assert.equal(control.inputType, "color");
+        assert.ok(control.title.includes(schema.description ?? ""), `${model.name}.${schema.name} description`);
+      });
+      const presets = await page.$$eval("#preset option", (list) => list.map((o) => o.value).filter((v) => v));
+      for (const preset of model.presets) assert.ok(presets.includes(preset.name), `${model.name}: ${preset.name}`);
+    }
+    // No parameter's name is in the bundle: the controls come from the schema alone. (Short or common words,
+    // such as `asset`, which the BTF picker sets, cannot be told apart from other code and are left out.)
+    const bundle = readdirSync(join(web, "dist", "assets")).filter((f) => f.endsWith(".js"))
+      .map((f) => readFileSync(join(web, "dist", "assets", f), "utf8")).join("\n");
+    for (const model of models) {
+      for (const param of model.params) {
+        if (/[._]/.test(param.name) && param.name.length > 6) {
+          assert.ok(!bundle.includes(`"${param.name}"`) && !bundle.includes(`'${param.name}'`),
+                    `the page's code names ${param.name}`);
+        }
+      }
+    }
+    assert.deepEqual(problems, []);
+    await page.close();
+  });
+
+  test("moving a slider changes the lobe and the thumbnail", async () => {
+    const { page, problems } = await openStudio();
+    await page.selectOption("#model", "microcylinder");
+    await page.selectOption("#preset", "velvet");
+    await settled(page);
+    await page.screenshot({ path: join(screenshots, "studio-velvet.png") });
+    const lobe = await pixels(page, "#lobe");
+    const thumbnail = await pixels(page, "#thumbnail");
+    const change = await page.evaluate(() => window.studio.change);
+    await setControl(page, "thread1.gamma_s", "value", "60");
+    await page.waitForFunction((c) => window.studio.change > c, change);
+    await settled(page);
+    await page.screenshot({ path: join(screenshots, "studio-velvet-gamma-s-60.png") });
+    assert.ok(meanDifference(lobe, await pixels(page, "#lobe")) > 0.5, "the lobe changed");
+    assert.ok(meanDifference(thumbnail, await pixels(page, "#thumbnail")) > 0.5, "the thumbnail changed");
+    const timings = await page.$$eval("#timings [data-rpc]", (rows) => rows.map((r) => r.dataset.rpc));
+    for (const rpc of ["ListModels", "Evaluate", "Render"]) assert.ok(timings.includes(rpc), `timing of ${rpc}`);
+    assert.ok((await page.textContent("#fidelity")).length > 0, "the fidelity report is shown");
+    assert.deepEqual(problems, []);
+    await page.close();
+  });
+
+  test("a refused value shows the server's message next to its control, and the views keep their image", async () => {
+    const { page, problems } = await openStudio();
+    await page.selectOption("#model", "microcylinder");
+    await page.selectOption("#preset", "velvet");
+    await settled(page);
+    const lobe = await pixels(page, "#lobe");
+    const good = await page.$eval("#lobe", (e) => e.dataset.change);
+    // The server's own words for this value, asked directly.
+    const refused = await connectCall(gateway.url, "Evaluate",
+      { material: { preset: "velvet", params: [{ name: "eta", values: [7] }] }, wi: [0, 0, 1], wo: [0, 0, 1] });
+    const words = refused.body.message.replace(/^material\.params\[\d+\]\.values\[\d+\]: /, "");
+    assert.match(words, /eta.*outside/);
+    await setControl(page, "eta", "number", "7");
+    const error = page.locator('.param[data-param="eta"] .param-error');
+    await error.filter({ hasText: "outside" }).waitFor({ timeout: 60_000 });
+    assert.ok((await error.textContent()).includes(words), await error.textContent());
+    await page.screenshot({ path: join(screenshots, "studio-refused-value.png") });
+    assert.equal(await page.$eval("#lobe", (e) => e.dataset.change), good, "the lobe still shows the last good material");
+    assert.equal(meanDifference(lobe, await pixels(page, "#lobe")), 0);
+    assert.doesNotMatch(await page.textContent("body"), STACK);
+    assert.deepEqual(problems, []);
+    await page.close();
+  });
+
+  test("the next change cancels the render in flight, as the server's metrics show", async () => {
+    const { page } = await openStudio();
+    await page.selectOption("#model", "microcylinder");
+    await page.selectOption("#preset", "velvet");
+    await settled(page);
+    const before = await callCount(server, "Render", "CANCELLED");
+    // A change, then another while its thumbnail is still refining: the refinement's stream is aborted. (A render
+    // may end just before the abort reaches the server; each try makes another.)
+    for (let attempt = 0; attempt < 10 && (await callCount(server, "Render", "CANCELLED")) === before; ++attempt) {
+      const change = await page.evaluate(() => window.studio.change);
+      await setControl(page, "thread1.gamma_v", "value", String(20 + attempt));
+      await page.waitForFunction((c) => {
+        const t = document.querySelector("#thumbnail");
+        return window.studio.change > c && t.dataset.change === String(window.studio.change) &&
+               t.dataset.final !== "true";
+      }, change, { timeout: 120_000, polling: 10 });
+      await setControl(page, "thread1.gamma_v", "value", String(40 + attempt));
+      await settled(page, ["#lobe"]);
+      await new Promise((resolve) => setTimeout(resolve, 500)); // the server counts a cancelled call as it ends
+    }
+    assert.ok((await callCount(server, "Render", "CANCELLED")) > before, "a Render ended CANCELLED");
+    await page.close();
+  });
+
+  test("a woven material shows its texture slice", async () => {
+    const { page, problems } = await openStudio();
+    await page.selectOption("#model", "woven");
+    await page.selectOption("#preset", "cotton_twill");
+    await settled(page, ["#lobe", "#halfdiff", "#sphere", "#slice"]);
+    assert.equal(await page.$eval("#slice", (e) => e.dataset.state), "done");
+    assert.ok(await page.$eval("#slice", (e) => e.naturalWidth > 0));
+    await page.screenshot({ path: join(screenshots, "studio-cotton-twill.png") });
+    assert.deepEqual(problems, []);
+    await page.close();
+  });
+
+  test("with the server gone, the page says so in one line, without a stack trace", async () => {
+    const dead = await startGateway({ target: "127.0.0.1:1" });
+    try {
+      const { page } = await openStudio(dead.url);
+      await page.waitForFunction(() => (document.querySelector("#status")?.textContent ?? "").length > 0,
+                                 null, { timeout: 60_000 });
+      const status = await page.textContent("#status");
+      assert.ok(status.length <= 400, status);
+      assert.doesNotMatch(await page.textContent("body"), STACK);
+      await page.screenshot({ path: join(screenshots, "studio-server-unreachable.png") });
+      await page.close();
+    } finally {
+      await dead.stop();
+    }
+  });
+});

@@ -29,7 +29,7 @@ const modelSelect = $<HTMLSelectElement>("model");
 const presetSelect = $<HTMLSelectElement>("preset");
 const sceneSelect = $<HTMLSelectElement>("scene");
 const CUSTOM = "(custom)";
-const SETTLE_MS = 50; // edits closer than this (a slider dragged) make one round of calls
+const SETTLE_MS = 50; // at most one round of calls this often while a slider is dragged
 
 function showStatus(message: string, kind: "error" | "info" = "error"): void {
   statusEl.textContent = message.length > 300 ? message.slice(0, 297) + "..." : message;
@@ -87,12 +87,20 @@ function report(error: unknown): void {
   else showStatus(messageOf(error));
 }
 
+// Throttled, not debounced: an edit after a quiet spell goes out at once; edits while a slider is dragged go
+// out at most every SETTLE_MS, each round with the latest material.
 let timer: number | undefined;
+let lastRun = -Infinity;
 function changed(): void {
   window.studio.change += 1;
   for (const slot of Object.values(slots)) if (slot.element.dataset.state !== "hidden") slot.state = "busy";
-  clearTimeout(timer);
-  timer = window.setTimeout(runAll, SETTLE_MS);
+  if (timer !== undefined) return; // the round already scheduled reads the state as it is then
+  const wait = Math.max(0, lastRun + SETTLE_MS - performance.now());
+  timer = window.setTimeout(() => {
+    timer = undefined;
+    lastRun = performance.now();
+    runAll();
+  }, wait);
 }
 
 function runAll(): void {

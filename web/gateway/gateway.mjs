@@ -7,7 +7,7 @@
 import { readdirSync, readFileSync, statSync } from "node:fs";
 import http from "node:http";
 import { extname, join, relative, sep } from "node:path";
-import { createClient, createContextKey, createContextValues } from "@connectrpc/connect";
+import { ConnectError, createClient, createContextKey, createContextValues } from "@connectrpc/connect";
 import { connectNodeAdapter, createGrpcTransport } from "@connectrpc/connect-node";
 import { Health } from "../gen/grpc/health/v1/health_pb.js";
 import { Loomlight } from "../gen/loomlight/v1/loomlight_pb.js";
@@ -31,6 +31,14 @@ function upstreamOptions(context) {
   return { headers, signal: context.signal, timeoutMs: context.timeoutMs() };
 }
 
+// The upstream's error as the browser gets it: its code, message and details, without the upstream's own
+// transport headers and trailers (content-type application/grpc, grpc-status, grpc-message), which connect-node
+// would otherwise copy into the Connect response and so make the browser's client misread its body.
+function downstreamError(error) {
+  const upstream = ConnectError.from(error);
+  return new ConnectError(upstream.rawMessage, upstream.code, undefined, upstream.details);
+}
+
 // One forwarding implementation per method, made from the service's descriptor: a method added to the .proto is
 // forwarded without a change here.
 function forward(service, client) {
@@ -40,12 +48,22 @@ function forward(service, client) {
     switch (method.methodKind) {
       case "unary":
       case "client_streaming":
-        implementation[method.localName] = (input, context) => call(input, upstreamOptions(context));
+        implementation[method.localName] = async (input, context) => {
+          try {
+            return await call(input, upstreamOptions(context));
+          } catch (error) {
+            throw downstreamError(error);
+          }
+        };
         break;
       case "server_streaming":
       case "bidi_streaming":
         implementation[method.localName] = async function* (input, context) {
-          yield* call(input, upstreamOptions(context));
+          try {
+            yield* call(input, upstreamOptions(context));
+          } catch (error) {
+            throw downstreamError(error);
+          }
         };
         break;
     }

@@ -60,6 +60,21 @@ describe("gateway in front of a plaintext server", () => {
     assert.doesNotMatch(JSON.stringify(body), /\bat .*\.(m?js|ts):\d+/);
   });
 
+  test("a refusal reads as the Connect protocol's, whatever the request's encoding", async () => {
+    const response = await fetch(new URL("loomlight.v1.Loomlight/Evaluate", gateway.url), {
+      method: "POST", headers: { "content-type": "application/proto" }, body: new Uint8Array(0),
+    });
+    assert.equal(response.status, 400);
+    assert.match(response.headers.get("content-type"), /^application\/json/);
+    for (const name of ["grpc-status", "grpc-message"]) assert.equal(response.headers.get(name), null, name);
+    const body = await response.json();
+    assert.equal(body.code, "invalid_argument");
+    assert.match(body.message, /^material/);
+    // The same through connect-node's client, binary: the server's code and message, nothing else.
+    await assert.rejects(nodeClient(gateway.url).evaluate({ material: { preset: "velvet" }, wi: [0, 0, 2], wo: UP }),
+                         (error) => error.code === 3 && /^wi\[0\]: direction has length 2/.test(error.rawMessage));
+  });
+
   test("a streamed Render arrives whole, progress then the image", async () => {
     const updates = [];
     for await (const update of nodeClient(gateway.url).render({

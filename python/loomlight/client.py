@@ -307,6 +307,13 @@ class Client:
         except grpc.RpcError as error:
             raise from_rpc_error(error) from None
 
+    def _upload(self, method, messages, timeout):
+        """A client-streaming call: the messages are sent as the generator yields them."""
+        try:
+            return getattr(self.stub, method)(messages, timeout=self._deadline(timeout))
+        except grpc.RpcError as error:
+            raise from_rpc_error(error) from None
+
     def _stream(self, method, request, timeout):
         """The messages of a server stream; an interrupted caller (an exception, Ctrl-C) cancels the call."""
         call = getattr(self.stub, method)(request, timeout=self._deadline(timeout))
@@ -604,10 +611,7 @@ class Client:
             for view, light, data in images:
                 yield pb.UploadBtfMessage(image=pb.BtfImage(view=list(view), light=list(light), data=data))
 
-        try:
-            return self.stub.UploadBtf(messages(), timeout=self._deadline(timeout))
-        except grpc.RpcError as error:
-            raise from_rpc_error(error) from None
+        return self._upload("UploadBtf", messages(), timeout)
 
     @with_rpc_doc("ListBtfs", "ListBtfsRequest")
     def btfs(self, timeout=None):
@@ -633,10 +637,7 @@ class Client:
             for start in range(0, len(data), UPLOAD_CHUNK_BYTES):
                 yield pb.UploadMeshMessage(chunk=data[start:start + UPLOAD_CHUNK_BYTES])
 
-        try:
-            return self.stub.UploadMesh(messages(), timeout=self._deadline(timeout))
-        except grpc.RpcError as error:
-            raise from_rpc_error(error) from None
+        return self._upload("UploadMesh", messages(), timeout)
 
     @with_rpc_doc("ListMeshes", "ListMeshesRequest")
     def meshes(self, timeout=None):

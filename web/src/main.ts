@@ -163,7 +163,9 @@ async function start(): Promise<void> {
     const reply = await timed("ListModels", "page", () => client.listModels({}));
     models = reply.models;
   } catch (error) {
-    showStatus(`Server unreachable: ${messageOf(error)}. Reload the page once it is up.`);
+    const message = messageOf(error);
+    showStatus(`${/^server unreachable/.test(message) ? "S" + message.slice(1) : `Server unreachable: ${message}`}. ` +
+      "Reload the page once it is up.");
     for (const slot of Object.values(slots)) slot.state = "error";
     return;
   }

@@ -111,7 +111,7 @@ function plot(
   const cy = full ? H / 2 + 10 : H - 40;
   const R = full ? 150 : 200;
   const peak = Math.max(1e-30, ...curves.flatMap((c) => c.r));
-  const top = logRadius ? Math.pow(10, Math.ceil(Math.log10(peak))) : niceMax(peak);
+  const top = niceMax(peak);
   // Radius of a value: linear up to `top`, or DECADES decades below it on the log scale.
   const radius = (v: number) =>
     logRadius ? R * Math.max(0, 1 + Math.log10(Math.max(v, 1e-30) / top) / DECADES) : (R * v) / top;

@@ -22,7 +22,7 @@ export async function drawThumbnail(parts: ThumbnailParts, ctx: ViewContext, sce
   try {
     await renderPasses(parts, ctx, scene);
   } catch (error) {
-    if (!ctx.signal.aborted) parts.caption.textContent = "not rendered: the last image is kept";
+    if (!ctx.signal.aborted) parts.caption.textContent = "not rendered";
     throw error;
   }
 }

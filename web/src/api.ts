@@ -3,7 +3,24 @@ import { createClient, ConnectError, Code } from "@connectrpc/connect";
 import { createConnectTransport } from "@connectrpc/connect-web";
 import { Loomlight } from "../gen/loomlight/v1/loomlight_pb.js";
 
-const transport = createConnectTransport({ baseUrl: window.location.origin, useBinaryFormat: true });
+// A bearer token for servers that require one (--tokens): kept for this tab only, sent with every call; the gateway
+// passes it through to the server, which decides.
+const TOKEN_KEY = "loomlight.token";
+export const token = (): string => sessionStorage.getItem(TOKEN_KEY) ?? "";
+export function setToken(value: string): void {
+  if (value) sessionStorage.setItem(TOKEN_KEY, value);
+  else sessionStorage.removeItem(TOKEN_KEY);
+}
+
+const transport = createConnectTransport({
+  baseUrl: window.location.origin,
+  useBinaryFormat: true,
+  interceptors: [(next) => (request) => {
+    const bearer = token();
+    if (bearer) request.header.set("authorization", `Bearer ${bearer}`);
+    return next(request);
+  }],
+});
 export const client = createClient(Loomlight, transport);
 
 /** True when the call ended because a newer change aborted it (not an error to show). */
@@ -17,10 +34,6 @@ export function messageOf(error: unknown): string {
   let text: string;
   if (error instanceof ConnectError) {
     text = error.rawMessage || Code[error.code] || "request failed";
-    // A unary refusal whose body connect-web could not read (the gateway answers it as application/grpc)
-    // still carries the server's message in grpc-message: show that rather than "HTTP 400".
-    const grpcMessage = error.metadata.get("grpc-message");
-    if (/^HTTP \d+$/.test(text) && grpcMessage) text = decodeGrpcMessage(grpcMessage);
     if (error.code === Code.Unavailable)
       text = `server unreachable: ${text}`;
   } else if (error instanceof Error) {
@@ -36,12 +49,4 @@ export function messageOf(error: unknown): string {
 export function paramIndexOf(error: unknown): number {
   const match = /material\.params\[(\d+)\]/.exec(messageOf(error));
   return match ? Number(match[1]) : -1;
-}
-
-function decodeGrpcMessage(value: string): string {
-  try {
-    return decodeURIComponent(value); // gRPC percent-encodes the message
-  } catch {
-    return value;
-  }
 }

@@ -91,7 +91,8 @@ export class ParamControls {
     const edit = (value: ParamValue | null, err?: string) => this.onEdit(schema.name, value, err);
 
     if (type === "real" || type === "int") {
-      const step = type === "int" ? 1 : (schema.max - schema.min) / 1000;
+      // A round step (a power of ten, 500 to 5000 of them over the range), so the slider sends values as typed.
+      const step = type === "int" ? 1 : 10 ** Math.floor(Math.log10((schema.max - schema.min) / 500));
       const slider = el("input", { type: "range", id, min: String(schema.min), max: String(schema.max) });
       slider.step = String(step);
       slider.dataset.role = "value";

@@ -3,7 +3,7 @@
 import "./style.css";
 import type { Material, ModelInfo } from "../gen/loomlight/v1/loomlight_pb.js";
 import { ParamSchema_Type } from "../gen/loomlight/v1/loomlight_pb.js";
-import { client, messageOf, paramIndexOf } from "./api.js";
+import { client, messageOf, paramIndexOf, setToken, token } from "./api.js";
 import { listBtfs } from "./btfs.js";
 import { ParamControls, type ParamValue } from "./controls.js";
 import { wireDownloads } from "./downloads.js";
@@ -153,6 +153,15 @@ function pickBtf(asset: string): void {
   showPresets();
   changed();
 }
+
+// The token form: a new token reloads the page, so every call (ListModels first) carries it.
+const tokenInput = $<HTMLInputElement>("token");
+tokenInput.value = token();
+$("token-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  setToken(tokenInput.value.trim());
+  window.location.reload();
+});
 
 async function start(): Promise<void> {
   initTimings($("timings") as HTMLTableElement);

@@ -8,7 +8,8 @@ import { mkdirSync, readdirSync, readFileSync } from "node:fs";
 import { join } from "node:path";
 import { after, before, describe, test } from "node:test";
 import {
-  callCount, connectCall, launchBrowser, repo, startGateway, startServer, viewsSettled, web,
+  EDITOR_TOKEN, callCount, connectCall, launchBrowser, repo, startGateway, startServer, startTlsServer, tlsDir,
+  viewsSettled, web,
 } from "./harness.mjs";
 
 const screenshots = process.env.LOOMLIGHT_STUDIO_SCREENSHOTS ?? join(repo, "build", "studio-screenshots");
@@ -218,5 +219,32 @@ describe("Loomlight Studio", () => {
     } finally {
       await dead.stop();
     }
+  });
+});
+
+describe("Loomlight Studio on a server that requires tokens", () => {
+  let tlsServer;
+  let tlsGateway;
+  before(async () => {
+    tlsServer = await startTlsServer();
+    tlsGateway = await startGateway(tlsServer, ["--upstream-tls-ca", join(tlsDir, "ca.pem"),
+                                                "--upstream-server-name", "localhost"]);
+  });
+  after(async () => {
+    await tlsGateway?.stop();
+    await tlsServer?.stop();
+  });
+
+  test("without a token the page says the server wants one; with the token it works", async () => {
+    const { page } = await openStudio(tlsGateway.url);
+    await page.waitForFunction(() => /unauthenticated|bearer/i.test(document.querySelector("#status").textContent),
+                               null, { timeout: 60_000 });
+    assert.doesNotMatch(await page.textContent("body"), STACK);
+    await page.fill("#token", EDITOR_TOKEN);
+    await Promise.all([page.waitForNavigation(), page.click('#token-form button[type="submit"]')]);
+    await settled(page, ["#lobe", "#halfdiff", "#sphere"], false);
+    assert.equal(await page.$eval("#lobe", (e) => e.dataset.state), "done");
+    assert.equal(await page.inputValue("#token"), EDITOR_TOKEN, "kept for the tab");
+    await page.close();
   });
 });

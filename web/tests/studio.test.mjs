@@ -7,8 +7,9 @@ import assert from "node:assert/strict";
 import { mkdirSync, readdirSync, readFileSync } from "node:fs";
 import { join } from "node:path";
 import { after, before, describe, test } from "node:test";
+import { spawnSync } from "node:child_process";
 import {
-  EDITOR_TOKEN, callCount, connectCall, launchBrowser, repo, startGateway, startServer, startTlsServer, tlsDir,
+  EDITOR_TOKEN, buildDir, callCount, connectCall, launchBrowser, repo, startGateway, startServer, startTlsServer, tlsDir,
   viewsSettled, web,
 } from "./harness.mjs";
 
@@ -201,6 +202,44 @@ describe("Loomlight Studio", () => {
     assert.equal(await page.$eval("#slice", (e) => e.dataset.state), "done");
     assert.ok(await page.$eval("#slice", (e) => e.naturalWidth > 0));
     await page.screenshot({ path: join(screenshots, "studio-cotton-twill.png") });
+    assert.deepEqual(problems, []);
+    await page.close();
+  });
+
+  test("the current material downloads as an EXR table and a glTF fit", async () => {
+    const { page, problems } = await openStudio();
+    await page.selectOption("#model", "microcylinder");
+    await page.selectOption("#preset", "silk_shot");
+    await settled(page, ["#lobe"], false);
+    const download = async (button) => {
+      const [file] = await Promise.all([page.waitForEvent("download", { timeout: 240_000 }), page.click(button)]);
+      return { name: file.suggestedFilename(), bytes: readFileSync(await file.path()) };
+    };
+    const exr = await download("#download-exr");
+    assert.match(exr.name, /\.exr$/);
+    assert.deepEqual([...exr.bytes.subarray(0, 4)], [0x76, 0x2f, 0x31, 0x01]); // OpenEXR's magic number
+    const glb = await download("#download-gltf");
+    assert.match(glb.name, /\.glb$/);
+    assert.equal(glb.bytes.subarray(0, 4).toString("latin1"), "glTF");
+    const json = JSON.parse(glb.bytes.subarray(20, 20 + glb.bytes.readUInt32LE(12)).toString("utf8"));
+    assert.ok(json.materials[0].extensions.KHR_materials_sheen, "the fit's sheen is in the file");
+    assert.deepEqual(problems, []);
+    await page.close();
+  });
+
+  test("a stored BTF asset is listed and previewed", async () => {
+    const made = spawnSync(join(buildDir, "loomlight"), ["--server", server.target, "--timeout", "300", "btf",
+      "create", "twill_small", "--preset", "cotton_twill", "--grid", "h2", "--resolution", "16", "--components", "4"],
+    { encoding: "utf8" });
+    assert.equal(made.status, 0, made.stderr);
+    const { page, problems } = await openStudio();
+    await settled(page, ["#lobe"], false);
+    await page.click("#btfs-refresh");
+    await page.click('[data-asset="twill_small"]');
+    await page.waitForFunction(() => document.querySelector("#model").value === "btf");
+    await settled(page, ["#lobe", "#halfdiff", "#sphere", "#slice"], false);
+    assert.equal(await page.$eval("#lobe", (e) => e.dataset.state), "done");
+    await page.screenshot({ path: join(screenshots, "studio-btf-asset.png") });
     assert.deepEqual(problems, []);
     await page.close();
   });

@@ -1,6 +1,7 @@
 // Loomlight Studio: wires the material state, the controls and the views. Every edit is a numbered change
 // (window.studio.change); each view redraws for it, aborting its own call for the change before.
 import "./style.css";
+import { Code, ConnectError } from "@connectrpc/connect";
 import type { Material, ModelInfo } from "../gen/loomlight/v1/loomlight_pb.js";
 import { ParamSchema_Type } from "../gen/loomlight/v1/loomlight_pb.js";
 import { client, messageOf, paramIndexOf, setToken, token } from "./api.js";
@@ -173,8 +174,14 @@ async function start(): Promise<void> {
     models = reply.models;
   } catch (error) {
     const message = messageOf(error);
-    showStatus(`${/^server unreachable/.test(message) ? "S" + message.slice(1) : `Server unreachable: ${message}`}. ` +
-      "Reload the page once it is up.");
+    const code = error instanceof ConnectError ? error.code : Code.Unknown;
+    if (code === Code.Unavailable) {
+      showStatus(`S${message.slice(1)}. Reload the page once it is up.`);
+    } else if (code === Code.Unauthenticated || code === Code.PermissionDenied) {
+      showStatus(`The server wants a token that allows this page's calls (Token, top right): ${message}`);
+    } else {
+      showStatus(`The server did not list its models: ${message}`);
+    }
     for (const slot of Object.values(slots)) slot.state = "error";
     return;
   }

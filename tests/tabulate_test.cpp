@@ -9,6 +9,7 @@
 #include <sys/wait.h>
 
 #include <algorithm>
+#include <chrono>
 #include <bit>
 #include <cmath>
 #include <cstdio>
@@ -541,6 +542,12 @@ TEST_F(TabulateTest, BadFieldsAndOverLimitGridsAreNamed) {
       {[&](v1::TabulateRequest& r) { plane(r); r.set_precision(static_cast<v1::Precision>(7)); }, "precision:"},
       {[&](v1::TabulateRequest& r) { plane(r); r.mutable_material()->set_preset("burlap"); }, "material.preset"},
   };
+  // The earlier tests' tabulations may still be finishing on the server after their clients saw the deadline or
+  // the cancel (jobs in flight complete, and a job done before the call notices its stop is counted): the count is
+  // taken once no long call holds a slot, i.e. every earlier call object is gone.
+  for (int i = 0; i < 6000 && server_->long_calls_in_use() > 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  ASSERT_EQ(server_->long_calls_in_use(), 0u) << "earlier tabulations never ended";
   const uint64_t before = server_->metrics().tabulated_cells();
   for (size_t i = 0; i < cases.size(); ++i) {
     v1::TabulateRequest r = Request(material, v1::TABLE_FORMAT_RAW);

@@ -29,6 +29,11 @@ export function isAbort(error: unknown): boolean {
   return error instanceof DOMException && error.name === "AbortError";
 }
 
+/** The server is busy (RESOURCE_EXHAUSTED: its or this client's share of long calls or memory in use): retry. */
+export function isBusy(error: unknown): boolean {
+  return error instanceof ConnectError && error.code === Code.ResourceExhausted;
+}
+
 /** The server's message (never a stack), at most 300 characters. */
 export function messageOf(error: unknown): string {
   let text: string;

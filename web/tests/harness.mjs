@@ -113,6 +113,24 @@ export const readText = (path) => readFileSync(path, "utf8");
  * `final` the thumbnail's last refinement too (docs: the page's contract in web/src/main.ts).
  */
 export async function viewsSettled(page, selectors = ["#lobe", "#halfdiff", "#sphere"], final = true) {
+  try {
+    await viewsReady(page, selectors, final);
+  } catch (error) {
+    // What the page showed when it did not settle: each view's state and change, the status line, the last calls.
+    const seen = await page.evaluate(() => ({
+      change: window.studio?.change,
+      views: [...document.querySelectorAll("[data-state]")].map((e) =>
+        `#${e.id} ${e.dataset.state} change ${e.dataset.change ?? "-"}${e.dataset.final ? " final" : ""}`),
+      status: document.querySelector("#status")?.textContent,
+      errors: [...document.querySelectorAll(".param-error")].map((e) => e.textContent).filter(Boolean),
+      calls: [...document.querySelectorAll("#timings tr[data-rpc]")].slice(0, 12).map((r) => r.textContent),
+    })).catch(() => ({}));
+    error.message += `\nthe page: ${JSON.stringify(seen, null, 1)}`;
+    throw error;
+  }
+}
+
+async function viewsReady(page, selectors, final) {
   await page.waitForFunction(({ selectors, final }) => {
     const change = String(window.studio?.change ?? "");
     const ready = selectors.every((s) => {

@@ -289,3 +289,30 @@ describe("Loomlight Studio on a server that requires tokens", () => {
     await page.close();
   });
 });
+
+describe("Loomlight Studio on a busy server", () => {
+  let busyServer;
+  let busyGateway;
+  before(async () => {
+    // One long call (TextureSlice, Render, Tabulate) per client: the page's slice and thumbnail take turns, the
+    // other answered RESOURCE_EXHAUSTED each time.
+    busyServer = await startServer(["--max-long-calls-per-client", "1"]);
+    busyGateway = await startGateway(busyServer);
+  });
+  after(async () => {
+    await busyGateway?.stop();
+    await busyServer?.stop();
+  });
+
+  test("a view the server turns away as busy tries again until it is served", async () => {
+    const { page, problems } = await openStudio(busyGateway.url);
+    await page.selectOption("#model", "woven");
+    await page.selectOption("#preset", "cotton_twill");
+    await settled(page, ["#lobe", "#halfdiff", "#sphere", "#slice"]);
+    assert.ok((await callCount(busyServer, "TextureSlice", "RESOURCE_EXHAUSTED")) +
+              (await callCount(busyServer, "Render", "RESOURCE_EXHAUSTED")) > 0, "the server did turn calls away");
+    assert.equal(await page.textContent("#status"), "");
+    assert.deepEqual(problems, []);
+    await page.close();
+  });
+});

@@ -1,7 +1,22 @@
 // What every view shares: its element's data-state/data-change, and aborting its own call in flight when the
 // next change comes (so the server stops work nobody will see).
 import type { Material, ModelInfo } from "../../gen/loomlight/v1/loomlight_pb.js";
-import { isAbort } from "../api.js";
+import { isAbort, isBusy } from "../api.js";
+
+// A busy server says "retry later" (RESOURCE_EXHAUSTED), e.g. while the calls a quick run of edits aborted are
+// still ending there: the view stays busy and tries again, after 0.2 s, doubling up to every 3 s, until it is
+// served or the next change replaces it.
+const busyRetryMs = (attempt: number) => Math.min(3000, 200 * 2 ** attempt);
+
+function pause(ms: number, signal: AbortSignal): Promise<void> {
+  return new Promise((resolve) => {
+    const timer = setTimeout(resolve, ms);
+    signal.addEventListener("abort", () => {
+      clearTimeout(timer);
+      resolve();
+    }, { once: true });
+  });
+}
 
 export interface ViewContext {
   material: Material;
@@ -44,14 +59,25 @@ export class ViewSlot {
       shown: () => (this.element.dataset.change = String(change)),
     };
     try {
-      const state = await draw(ctx);
-      if (controller.signal.aborted) return;
-      if (state === "hidden") ctx.shown();
-      this.state = state ?? "done";
-    } catch (error) {
-      if (controller.signal.aborted || isAbort(error)) return;
-      this.state = "error";
-      onError(error);
+      for (let attempt = 0; ; ++attempt) {
+        try {
+          const state = await draw(ctx);
+          if (controller.signal.aborted) return;
+          if (state === "hidden") ctx.shown();
+          this.state = state ?? "done";
+          return;
+        } catch (error) {
+          if (controller.signal.aborted || isAbort(error)) return;
+          if (isBusy(error)) {
+            await pause(busyRetryMs(attempt), controller.signal);
+            if (controller.signal.aborted) return;
+            continue;
+          }
+          this.state = "error";
+          onError(error);
+          return;
+        }
+      }
     } finally {
       if (this.controller === controller) this.controller = null;
     }

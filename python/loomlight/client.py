@@ -17,7 +17,7 @@ from . import tables
 from ._api import health_pb2, pb, pb_grpc
 from ._docs import with_rpc_doc
 from .errors import LoomlightError, from_rpc_error, invalid_argument
-from .materials import Material, Schemas, as_material
+from .materials import Material, Schemas, add_params, as_material
 
 # The server's send and receive limit (server/api/service.h kMaxMessageBytes): a client that accepts less would
 # fail on a large render or a large batch of evaluations the server allows.
@@ -34,6 +34,11 @@ def _read_file(path, what):
             return f.read()
     except OSError as error:
         raise OSError(f"{what}: cannot read {path}: {error.strerror}") from None
+
+
+def _file_bytes(value, what):
+    """A file's bytes given as bytes, or read from a path on this machine."""
+    return bytes(value) if isinstance(value, (bytes, bytearray)) else _read_file(value, what)
 
 
 def _directions(value, name, columns=3):
@@ -69,12 +74,6 @@ def _enum_value(enum, value, where):
     raise invalid_argument(f"{where}: '{str(value)[:64]}' is not a {enum.name} ({choices})")
 
 
-def _params(container, values, where):
-    """Fills repeated Param from a {name: value} mapping (as Material.params)."""
-    for name, value in values.items():
-        container.add().CopyFrom(Material(params={name: value}).to_proto().params[0])
-
-
 def fill(message, fields, where=""):
     """Sets a request's fields from keyword values: nested messages as dicts or messages, enums by short name,
     Materials as loomlight.Material or preset names, Param lists as {name: value}. Unknown names are refused."""
@@ -95,7 +94,7 @@ def _assign(message, descriptor, value, where):
         if repeated:
             container = getattr(message, descriptor.name)
             if kind == "loomlight.v1.Param" and isinstance(value, dict):
-                _params(container, value, where)
+                add_params(container, value)
                 return
             if kind == "loomlight.v1.MaterialBinding" and isinstance(value, dict):
                 for mesh_material, material in value.items():
@@ -136,7 +135,7 @@ def mesh_source(mesh, format="auto"):
         return mesh
     if isinstance(mesh, str):
         return pb.MeshSource(name=mesh)
-    data = bytes(mesh) if isinstance(mesh, (bytes, bytearray)) else _read_file(mesh, "mesh")
+    data = _file_bytes(mesh, "mesh")
     return pb.MeshSource(data=pb.MeshData(format=_enum_value(pb.MeshFormat.DESCRIPTOR, format, "mesh.format"),
                                           data=data))
 
@@ -302,15 +301,11 @@ class Client:
         self.close()
 
     def _unary(self, method, request, timeout):
+        """A call with one reply: a unary one, or a client-streaming one (`request` an iterator of messages, sent
+        as it yields them). `method` is the stub's name for it, or the callable itself."""
+        call = getattr(self.stub, method) if isinstance(method, str) else method
         try:
-            return getattr(self.stub, method)(request, timeout=self._deadline(timeout))
-        except grpc.RpcError as error:
-            raise from_rpc_error(error) from None
-
-    def _upload(self, method, messages, timeout):
-        """A client-streaming call: the messages are sent as the generator yields them."""
-        try:
-            return getattr(self.stub, method)(messages, timeout=self._deadline(timeout))
+            return call(request, timeout=self._deadline(timeout))
         except grpc.RpcError as error:
             raise from_rpc_error(error) from None
 
@@ -330,10 +325,7 @@ class Client:
 
     def health(self, service="", timeout=None):
         """The server's health (grpc.health.v1): "SERVING", "NOT_SERVING" (e.g. a task stalled) or "UNKNOWN"."""
-        try:
-            response = self._health(health_pb2.HealthCheckRequest(service=service), timeout=self._deadline(timeout))
-        except grpc.RpcError as error:
-            raise from_rpc_error(error) from None
+        response = self._unary(self._health, health_pb2.HealthCheckRequest(service=service), timeout)
         return health_pb2.HealthCheckResponse.ServingStatus.Name(response.status)
 
     # ---- models and materials ----
@@ -370,6 +362,12 @@ class Client:
         material = as_material(material)
         self.check(material, where)
         return material.to_proto()
+
+    def _bind(self, container, panels, where):
+        """{mesh material: material} into a repeated MaterialBinding, each material checked."""
+        for index, (panel, material) in enumerate((panels or {}).items()):
+            container.add(mesh_material=panel).material.CopyFrom(
+                self._material_proto(material, f"{where}[{index}].material"))
 
     @with_rpc_doc("ListScenes", "ListScenesRequest")
     def scenes(self, timeout=None):
@@ -524,9 +522,7 @@ class Client:
             request.mesh.CopyFrom(mesh_source(mesh))
         elif scene is not None:
             request.scene_name = scene
-        for index, (panel, panel_material) in enumerate((materials or {}).items()):
-            request.materials.add(mesh_material=panel).material.CopyFrom(
-                self._material_proto(panel_material, f"materials[{index}].material"))
+        self._bind(request.materials, materials, "materials")
         encoded = format != "array"
         request.format = _enum_value(pb.RenderFormat.DESCRIPTOR, format if encoded else "exr", "format")
         fill(request, fields)
@@ -611,7 +607,7 @@ class Client:
             for view, light, data in images:
                 yield pb.UploadBtfMessage(image=pb.BtfImage(view=list(view), light=list(light), data=data))
 
-        return self._upload("UploadBtf", messages(), timeout)
+        return self._unary("UploadBtf", messages(), timeout)
 
     @with_rpc_doc("ListBtfs", "ListBtfsRequest")
     def btfs(self, timeout=None):
@@ -628,7 +624,7 @@ class Client:
     def upload_mesh(self, name, mesh, format="auto", *, timeout=None):
         """Stores a glTF 2.0 (.glb, or .gltf with embedded buffers) or OBJ file on the server under `name`, for
         render(mesh=name); mesh is the file's bytes or path. Returns its MeshInfo (materials, bounds, UVs...)."""
-        data = bytes(mesh) if isinstance(mesh, (bytes, bytearray)) else _read_file(mesh, "mesh")
+        data = _file_bytes(mesh, "mesh")
         header = pb.UploadMeshHeader(name=name, size=len(data),
                                      format=_enum_value(pb.MeshFormat.DESCRIPTOR, format, "format"))
 
@@ -637,7 +633,7 @@ class Client:
             for start in range(0, len(data), UPLOAD_CHUNK_BYTES):
                 yield pb.UploadMeshMessage(chunk=data[start:start + UPLOAD_CHUNK_BYTES])
 
-        return self._upload("UploadMesh", messages(), timeout)
+        return self._unary("UploadMesh", messages(), timeout)
 
     @with_rpc_doc("ListMeshes", "ListMeshesRequest")
     def meshes(self, timeout=None):
@@ -662,25 +658,21 @@ class Client:
         request = pb.FitMaterialRequest(name=name,
                                         target=_enum_value(pb.FitTarget.DESCRIPTOR, target, "target"),
                                         format=_enum_value(pb.ExportFormat.DESCRIPTOR, format, "format"))
+        if path is not None and request.format == pb.EXPORT_FORMAT_NONE:
+            raise invalid_argument("path: format 'none' writes no file")  # said before the fit, not after
         if material is not None:
             request.material.CopyFrom(self._material_proto(material))
         if mesh is not None:
             request.mesh.CopyFrom(mesh_source(mesh))
-        for index, (panel, panel_material) in enumerate((materials or {}).items()):
-            request.bindings.add(mesh_material=panel).material.CopyFrom(
-                self._material_proto(panel_material, f"bindings[{index}].material"))
+        self._bind(request.bindings, materials, "bindings")
         for index, (colourway, value) in enumerate((colourways or {}).items()):
             entry = request.colourways.add(name=colourway)
             spec = value if isinstance(value, dict) else {"material": value}
             if spec.get("material") is not None:
                 entry.material.CopyFrom(self._material_proto(spec["material"], f"colourways[{index}].material"))
-            for j, (panel, panel_material) in enumerate(spec.get("bindings", {}).items()):
-                entry.bindings.add(mesh_material=panel).material.CopyFrom(
-                    self._material_proto(panel_material, f"colourways[{index}].bindings[{j}].material"))
+            self._bind(entry.bindings, spec.get("bindings"), f"colourways[{index}].bindings")
         response = self._unary("FitMaterial", request, timeout)
         if path is not None:
-            if not response.file:
-                raise invalid_argument("path: format 'none' writes no file")
             with open(path, "wb") as f:
                 f.write(response.file)
         return Fit(list(response.fits), [Material.from_proto(fit.fitted) for fit in response.fits], response.file,

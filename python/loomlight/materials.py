@@ -32,14 +32,7 @@ class Material:
 
     def to_proto(self):
         message = pb.Material(preset=self.preset, model=self.model)
-        for name, value in self.params.items():
-            param = message.params.add(name=name)
-            if isinstance(value, str):
-                param.text = value
-            elif isinstance(value, (int, float)):
-                param.values.append(float(value))
-            else:
-                param.values.extend(float(v) for v in value)
+        add_params(message.params, self.params)
         if self.transmission is not None:
             message.transmission.CopyFrom(self.transmission.to_proto())
         return message
@@ -56,6 +49,19 @@ class Material:
                 params[param.name] = tuple(param.values)
         transmission = cls.from_proto(message.transmission) if message.HasField("transmission") else None
         return cls(message.preset, message.model, params, transmission)
+
+
+def add_params(container, params):
+    """Appends {name: value} to a repeated loomlight.v1.Param: a string as text, a number as one value, a sequence
+    as its values (material and scene parameters alike)."""
+    for name, value in params.items():
+        param = container.add(name=name)
+        if isinstance(value, str):
+            param.text = value
+        elif isinstance(value, (int, float)):
+            param.values.append(float(value))
+        else:
+            param.values.extend(float(v) for v in value)
 
 
 MaterialLike = Union[Material, str, "pb.Material"]

@@ -168,3 +168,31 @@ def test_enum_names_and_request_fields_are_checked(client):
         client.render("velvet", width=8, height=8, format="gif")
     with pytest.raises(TypeError, match="no field 'colour'"):
         client.render("velvet", width=8, height=8, colour="red")
+
+
+def test_a_fit_to_a_path_without_a_file_format_is_refused_before_the_fit(client, tmp_path):
+    with pytest.raises(loomlight.InvalidArgumentError) as refused:
+        client.fit_material("velvet", "gltf_sheen", path=str(tmp_path / "velvet.txt"))
+    assert refused.value.client_side and refused.value.message.startswith("path: format 'none'")
+    assert not (tmp_path / "velvet.txt").exists()
+
+
+def test_bindings_are_checked_where_they_are_named(client):
+    bad = loomlight.Material(preset="velvet", params={"eta": 9.0})
+    with pytest.raises(loomlight.InvalidArgumentError) as refused:
+        client.fit_material("velvet", colourways={"night": {"material": "velvet", "bindings": {"cloth": bad}}})
+    assert refused.value.client_side
+    assert refused.value.message.startswith("colourways[0].bindings[0].material.params[0]")
+    with pytest.raises(loomlight.InvalidArgumentError) as refused:
+        client.render(materials={"cloth": bad}, mesh="any_mesh", width=8, height=8)
+    assert refused.value.message.startswith("materials[0].material.params[0]")
+
+
+def test_scene_parameters_go_as_a_mapping(client):
+    small, large = (client.render("velvet", "sphere", width=32, height=32, samples_per_pixel=1,
+                                  background="transparent", scene_params={"radius": radius})
+                    for radius in (0.5, 1.5))
+    assert 0 < small.fill < large.fill  # the sphere's radius reached the scene
+    with pytest.raises(loomlight.InvalidArgumentError) as refused:
+        client.render("velvet", "sphere", width=8, height=8, scene_params={"no_such_parameter": 1})
+    assert not refused.value.client_side and "scene_params" in refused.value.message

@@ -10,7 +10,9 @@ import { writeFileSync } from "node:fs";
 import { cpus, loadavg } from "node:os";
 import { join } from "node:path";
 import { parseArgs } from "node:util";
-import { buildDir, connectCall, launchBrowser, repo, startGateway, startServer } from "../tests/harness.mjs";
+import {
+  buildDir, connectCall, launchBrowser, pickMaterial, repo, startGateway, startServer,
+} from "../tests/harness.mjs";
 
 const { values } = parseArgs({ options: { changes: { type: "string", default: "100" } } });
 const changes = Number(values.changes);
@@ -38,8 +40,7 @@ const gateway = await startGateway(server);
 const browser = await launchBrowser();
 const page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
 await page.goto(gateway.url);
-await page.selectOption("#model", "microcylinder");
-await page.selectOption("#preset", "velvet");
+await pickMaterial(page, "microcylinder", "velvet");
 
 // Page-side instruments: the time each view's data-change / data-final reached a change, seen by a
 // MutationObserver as the page sets them.

@@ -8,9 +8,9 @@ import { createClient } from "@connectrpc/connect";
 import { createConnectTransport } from "@connectrpc/connect-node";
 import { Loomlight } from "../gen/loomlight/v1/loomlight_pb.js";
 import {
-  EDITOR_TOKEN, PIPELINE_TOKEN, callCount, cliModels, connectCall, startGateway, startServer, startTlsServer, tlsDir,
+  EDITOR_TOKEN, PIPELINE_TOKEN, callCount, cliModels, connectCall, startGateway, startServer, startTlsGateway,
+  startTlsServer,
 } from "./harness.mjs";
-import { join } from "node:path";
 
 const UP = [0, 0, 1];
 
@@ -173,8 +173,7 @@ describe("gateway in front of a TLS server with tokens", () => {
   let gateway;
   before(async () => {
     server = await startTlsServer();
-    gateway = await startGateway(server, ["--upstream-tls-ca", join(tlsDir, "ca.pem"),
-                                          "--upstream-server-name", "localhost"]);
+    gateway = await startTlsGateway(server);
   });
   after(async () => {
     await gateway?.stop();

@@ -74,6 +74,17 @@ export async function startGateway(server, extraArgs = []) {
   return { url, log, stop: stopper(child) };
 }
 
+/** The gateway in front of startTlsServer's server: trusting the test CA, whose certificate names "localhost". */
+export function startTlsGateway(server) {
+  return startGateway(server, ["--upstream-tls-ca", join(tlsDir, "ca.pem"), "--upstream-server-name", "localhost"]);
+}
+
+/** Picks a model, then one of its presets, as a designer does (a model resets the preset list). */
+export async function pickMaterial(page, model, preset) {
+  await page.selectOption("#model", model);
+  await page.selectOption("#preset", preset);
+}
+
 /** Headless Debian chromium through playwright-core. */
 export async function launchBrowser() {
   const { chromium } = await import("playwright-core");

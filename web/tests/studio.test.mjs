@@ -9,8 +9,8 @@ import { join } from "node:path";
 import { after, before, describe, test } from "node:test";
 import { spawnSync } from "node:child_process";
 import {
-  EDITOR_TOKEN, buildDir, callCount, connectCall, launchBrowser, repo, startGateway, startServer, startTlsServer, tlsDir,
-  viewsSettled, web,
+  EDITOR_TOKEN, buildDir, callCount, connectCall, launchBrowser, pickMaterial, repo, startGateway, startServer,
+  startTlsGateway, startTlsServer, viewsSettled, web,
 } from "./harness.mjs";
 
 const screenshots = process.env.LOOMLIGHT_STUDIO_SCREENSHOTS ?? join(repo, "build", "studio-screenshots");
@@ -126,8 +126,7 @@ describe("Loomlight Studio", () => {
 
   test("moving a slider changes the lobe and the thumbnail", async () => {
     const { page, problems } = await openStudio();
-    await page.selectOption("#model", "microcylinder");
-    await page.selectOption("#preset", "velvet");
+    await pickMaterial(page, "microcylinder", "velvet");
     await settled(page);
     await page.screenshot({ path: join(screenshots, "studio-velvet.png") });
     const lobe = await pixels(page, "#lobe");
@@ -148,8 +147,7 @@ describe("Loomlight Studio", () => {
 
   test("a refused value shows the server's message next to its control, and the views keep their image", async () => {
     const { page, problems } = await openStudio();
-    await page.selectOption("#model", "microcylinder");
-    await page.selectOption("#preset", "velvet");
+    await pickMaterial(page, "microcylinder", "velvet");
     await settled(page);
     const lobe = await pixels(page, "#lobe");
     const good = await page.$eval("#lobe", (e) => e.dataset.change);
@@ -172,8 +170,7 @@ describe("Loomlight Studio", () => {
 
   test("the next change cancels the render in flight, as the server's metrics show", async () => {
     const { page } = await openStudio();
-    await page.selectOption("#model", "microcylinder");
-    await page.selectOption("#preset", "velvet");
+    await pickMaterial(page, "microcylinder", "velvet");
     await settled(page);
     const before = await callCount(server, "Render", "CANCELLED");
     // A change, then another while its thumbnail is still refining: the refinement's stream is aborted. (A render
@@ -196,8 +193,7 @@ describe("Loomlight Studio", () => {
 
   test("a woven material shows its texture slice", async () => {
     const { page, problems } = await openStudio();
-    await page.selectOption("#model", "woven");
-    await page.selectOption("#preset", "cotton_twill");
+    await pickMaterial(page, "woven", "cotton_twill");
     await settled(page, ["#lobe", "#halfdiff", "#sphere", "#slice"]);
     assert.equal(await page.$eval("#slice", (e) => e.dataset.state), "done");
     assert.ok(await page.$eval("#slice", (e) => e.naturalWidth > 0));
@@ -208,8 +204,7 @@ describe("Loomlight Studio", () => {
 
   test("the current material downloads as an EXR table and a glTF fit", async () => {
     const { page, problems } = await openStudio();
-    await page.selectOption("#model", "microcylinder");
-    await page.selectOption("#preset", "silk_shot");
+    await pickMaterial(page, "microcylinder", "silk_shot");
     await settled(page, ["#lobe"], false);
     const download = async (button) => {
       const [file] = await Promise.all([page.waitForEvent("download", { timeout: 240_000 }), page.click(button)]);
@@ -267,8 +262,7 @@ describe("Loomlight Studio on a server that requires tokens", () => {
   let tlsGateway;
   before(async () => {
     tlsServer = await startTlsServer();
-    tlsGateway = await startGateway(tlsServer, ["--upstream-tls-ca", join(tlsDir, "ca.pem"),
-                                                "--upstream-server-name", "localhost"]);
+    tlsGateway = await startTlsGateway(tlsServer);
   });
   after(async () => {
     await tlsGateway?.stop();
@@ -306,8 +300,7 @@ describe("Loomlight Studio on a busy server", () => {
 
   test("a view the server turns away as busy tries again until it is served", async () => {
     const { page, problems } = await openStudio(busyGateway.url);
-    await page.selectOption("#model", "woven");
-    await page.selectOption("#preset", "cotton_twill");
+    await pickMaterial(page, "woven", "cotton_twill");
     await settled(page, ["#lobe", "#halfdiff", "#sphere", "#slice"]);
     assert.ok((await callCount(busyServer, "TextureSlice", "RESOURCE_EXHAUSTED")) +
               (await callCount(busyServer, "Render", "RESOURCE_EXHAUSTED")) > 0, "the server did turn calls away");

@@ -8,8 +8,8 @@ import { createClient } from "@connectrpc/connect";
 import { createConnectTransport } from "@connectrpc/connect-node";
 import { Loomlight } from "../gen/loomlight/v1/loomlight_pb.js";
 import {
-  EDITOR_TOKEN, PIPELINE_TOKEN, callCount, cliModels, connectCall, startGateway, startServer, startTlsGateway,
-  startTlsServer,
+  EDITOR_TOKEN, PIPELINE_TOKEN, UNREAD_TABLE_CELLS, callCount, cliModels, connectCall, startGateway, startServer,
+  startTlsGateway, startTlsServer, startUnreadTable,
 } from "./harness.mjs";
 
 const UP = [0, 0, 1];
@@ -119,19 +119,7 @@ describe("gateway in front of a plaintext server", () => {
     loris.write("POST /loomlight.v1.Loomlight/Evaluate HTTP/1.1\r\nHost: x\r\ncontent-type: application/json\r\n" +
                 "content-length: 100000\r\n\r\n{");
     // A 50 MB table streamed to a browser that never reads it.
-    const cellsTotal = 32 * 64 * 32 * 64;
-    const reader = netConnect(Number(port), hostname);
-    const message = Buffer.from(JSON.stringify({
-      material: { preset: "velvet" }, format: "TABLE_FORMAT_RAW",
-      anisotropic: { thetaICount: 32, phiICount: 64, thetaOCount: 32, phiOCount: 64 },
-    }));
-    const envelope = Buffer.alloc(5);
-    envelope.writeUInt32BE(message.length, 1);
-    reader.write("POST /loomlight.v1.Loomlight/Tabulate HTTP/1.1\r\nHost: x\r\n" +
-                 "content-type: application/connect+json\r\nconnect-protocol-version: 1\r\n" +
-                 `content-length: ${message.length + 5}\r\n\r\n`);
-    reader.write(Buffer.concat([envelope, message]));
-    reader.pause();
+    const reader = startUnreadTable(gateway.url);
     const cells = async () => {
       const text = await (await fetch(`http://127.0.0.1:${server.metricsPort}/metrics`)).text();
       const line = text.split("\n").find((l) => l.startsWith("loomlight_tabulated_cells_total{"));
@@ -151,7 +139,7 @@ describe("gateway in front of a plaintext server", () => {
       await new Promise((resolve) => setTimeout(resolve, 2000));
       [previous, current] = [current, await cells()];
     }
-    assert.ok(current < cellsTotal, `${current} of ${cellsTotal} cells computed for a reader that reads nothing`);
+    assert.ok(current < UNREAD_TABLE_CELLS, `${current} of ${UNREAD_TABLE_CELLS} cells computed for a reader that reads nothing`);
     const cancelled = await callCount(server, "Tabulate", "CANCELLED");
     reader.destroy();
     loris.destroy();

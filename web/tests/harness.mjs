@@ -3,6 +3,7 @@
 // playwright-core. $LOOMLIGHT_BUILD_DIR names the build tree (default ./build), $CHROMIUM the browser.
 import { spawn, spawnSync } from "node:child_process";
 import { mkdtempSync, readFileSync, rmSync } from "node:fs";
+import { connect as netConnect } from "node:net";
 import { tmpdir } from "node:os";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
@@ -83,6 +84,31 @@ export function startTlsGateway(server) {
 export async function pickMaterial(page, model, preset) {
   await page.selectOption("#model", model);
   await page.selectOption("#preset", preset);
+}
+
+/** The cells of UNREAD_TABLE: 32 x 64 x 32 x 64, 50 MB of RAW floats. */
+export const UNREAD_TABLE_CELLS = 32 * 64 * 32 * 64;
+
+/**
+ * A browser that asks the gateway for a 50 MB table (Tabulate, the Connect protocol over a raw socket) and never
+ * reads it: the call stays open on the server, holding one of its client's long-call slots, until the returned
+ * socket is destroyed.
+ */
+export function startUnreadTable(url) {
+  const { port, hostname } = new URL(url);
+  const socket = netConnect(Number(port), hostname);
+  const message = Buffer.from(JSON.stringify({
+    material: { preset: "velvet" }, format: "TABLE_FORMAT_RAW",
+    anisotropic: { thetaICount: 32, phiICount: 64, thetaOCount: 32, phiOCount: 64 },
+  }));
+  const envelope = Buffer.alloc(5); // Connect's envelope: flags 0, then the message's length
+  envelope.writeUInt32BE(message.length, 1);
+  socket.write("POST /loomlight.v1.Loomlight/Tabulate HTTP/1.1\r\nHost: x\r\n" +
+               "content-type: application/connect+json\r\nconnect-protocol-version: 1\r\n" +
+               `content-length: ${message.length + 5}\r\n\r\n`);
+  socket.write(Buffer.concat([envelope, message]));
+  socket.pause();
+  return socket;
 }
 
 /** Headless Debian chromium through playwright-core. */
